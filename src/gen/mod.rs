@@ -1,0 +1,1 @@
+//! Scene generators: the Cornell box and procedural scenes of any size, for examples and tests.

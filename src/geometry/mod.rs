@@ -1,0 +1,1 @@
+//! Integer line directions with exact solid angles, discrete lines and lexicographic orders.

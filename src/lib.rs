@@ -1,0 +1,14 @@
+//! voxrad: diffuse global illumination (radiosity) of very large scenes by the discrete,
+//! voxel-based method of Chatelier and Malgouyres, parallelised as in Zrour et al.
+//!
+//! The pipeline, one module each: `scene` (read or generate triangles and materials) ->
+//! `voxel` (tunnel-free voxelization into surfels) -> `geometry` (integer directions, discrete
+//! lines, lexicographic orders) -> `solve` (dispatch into lines, propagate, Jacobi iterations) ->
+//! `output` (report, per-voxel results, PLY, picture, probes). `gen` makes test and example scenes.
+
+pub mod gen;
+pub mod geometry;
+pub mod output;
+pub mod scene;
+pub mod solve;
+pub mod voxel;

@@ -1,0 +1,1 @@
+//! What a solve writes: `report.json`, per-voxel results, a coloured PLY, a PNG preview; probes.

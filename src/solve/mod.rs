@@ -1,0 +1,42 @@
+//! The radiosity solver: Jacobi iterations over all line directions.
+//!
+//! Pipeline of one solve: per-normal energy normalisation (`normalize`), then iterations; each
+//! iteration walks the directions, and per direction dispatches surfels into their discrete lines
+//! (`dispatch`) and gathers light along each line (`propagate`). `jacobi` owns the iteration loop,
+//! the stopping rule and the result.
+
+pub mod dispatch;
+pub mod jacobi;
+pub mod normalize;
+pub mod propagate;
+
+pub use jacobi::{solve, SolveOptions};
+
+/// Radiosity of every surfel, by side (`FRONT`, `BACK`) and RGB channel, in the units of `Ke`.
+#[derive(Clone, Debug, Default)]
+pub struct Solution {
+    pub radiosity: Vec<[[f32; 3]; 2]>,
+    pub stats: SolveStats,
+}
+
+/// What a solve did, for the report.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct SolveStats {
+    pub directions: usize,
+    pub iterations: usize,
+    pub converged: bool,
+    /// Estimated relative error left in `B` when the solve stopped (see `jacobi`).
+    pub residual: f64,
+    /// Relative change of the last iteration.
+    pub last_change: f64,
+    pub threads: usize,
+    /// Seconds spent in dispatch (building lines) and in propagation, summed over iterations.
+    pub dispatch_seconds: f64,
+    pub propagate_seconds: f64,
+    pub normalize_seconds: f64,
+    /// Surfel-side updates: surfels x line directions x iterations.
+    pub updates: u64,
+    /// Emitted and absorbed power per channel (world units: B times area).
+    pub emitted_power: [f64; 3],
+    pub absorbed_power: [f64; 3],
+}

@@ -1,0 +1,112 @@
+//! Surface voxels and the surface elements (surfels) they hold.
+//!
+//! The voxelizer (`voxelize`) turns a [`crate::scene::Scene`] into a [`SurfelSet`]: a [`Grid`]
+//! (origin, voxel size, dimensions) and a list of [`Surfel`]s. A surfel is the part of one plane
+//! group (coplanar triangles, see `voxelize`) inside one voxel: a voxel where two walls meet holds
+//! two surfels, a corner voxel three. Surfels are two-sided: side 0 ("front") faces along
+//! `normal`, side 1 ("back") faces along `-normal`; each side has its own material and radiosity.
+//!
+//! Positions inside the solver are in voxel units: voxel `v` covers `[v, v + 1)` on each axis and
+//! a surfel's surface point is `v + point`. World position = `grid.origin + (v + point) * voxel_size`.
+
+pub mod normals;
+pub mod voxelize;
+
+use glam::DVec3;
+
+/// The voxel grid: world position of voxel `(0, 0, 0)`'s low corner, the edge length of a voxel,
+/// and the number of voxels along each axis.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Grid {
+    pub origin: [f64; 3],
+    pub voxel_size: f64,
+    pub dims: [u32; 3],
+}
+
+impl Grid {
+    /// World position of a point given in voxel units.
+    pub fn to_world(&self, p: DVec3) -> DVec3 {
+        DVec3::from(self.origin) + p * self.voxel_size
+    }
+
+    /// Voxel-unit position of a world point.
+    pub fn to_voxel_units(&self, p: DVec3) -> DVec3 {
+        (p - DVec3::from(self.origin)) / self.voxel_size
+    }
+}
+
+/// Side index of the front side (facing along the surfel normal).
+pub const FRONT: usize = 0;
+/// Side index of the back side (facing along minus the surfel normal).
+pub const BACK: usize = 1;
+
+/// One surface element: the piece of one plane group inside one voxel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Surfel {
+    /// Integer voxel coordinates.
+    pub voxel: [i32; 3],
+    /// Surface point relative to the voxel's low corner, in voxel units, each in `[0, 1]`.
+    pub point: [f32; 3],
+    /// Unit normal of the front side (equal to `normals.get(normal_id)`).
+    pub normal: [f32; 3],
+    /// Index into the set's normal table.
+    pub normal_id: u32,
+    /// Plane group: surfels with the same group lie on one plane and never light each other.
+    pub group: u32,
+    /// Area of surface inside the voxel, in voxel-size squared (0 for a voxel only touched).
+    pub area: f32,
+    /// Material index of the front and the back side.
+    pub material: [u32; 2],
+}
+
+impl Surfel {
+    /// The surface point in voxel units (absolute).
+    pub fn position(&self) -> DVec3 {
+        DVec3::new(
+            self.voxel[0] as f64 + self.point[0] as f64,
+            self.voxel[1] as f64 + self.point[1] as f64,
+            self.voxel[2] as f64 + self.point[2] as f64,
+        )
+    }
+
+    /// Unit normal of side `side` (FRONT or BACK).
+    pub fn side_normal(&self, side: usize) -> DVec3 {
+        let n = DVec3::new(
+            self.normal[0] as f64,
+            self.normal[1] as f64,
+            self.normal[2] as f64,
+        );
+        if side == FRONT {
+            n
+        } else {
+            -n
+        }
+    }
+}
+
+/// The voxelized scene: grid, surfels and the tables they index.
+#[derive(Clone, Debug)]
+pub struct SurfelSet {
+    pub grid: Grid,
+    pub surfels: Vec<Surfel>,
+    /// Distinct unit normals; `Surfel::normal_id` indexes it.
+    pub normals: Vec<[f32; 3]>,
+    /// Materials, as in the scene.
+    pub materials: Vec<crate::scene::Material>,
+}
+
+impl SurfelSet {
+    /// Number of distinct voxels (surfels sharing a voxel count once). Surfels are grouped by
+    /// voxel after voxelization, so equal voxels are adjacent.
+    pub fn voxel_count(&self) -> usize {
+        let mut count = 0;
+        let mut last: Option<[i32; 3]> = None;
+        for s in &self.surfels {
+            if last != Some(s.voxel) {
+                count += 1;
+                last = Some(s.voxel);
+            }
+        }
+        count
+    }
+}
