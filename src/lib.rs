@@ -9,6 +9,7 @@
 pub mod gen;
 pub mod geometry;
 pub mod output;
+pub mod progress;
 pub mod scene;
 pub mod solve;
 pub mod voxel;

@@ -9,7 +9,6 @@
 //! Positions inside the solver are in voxel units: voxel `v` covers `[v, v + 1)` on each axis and
 //! a surfel's surface point is `v + point`. World position = `grid.origin + (v + point) * voxel_size`.
 
-pub mod normals;
 pub mod voxelize;
 
 use glam::DVec3;

@@ -1,1 +1,589 @@
-//! (to be written)
+//! Tunnel-free surface voxelization into surfels.
+//!
+//! A voxel `v` holds a surface when a triangle meets the cube `[v, v + 1]` other than only on
+//! its three *far* faces (those where the plane's coordinate `n.x` is largest). For a plane this
+//! selects the *standard* digital plane `{mu <= n.v < mu + |n|_1}`, which has no 26-tunnel: two
+//! 26-neighbours differ in `n.v` by at most `|n|_1`, so no 26-connected discrete line can cross the
+//! surface without containing one of its voxels, and light cannot leak through walls (the naive
+//! plane, thinner, leaks along diagonals). Voxels a triangle only touches on a near face, edge or
+//! corner are kept (with zero area).
+//!
+//! Triangles are grouped into **plane groups**: coplanar triangles (same unoriented plane, to
+//! 1e-6 in the normal and 1e-4 voxel in the offset) share a group whatever side they face. Each
+//! (voxel, group) pair becomes one [`Surfel`] whose surface point is the area-weighted centroid of
+//! the group's triangles clipped to the voxel (the mean contact point for zero area). So a voxel on
+//! the edge of two walls holds two surfels, a corner voxel three, and a thin two-sided sheet (a
+//! single quad lit from both sides) one surfel with two sides. The group normal's orientation is
+//! canonical (first non-zero component positive); a triangle facing the other way feeds the back
+//! side. Each side takes the material covering most of its area; a side no triangle faces (the
+//! back of a one-sided wall) takes the other side's reflectance without its emission, because
+//! emission leaves the front of a triangle only.
+//!
+//! Not done here: triangles of a finely tessellated curved surface are not merged, so a voxel may
+//! hold several surfels of nearly parallel planes; they behave correctly (they do not light each
+//! other) but cost memory.
+
+use super::{Grid, Surfel, SurfelSet, BACK, FRONT};
+use crate::scene::{Material, Scene};
+use glam::DVec3;
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// How the grid is chosen.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GridSpec {
+    /// This many voxels along the longest side of the scene's bounds (at least 2).
+    Resolution(u32),
+    /// Voxel edge length in scene units.
+    VoxelSize(f64),
+}
+
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum VoxelizeError {
+    #[error("resolution {0} is too small: use at least 2 voxels along the longest side")]
+    ResolutionTooSmall(u32),
+    #[error("voxel size {0} must be a positive finite number")]
+    BadVoxelSize(f64),
+    #[error("the scene is a single point (all vertices equal): it has no extent to voxelize")]
+    NoExtent,
+    #[error(
+        "the grid would be {dims:?} voxels; the largest supported is {max} along each axis \
+         (lower --resolution or raise the voxel size)"
+    )]
+    GridTooLarge { dims: [u64; 3], max: u64 },
+    #[error("the scene produced {0} surfels; at most 4294967295 are supported in one set")]
+    TooManySurfels(usize),
+}
+
+/// Largest grid edge: keeps `(i, j)` line counts and voxel coordinates comfortably in range.
+pub const MAX_GRID_EDGE: u64 = 1 << 20;
+
+/// Chooses the grid so that the scene's bounding planes pass through voxel centres (a wall on the
+/// bounds is then one voxel thick instead of straddling two layers).
+pub fn grid_for(scene: &Scene, spec: GridSpec) -> Result<Grid, VoxelizeError> {
+    let bounds = scene.bounds();
+    let extent = bounds.extent();
+    let longest = extent.max_element();
+    let voxel_size = match spec {
+        GridSpec::Resolution(n) if n < 2 => return Err(VoxelizeError::ResolutionTooSmall(n)),
+        GridSpec::Resolution(n) => {
+            if longest <= 0.0 {
+                return Err(VoxelizeError::NoExtent);
+            }
+            longest / (n - 1) as f64
+        }
+        GridSpec::VoxelSize(v) if !(v.is_finite() && v > 0.0) => {
+            return Err(VoxelizeError::BadVoxelSize(v))
+        }
+        GridSpec::VoxelSize(v) => v,
+    };
+    let dims_f = (extent / voxel_size + 0.5).floor() + 1.0;
+    let dims64 = [dims_f.x as u64, dims_f.y as u64, dims_f.z as u64];
+    if dims64.iter().any(|&d| d > MAX_GRID_EDGE) || !dims_f.is_finite() {
+        return Err(VoxelizeError::GridTooLarge {
+            dims: dims64,
+            max: MAX_GRID_EDGE,
+        });
+    }
+    let origin = bounds.min - DVec3::splat(voxel_size * 0.5);
+    Ok(Grid {
+        origin: origin.to_array(),
+        voxel_size,
+        dims: dims64.map(|d| d as u32),
+    })
+}
+
+/// One triangle's share of one voxel.
+#[derive(Clone, Copy, Debug)]
+struct Piece {
+    voxel: [i32; 3],
+    group: u32,
+    side: u8,
+    material: u32,
+    area: f64,
+    /// Area-weighted centroid sum (voxel units, relative to the voxel corner).
+    centroid_sum: DVec3,
+    /// Mean of the clipped polygon's vertices, for zero-area contacts.
+    contact: DVec3,
+}
+
+/// A triangle's plane in voxel units, in canonical orientation.
+struct Plane {
+    normal: DVec3,
+    offset: f64,
+    side: u8,
+}
+
+fn canonical_plane(q: &[DVec3; 3]) -> Option<Plane> {
+    let cross = (q[1] - q[0]).cross(q[2] - q[0]);
+    let len = cross.length();
+    if len.partial_cmp(&1e-14) != Some(std::cmp::Ordering::Greater) {
+        return None;
+    }
+    let mut normal = cross / len;
+    let lead = normal
+        .to_array()
+        .into_iter()
+        .find(|c| c.abs() > 1e-9)
+        .unwrap_or(1.0);
+    let side = if lead < 0.0 {
+        normal = -normal;
+        BACK as u8
+    } else {
+        FRONT as u8
+    };
+    Some(Plane {
+        normal,
+        offset: normal.dot(q[0]),
+        side,
+    })
+}
+
+fn plane_key(p: &Plane) -> [i64; 4] {
+    [
+        (p.normal.x * 1e6).round() as i64,
+        (p.normal.y * 1e6).round() as i64,
+        (p.normal.z * 1e6).round() as i64,
+        (p.offset * 1e4).round() as i64,
+    ]
+}
+
+/// Voxelizes `scene` (which must have passed `Scene::validate`) on the grid `spec` selects.
+pub fn voxelize(scene: &Scene, spec: GridSpec) -> Result<SurfelSet, VoxelizeError> {
+    let grid = grid_for(scene, spec)?;
+    let origin = DVec3::from(grid.origin);
+    let to_voxel = |v: DVec3| (v - origin) / grid.voxel_size;
+
+    // Plane groups and the normal table, assigned in triangle order so ids are reproducible.
+    let mut group_of_key: HashMap<[i64; 4], u32> = HashMap::new();
+    let mut normal_of_key: HashMap<[i64; 3], u32> = HashMap::new();
+    let mut normals: Vec<[f32; 3]> = Vec::new();
+    let mut group_normal: Vec<u32> = Vec::new();
+    let mut planes: Vec<Option<(Plane, u32)>> = Vec::with_capacity(scene.triangles.len());
+    for t in &scene.triangles {
+        let q = t.vertices.map(to_voxel);
+        let entry = canonical_plane(&q).map(|plane| {
+            let key = plane_key(&plane);
+            let next = group_of_key.len() as u32;
+            let group = *group_of_key.entry(key).or_insert(next);
+            if group == next {
+                let nkey = [key[0], key[1], key[2]];
+                let next_normal = normals.len() as u32;
+                let id = *normal_of_key.entry(nkey).or_insert(next_normal);
+                if id == next_normal {
+                    normals.push(plane.normal.as_vec3().to_array());
+                }
+                group_normal.push(id);
+            }
+            (plane, group)
+        });
+        planes.push(entry);
+    }
+
+    let progress = crate::progress::bar(scene.triangles.len() as u64, "voxelize");
+    let mut pieces: Vec<Piece> = scene
+        .triangles
+        .par_iter()
+        .zip(planes.par_iter())
+        .flat_map_iter(|(t, plane)| {
+            let mut out = Vec::new();
+            if let Some((plane, group)) = plane {
+                let q = t.vertices.map(to_voxel);
+                triangle_pieces(&q, plane, *group, t.material, grid.dims, &mut out);
+            }
+            progress.inc(1);
+            out
+        })
+        .collect();
+    progress.finish_and_clear();
+
+    pieces.par_sort_unstable_by_key(|p| {
+        (
+            p.voxel[2], p.voxel[1], p.voxel[0], p.group, p.side, p.material,
+        )
+    });
+
+    let mut materials = scene.materials.clone();
+    let mut unlit_copy: HashMap<u32, u32> = HashMap::new();
+    let mut surfels = Vec::new();
+    let mut start = 0;
+    while start < pieces.len() {
+        let mut end = start + 1;
+        while end < pieces.len()
+            && pieces[end].voxel == pieces[start].voxel
+            && pieces[end].group == pieces[start].group
+        {
+            end += 1;
+        }
+        let run = &pieces[start..end];
+        surfels.push(merge_run(
+            run,
+            &group_normal,
+            &normals,
+            &mut materials,
+            &mut unlit_copy,
+        ));
+        start = end;
+    }
+    if surfels.len() > u32::MAX as usize {
+        return Err(VoxelizeError::TooManySurfels(surfels.len()));
+    }
+    Ok(SurfelSet {
+        grid,
+        surfels,
+        normals,
+        materials,
+    })
+}
+
+/// Merges the pieces of one (voxel, group) into a surfel.
+fn merge_run(
+    run: &[Piece],
+    group_normal: &[u32],
+    normals: &[[f32; 3]],
+    materials: &mut Vec<Material>,
+    unlit_copy: &mut HashMap<u32, u32>,
+) -> Surfel {
+    let area: f64 = run.iter().map(|p| p.area).sum();
+    let point = if area > 1e-12 {
+        run.iter().map(|p| p.centroid_sum).sum::<DVec3>() / area
+    } else {
+        run.iter().map(|p| p.contact).sum::<DVec3>() / run.len() as f64
+    }
+    .clamp(DVec3::ZERO, DVec3::ONE);
+    // Per side: the material with the largest area (pieces are sorted by side, then material).
+    let mut side_material: [Option<(u32, f64)>; 2] = [None, None];
+    let mut k = 0;
+    while k < run.len() {
+        let (side, material) = (run[k].side as usize, run[k].material);
+        let mut a = 0.0;
+        while k < run.len() && run[k].side as usize == side && run[k].material == material {
+            a += run[k].area;
+            k += 1;
+        }
+        if side_material[side].is_none_or(|(_, best)| a > best) {
+            side_material[side] = Some((material, a));
+        }
+    }
+    let mut unlit = |m: u32| -> u32 {
+        if !materials[m as usize].is_emitter() {
+            return m;
+        }
+        *unlit_copy.entry(m).or_insert_with(|| {
+            let source = &materials[m as usize];
+            let copy = Material::new(
+                &format!("{} (unlit side)", source.name),
+                source.reflectance,
+                [0.0; 3],
+            );
+            materials.push(copy);
+            (materials.len() - 1) as u32
+        })
+    };
+    let material = match side_material {
+        [Some((f, _)), Some((b, _))] => [f, b],
+        [Some((f, _)), None] => [f, unlit(f)],
+        [None, Some((b, _))] => [unlit(b), b],
+        [None, None] => unreachable!("a run holds at least one piece"),
+    };
+    let group = run[0].group;
+    let normal_id = group_normal[group as usize];
+    Surfel {
+        voxel: run[0].voxel,
+        point: point.as_vec3().to_array(),
+        normal: normals[normal_id as usize],
+        normal_id,
+        group,
+        area: area as f32,
+        material,
+    }
+}
+
+/// Appends the pieces of one triangle (vertices in voxel units) to `out`.
+fn triangle_pieces(
+    q: &[DVec3; 3],
+    plane: &Plane,
+    group: u32,
+    material: u32,
+    dims: [u32; 3],
+    out: &mut Vec<Piece>,
+) {
+    let lo = q[0].min(q[1]).min(q[2]).floor();
+    let hi = q[0].max(q[1]).max(q[2]).floor();
+    let clamp = |x: f64, k: usize| x.clamp(0.0, dims[k] as f64 - 1.0) as i64;
+    let lo = [clamp(lo.x, 0), clamp(lo.y, 1), clamp(lo.z, 2)];
+    let hi = [clamp(hi.x, 0), clamp(hi.y, 1), clamp(hi.z, 2)];
+    let n = plane.normal.to_array();
+    // Walk columns along the dominant normal axis w; in each, only the layers the plane crosses.
+    let w = (0..3)
+        .max_by(|&a, &b| n[a].abs().total_cmp(&n[b].abs()))
+        .unwrap_or(2);
+    let (u, v) = ((w + 1) % 3, (w + 2) % 3);
+    let plane_w = |pu: f64, pv: f64| (plane.offset - n[u] * pu - n[v] * pv) / n[w];
+    let mut polygon = Vec::with_capacity(12);
+    let mut scratch = Vec::with_capacity(12);
+    for cu in lo[u]..=hi[u] {
+        for cv in lo[v]..=hi[v] {
+            let (fu, fv) = (cu as f64, cv as f64);
+            let corners = [
+                plane_w(fu, fv),
+                plane_w(fu + 1.0, fv),
+                plane_w(fu, fv + 1.0),
+                plane_w(fu + 1.0, fv + 1.0),
+            ];
+            let wmin = corners.iter().copied().fold(f64::INFINITY, f64::min);
+            let wmax = corners.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            let first = (wmin.floor() as i64).max(lo[w]);
+            let last = (wmax.floor() as i64).min(hi[w]);
+            for cw in first..=last {
+                let mut voxel = [0i64; 3];
+                voxel[u] = cu;
+                voxel[v] = cv;
+                voxel[w] = cw;
+                let corner = DVec3::new(voxel[0] as f64, voxel[1] as f64, voxel[2] as f64);
+                polygon.clear();
+                polygon.extend(q.iter().map(|p| *p - corner));
+                clip_to_unit_cube(&mut polygon, &mut scratch);
+                if polygon.is_empty() || only_on_far_face(&polygon, n) {
+                    continue;
+                }
+                let (area, centroid_sum) = polygon_area_centroid(&polygon);
+                let contact = polygon.iter().sum::<DVec3>() / polygon.len() as f64;
+                out.push(Piece {
+                    voxel: voxel.map(|c| c as i32),
+                    group,
+                    side: plane.side,
+                    material,
+                    area,
+                    centroid_sum,
+                    contact,
+                });
+            }
+        }
+    }
+}
+
+/// Sutherland-Hodgman clipping of a convex polygon to the closed cube `[0, 1]^3`. Points on the
+/// cube's boundary are kept, so contacts along faces, edges and corners survive as degenerate
+/// polygons. Intersection points get the bound's exact coordinate.
+fn clip_to_unit_cube(polygon: &mut Vec<DVec3>, scratch: &mut Vec<DVec3>) {
+    for axis in 0..3 {
+        for (bound, keep_below) in [(0.0, false), (1.0, true)] {
+            if polygon.is_empty() {
+                return;
+            }
+            scratch.clear();
+            let inside = |p: &DVec3| {
+                if keep_below {
+                    p[axis] <= bound
+                } else {
+                    p[axis] >= bound
+                }
+            };
+            for k in 0..polygon.len() {
+                let a = polygon[k];
+                let b = polygon[(k + 1) % polygon.len()];
+                let (ia, ib) = (inside(&a), inside(&b));
+                if ia {
+                    scratch.push(a);
+                }
+                if ia != ib {
+                    let t = (bound - a[axis]) / (b[axis] - a[axis]);
+                    let mut p = a + (b - a) * t;
+                    p[axis] = bound;
+                    scratch.push(p);
+                }
+            }
+            std::mem::swap(polygon, scratch);
+        }
+    }
+}
+
+/// True when every point lies on one of the cube's three *far* faces: for axis `k` the face where
+/// `n.x` is largest (`x_k = 1` if `n_k >= 0`, else `x_k = 0`). Such a contact belongs to the
+/// neighbouring voxel. This makes the kept voxels exactly the standard digital plane
+/// `{mu <= n.v < mu + |n|_1}`: half-open in the plane's own coordinate, so a plane through lattice
+/// corners can neither be doubled nor thinned into a 26-tunnel. (Half-open cubes `[v, v + 1)` would
+/// be open at both ends of that range for normals with mixed signs.)
+fn only_on_far_face(polygon: &[DVec3], normal: [f64; 3]) -> bool {
+    (0..3).any(|axis| {
+        if normal[axis] < 0.0 {
+            polygon.iter().all(|p| p[axis] <= 0.0)
+        } else {
+            polygon.iter().all(|p| p[axis] >= 1.0)
+        }
+    })
+}
+
+/// Area and area-weighted centroid sum of a planar convex polygon (fan triangulation).
+fn polygon_area_centroid(polygon: &[DVec3]) -> (f64, DVec3) {
+    let mut area = 0.0;
+    let mut sum = DVec3::ZERO;
+    for k in 1..polygon.len().saturating_sub(1) {
+        let (a, b, c) = (polygon[0], polygon[k], polygon[k + 1]);
+        let t = 0.5 * (b - a).cross(c - a).length();
+        area += t;
+        sum += (a + b + c) / 3.0 * t;
+    }
+    (area, sum)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::{Material, Scene};
+    use std::collections::HashSet;
+
+    fn single_triangle_scene(v: [DVec3; 3]) -> Scene {
+        let mut scene = Scene::default();
+        let m = scene.add_material(Material::new("grey", [0.5; 3], [0.0; 3]));
+        scene.add_polygon(&v, m);
+        // Two far points fix the bounds (and so the grid origin, -100.5) whatever the triangle.
+        scene.add_polygon(&[DVec3::splat(-100.0); 3], m);
+        scene.add_polygon(&[DVec3::splat(100.0); 3], m);
+        scene
+    }
+
+    /// Walks a 26-connected discrete line through the grid and reports whether it meets a voxel
+    /// of `set`; the line starts on one side of the plane and ends on the other.
+    #[test]
+    fn oblique_planes_have_no_26_tunnels() {
+        let planes = [
+            DVec3::new(1.0, 1.0, 0.0),
+            DVec3::new(1.0, 2.0, 3.0),
+            DVec3::new(-2.0, 1.0, 5.0),
+            DVec3::new(1.0, 1.0, 1.0),
+            DVec3::new(1.0, 1.0, 0.0),
+        ];
+        for (k, n) in planes.into_iter().enumerate() {
+            let n = n.normalize();
+            // A big triangle through c; the last plane, x + y = 16, passes exactly through lattice
+            // corners (the case where a wrongly half-opened cube would thin the plane).
+            let c = if k == 4 {
+                DVec3::new(8.0, 8.0, 8.0)
+            } else {
+                DVec3::splat(8.3)
+            };
+            let t1 = n.any_orthonormal_vector();
+            let t2 = n.cross(t1);
+            let v = if k == 4 {
+                [
+                    DVec3::new(-32.0, 48.0, -40.0),
+                    DVec3::new(48.0, -32.0, -40.0),
+                    DVec3::new(8.0, 8.0, 60.0),
+                ]
+            } else {
+                [
+                    c + t1 * 40.0,
+                    c - t1 * 20.0 + t2 * 35.0,
+                    c - t1 * 20.0 - t2 * 35.0,
+                ]
+            };
+            let set = voxelize(&single_triangle_scene(v), GridSpec::VoxelSize(1.0)).unwrap();
+            assert_eq!(set.grid.origin, [-100.5; 3]);
+            let origin = DVec3::from(set.grid.origin);
+            let voxels: HashSet<[i32; 3]> = set.surfels.iter().map(|s| s.voxel).collect();
+            // Every 26-connected line step crossing the plane must hit a surface voxel.
+            let side = |p: [i32; 3]| {
+                let centre =
+                    origin + DVec3::new(p[0] as f64 + 0.5, p[1] as f64 + 0.5, p[2] as f64 + 0.5);
+                (centre - c).dot(n)
+            };
+            // Scan a block around the centre, well inside the triangle (its inradius is 20).
+            let centre = ((c - origin) / set.grid.voxel_size).floor().as_ivec3();
+            for x in centre.x - 6..centre.x + 6 {
+                for y in centre.y - 6..centre.y + 6 {
+                    for z in centre.z - 6..centre.z + 6 {
+                        let a = [x, y, z];
+                        for dx in -1..=1 {
+                            for dy in -1..=1 {
+                                for dz in -1..=1 {
+                                    let b = [x + dx, y + dy, z + dz];
+                                    if side(a) < 0.0 && side(b) > 0.0 {
+                                        assert!(
+                                            voxels.contains(&a) || voxels.contains(&b),
+                                            "tunnel between {a:?} and {b:?} for normal {n:?}"
+                                        );
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn axis_aligned_wall_on_bounds_is_one_voxel_thick_and_area_is_conserved() {
+        let mut scene = Scene::default();
+        let m = scene.add_material(Material::new("w", [0.5; 3], [1.0; 3]));
+        scene.add_box(DVec3::ZERO, DVec3::ONE, m, true);
+        let set = voxelize(&scene, GridSpec::Resolution(9)).unwrap();
+        assert_eq!(set.grid.dims, [9, 9, 9]);
+        // Each wall covers 9x9 voxels; 6 walls share 12 edges (2 surfels each) and 8 corners.
+        assert_eq!(set.voxel_count(), 9 * 9 * 9 - 7 * 7 * 7);
+        assert_eq!(set.surfels.len(), 6 * 81);
+        let total_area: f64 = set.surfels.iter().map(|s| s.area as f64).sum();
+        let expected = 6.0 / (set.grid.voxel_size * set.grid.voxel_size);
+        assert!(
+            (total_area - expected).abs() < 1e-6 * expected,
+            "{total_area} vs {expected}"
+        );
+        // Inward-facing walls: the front of the floor (z=0 wall) faces +z.
+        for s in &set.surfels {
+            let p = s.position();
+            let centre = DVec3::splat(4.5);
+            assert!(p.cmpge(DVec3::ZERO).all() && p.cmple(DVec3::splat(9.0)).all());
+            // Walls face inwards, so the emitting side is the one whose normal points inwards.
+            let side = if set.materials[s.material[FRONT] as usize].is_emitter() {
+                FRONT
+            } else {
+                BACK
+            };
+            assert!(!set.materials[s.material[1 - side] as usize].is_emitter());
+            assert!(
+                (centre - p).dot(s.side_normal(side)) > 0.0,
+                "surfel {s:?} emits outwards"
+            );
+        }
+    }
+
+    #[test]
+    fn back_of_an_emitter_does_not_emit() {
+        let mut scene = Scene::default();
+        let lamp = scene.add_material(Material::new("lamp", [0.2; 3], [5.0; 3]));
+        scene.add_polygon(
+            &[DVec3::ZERO, DVec3::X, DVec3::new(1.0, 1.0, 0.0), DVec3::Y],
+            lamp,
+        );
+        let set = voxelize(&scene, GridSpec::Resolution(5)).unwrap();
+        for s in &set.surfels {
+            let emits: Vec<bool> = s
+                .material
+                .iter()
+                .map(|&m| set.materials[m as usize].is_emitter())
+                .collect();
+            assert_eq!(emits.iter().filter(|&&e| e).count(), 1);
+        }
+    }
+
+    #[test]
+    fn rejects_bad_specs() {
+        let mut scene = Scene::default();
+        let m = scene.add_material(Material::new("w", [0.5; 3], [0.0; 3]));
+        scene.add_box(DVec3::ZERO, DVec3::ONE, m, true);
+        assert_eq!(
+            voxelize(&scene, GridSpec::Resolution(1)).unwrap_err(),
+            VoxelizeError::ResolutionTooSmall(1)
+        );
+        assert!(matches!(
+            voxelize(&scene, GridSpec::VoxelSize(-1.0)),
+            Err(VoxelizeError::BadVoxelSize(_))
+        ));
+        assert!(matches!(
+            voxelize(&scene, GridSpec::VoxelSize(1e-9)),
+            Err(VoxelizeError::GridTooLarge { .. })
+        ));
+    }
+}
