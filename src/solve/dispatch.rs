@@ -1,1 +1,166 @@
-//! (to be written)
+//! Dispatch: putting the surfels of one direction into their discrete lines.
+//!
+//! The surfels arrive in the lexicographic order that sorts every line along the direction
+//! (`geometry::order`). Following the paper's section 3.1, each thread takes an equal, contiguous
+//! part of that order and dispatches it into its own partial lists; the partial lists of a line
+//! are then stitched end to end. Here the lists live in one array: a counting pass gives each
+//! (line, thread) pair its slot range, laid out so that thread `t`'s partial list of a line sits
+//! just before thread `t + 1`'s. Stitching therefore costs nothing, no list is ever re-sorted, and
+//! the result is the same array for any thread count.
+
+use crate::geometry::lines::LineFrame;
+use rayon::prelude::*;
+
+/// A surfel in an order: its voxel (for the line index) and its index in the surfel set.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OrderedEntry {
+    pub voxel: [i32; 3],
+    pub index: u32,
+}
+
+/// The lines of one direction: `members[starts[l]..starts[l + 1]]` are line `l`'s surfel indices,
+/// sorted along the direction. Buffers are reused across directions.
+#[derive(Default)]
+pub struct Lines {
+    pub starts: Vec<u32>,
+    pub members: Vec<u32>,
+    /// Per thread: slot counters, then next free slot, per line.
+    counters: Vec<Vec<u32>>,
+}
+
+impl Lines {
+    pub fn line_count(&self) -> usize {
+        self.starts.len().saturating_sub(1)
+    }
+
+    /// Surfel indices of line `line`, in order along the direction.
+    pub fn line(&self, line: usize) -> &[u32] {
+        &self.members[self.starts[line] as usize..self.starts[line + 1] as usize]
+    }
+}
+
+/// Fills `lines` for `frame` from `ordered` using `threads` contiguous parts.
+pub fn dispatch(ordered: &[OrderedEntry], frame: &LineFrame, threads: usize, lines: &mut Lines) {
+    let line_count = frame.line_count as usize;
+    let parts = threads.max(1);
+    let part_len = ordered.len().div_ceil(parts).max(1);
+    lines.counters.resize_with(parts, Vec::new);
+    // 1. Each thread counts its part's surfels per line.
+    lines
+        .counters
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(t, counts)| {
+            counts.clear();
+            counts.resize(line_count, 0);
+            let part = ordered.chunks(part_len).nth(t).unwrap_or(&[]);
+            for e in part {
+                counts[frame.line_index(e.voxel) as usize] += 1;
+            }
+        });
+    // 2. Slot ranges: line by line, thread by thread (partial lists laid end to end).
+    lines.starts.clear();
+    lines.starts.reserve(line_count + 1);
+    let mut next = 0u32;
+    for l in 0..line_count {
+        lines.starts.push(next);
+        for counts in lines.counters.iter_mut() {
+            let c = counts[l];
+            counts[l] = next;
+            next += c;
+        }
+    }
+    lines.starts.push(next);
+    // 3. Each thread appends its part to its partial lists, keeping the order.
+    lines.members.clear();
+    lines.members.resize(ordered.len(), 0);
+    let members = SharedSlots(lines.members.as_mut_ptr());
+    lines
+        .counters
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(t, slots)| {
+            let part = ordered.chunks(part_len).nth(t).unwrap_or(&[]);
+            for e in part {
+                let slot = &mut slots[frame.line_index(e.voxel) as usize];
+                // SAFETY: the slot ranges of different (line, thread) pairs are disjoint and lie in
+                // `0..ordered.len()` (step 2 hands out exactly `ordered.len()` slots), so every write
+                // goes to a distinct element of `members`, which outlives this loop.
+                unsafe { members.write(*slot as usize, e.index) };
+                *slot += 1;
+            }
+        });
+}
+
+/// A pointer to slots that threads fill at provably disjoint indices.
+#[derive(Clone, Copy)]
+struct SharedSlots(*mut u32);
+// SAFETY: used only for writes at disjoint indices (see `dispatch`).
+unsafe impl Send for SharedSlots {}
+unsafe impl Sync for SharedSlots {}
+
+impl SharedSlots {
+    /// # Safety
+    /// `index` must be in bounds and written by no other thread.
+    unsafe fn write(self, index: usize, value: u32) {
+        unsafe { *self.0.add(index) = value };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{lines::line_of, order};
+
+    #[test]
+    fn lists_are_complete_sorted_and_thread_independent() {
+        let dims = [9, 7, 5];
+        let mut voxels = Vec::new();
+        for x in 0..9 {
+            for y in 0..7 {
+                for z in 0..5 {
+                    if (x * 7 + y * 3 + z) % 3 != 0 {
+                        voxels.push([x, y, z]);
+                    }
+                }
+            }
+        }
+        for s in [[2i64, -1, 3], [-1, -1, 1], [3, 0, 0], [1, 2, 2]] {
+            let o = order::order_of(s);
+            let mut ordered: Vec<OrderedEntry> = voxels
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| OrderedEntry {
+                    voxel: v,
+                    index: i as u32,
+                })
+                .collect();
+            ordered.sort_by_key(|e| order::sort_key(o, e.voxel));
+            let frame = LineFrame::new(s, dims);
+            let mut reference = Lines::default();
+            dispatch(&ordered, &frame, 1, &mut reference);
+            for threads in [2, 3, 8] {
+                let mut lines = Lines::default();
+                dispatch(&ordered, &frame, threads, &mut lines);
+                assert_eq!(lines.starts, reference.starts);
+                assert_eq!(lines.members, reference.members);
+            }
+            let mut seen = vec![false; voxels.len()];
+            for l in 0..reference.line_count() {
+                let line = reference.line(l);
+                for w in line.windows(2) {
+                    let (a, b) = (voxels[w[0] as usize], voxels[w[1] as usize]);
+                    assert_eq!(line_of(s, a.map(i64::from)), line_of(s, b.map(i64::from)));
+                    let along =
+                        |v: [i32; 3]| v[0] as i64 * s[0] + v[1] as i64 * s[1] + v[2] as i64 * s[2];
+                    assert!(along(b) > along(a));
+                }
+                for &m in line {
+                    assert!(!seen[m as usize]);
+                    seen[m as usize] = true;
+                }
+            }
+            assert!(seen.iter().all(|&x| x));
+        }
+    }
+}

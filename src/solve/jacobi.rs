@@ -1,3 +1,297 @@
-//! (to be written)
-pub struct SolveOptions;
-pub fn solve() {}
+//! The iteration loop: Jacobi sweeps over all line directions, the stopping rule, energy.
+//!
+//! One iteration gathers, for every surfel side, `H = sum over s of B_prev(partner) cos W(s) / pi`
+//! over all directions (accumulated in f64, in direction order), then sets
+//! `B = E + rho * H / S(n)` (see `normalize`). Radiosity is stored in f32 between iterations.
+//!
+//! **Stopping.** The relative change of an iteration is `delta_k = sum A |B_k - B_{k-1}| / sum A B_k`
+//! over sides and channels (A the surfel area). Jacobi converges geometrically, so the error left
+//! after iteration k is about `delta_k * q / (1 - q)` with `q = delta_k / delta_{k-1}` the observed
+//! contraction (about the scene's reflectance). That estimate is the reported `residual`, and the
+//! solve stops when it is below the tolerance: so a scene with reflectance 0.999 runs long enough,
+//! where a bare `delta_k < tolerance` would stop about `rho / (1 - rho)` times too early.
+
+use super::dispatch::{dispatch, Lines, OrderedEntry};
+use super::normalize::cosine_sums;
+use super::propagate::{gather_line, DirectionInput, PropSurfel};
+use super::{Solution, SolveStats};
+use crate::geometry::directions::DirectionSet;
+use crate::geometry::lines::LineFrame;
+use crate::geometry::order;
+use crate::voxel::SurfelSet;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// How to solve.
+#[derive(Clone, Debug)]
+pub struct SolveOptions {
+    /// Approximate number of line directions (the cube set closest to it is used).
+    pub directions: usize,
+    /// Largest number of iterations.
+    pub max_iterations: usize,
+    /// Stop when the estimated relative error left is below this; `None` runs `max_iterations`.
+    pub tolerance: Option<f64>,
+    /// Worker threads (0: all cores).
+    pub threads: usize,
+}
+
+impl Default for SolveOptions {
+    fn default() -> Self {
+        SolveOptions {
+            directions: 1000,
+            max_iterations: 1000,
+            tolerance: Some(1e-4),
+            threads: 0,
+        }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SolveError {
+    #[error("could not start {threads} worker threads: {message}")]
+    Threads { threads: usize, message: String },
+}
+
+/// Solves the radiosity of `set` with the cube direction set closest to `options.directions`.
+pub fn solve(set: &SurfelSet, options: &SolveOptions) -> Result<Solution, SolveError> {
+    let directions = DirectionSet::with_count(options.directions);
+    solve_with(set, &directions, options)
+}
+
+/// Solves with an explicit direction set.
+pub fn solve_with(
+    set: &SurfelSet,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+) -> Result<Solution, SolveError> {
+    let threads = if options.threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        options.threads
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| SolveError::Threads {
+            threads,
+            message: e.to_string(),
+        })?;
+    Ok(pool.install(|| run(set, directions, options, threads)))
+}
+
+fn run(
+    set: &SurfelSet,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    threads: usize,
+) -> Solution {
+    let n = set.surfels.len();
+    let started = Instant::now();
+    let cosine_sum = cosine_sums(&set.normals, directions);
+    let normalize_seconds = started.elapsed().as_secs_f64();
+
+    let surfels: Vec<PropSurfel> = set
+        .surfels
+        .iter()
+        .map(|s| PropSurfel {
+            voxel: s.voxel,
+            group: s.group,
+            point: s.point,
+            normal: s.normal,
+        })
+        .collect();
+    // The four lexicographic orders, sorted once.
+    let orders: Vec<Vec<OrderedEntry>> = (0..4)
+        .into_par_iter()
+        .map(|o| {
+            let mut entries: Vec<OrderedEntry> = set
+                .surfels
+                .iter()
+                .enumerate()
+                .map(|(i, s)| OrderedEntry {
+                    voxel: s.voxel,
+                    index: i as u32,
+                })
+                .collect();
+            entries.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
+            entries
+        })
+        .collect();
+    let frames: Vec<LineFrame> = directions
+        .directions
+        .iter()
+        .map(|d| LineFrame::new(d.vector, set.grid.dims))
+        .collect();
+
+    let emission: Vec<[[f32; 3]; 2]> = set
+        .surfels
+        .iter()
+        .map(|s| {
+            s.material
+                .map(|m| set.materials[m as usize].emission.map(|e| e as f32))
+        })
+        .collect();
+    let reflectance: Vec<[[f64; 3]; 2]> = set
+        .surfels
+        .iter()
+        .map(|s| s.material.map(|m| set.materials[m as usize].reflectance))
+        .collect();
+
+    let mut stats = SolveStats {
+        directions: directions.len(),
+        threads,
+        normalize_seconds,
+        ..Default::default()
+    };
+    let mut radiosity = emission.clone();
+    let mut acc = vec![[[0f64; 3]; 2]; n];
+    let mut lines = Lines::default();
+    let mut previous_change: Option<f64> = None;
+    let any_light = emission
+        .iter()
+        .any(|e| e.iter().flatten().any(|&v| v > 0.0));
+    let progress = crate::progress::bar(options.max_iterations as u64, "iterations");
+
+    for iteration in 1..=options.max_iterations {
+        if !any_light {
+            stats.converged = true;
+            break;
+        }
+        acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+        for (d, frame) in directions.directions.iter().zip(&frames) {
+            let t0 = Instant::now();
+            dispatch(
+                &orders[order::order_of(d.vector)],
+                frame,
+                threads,
+                &mut lines,
+            );
+            let t1 = Instant::now();
+            let input = DirectionInput {
+                unit: d.unit,
+                weight: d.solid_angle / std::f64::consts::PI,
+                surfels: &surfels,
+                radiosity: &radiosity,
+            };
+            gather_all_lines(&lines, &input, &mut acc, threads);
+            stats.dispatch_seconds += (t1 - t0).as_secs_f64();
+            stats.propagate_seconds += t1.elapsed().as_secs_f64();
+        }
+        stats.updates += (n * directions.len()) as u64;
+
+        // B = E + rho H / S, and the change it makes.
+        let (mut change, mut total) = (0.0f64, 0.0f64);
+        for k in 0..n {
+            let s = &set.surfels[k];
+            let norm = cosine_sum[s.normal_id as usize];
+            let area = s.area as f64;
+            for side in 0..2 {
+                for ch in 0..3 {
+                    let b = emission[k][side][ch] as f64
+                        + reflectance[k][side][ch] * acc[k][side][ch] / norm;
+                    change += area * (b - radiosity[k][side][ch] as f64).abs();
+                    total += area * b;
+                    radiosity[k][side][ch] = b as f32;
+                }
+            }
+        }
+        let relative = if total > 0.0 { change / total } else { 0.0 };
+        let estimate = match previous_change {
+            _ if relative == 0.0 => 0.0,
+            Some(prev) if prev > 0.0 && relative < prev => {
+                let q = relative / prev;
+                relative * q / (1.0 - q)
+            }
+            _ => f64::INFINITY,
+        };
+        stats.iterations = iteration;
+        stats.last_change = relative;
+        stats.residual = estimate;
+        progress.inc(1);
+        tracing::debug!(iteration, relative, estimate, "iteration done");
+        previous_change = Some(relative);
+        if options.tolerance.is_some_and(|tol| estimate <= tol) {
+            stats.converged = true;
+            break;
+        }
+    }
+    progress.finish_and_clear();
+    if options.tolerance.is_none() {
+        stats.converged = stats.residual.is_finite();
+    }
+    energy(set, &radiosity, &acc, &cosine_sum, &mut stats);
+    Solution { radiosity, stats }
+}
+
+/// Runs `gather_line` over all lines, spread over `threads` in contiguous line ranges of about
+/// equal surfel counts.
+fn gather_all_lines(
+    lines: &Lines,
+    input: &DirectionInput,
+    acc: &mut [[[f64; 3]; 2]],
+    threads: usize,
+) {
+    let line_count = lines.line_count();
+    let total = lines.members.len();
+    let pieces = (threads * 8).max(1);
+    let mut bounds = vec![0usize];
+    for p in 1..pieces {
+        let target = (total * p / pieces) as u32;
+        let at = lines
+            .starts
+            .partition_point(|&s| s < target)
+            .min(line_count);
+        if at > *bounds.last().unwrap_or(&0) {
+            bounds.push(at);
+        }
+    }
+    bounds.push(line_count);
+    let acc_ptr = AccPtr(acc.as_mut_ptr());
+    bounds.par_windows(2).for_each(|w| {
+        let (mut groups, mut partners) = (Vec::new(), Vec::new());
+        for l in w[0]..w[1] {
+            let line = lines.line(l);
+            if line.len() < 2 {
+                continue;
+            }
+            // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of this
+            // direction and line ranges are disjoint, so no entry is touched by two threads.
+            unsafe { gather_line(line, input, &mut groups, &mut partners, acc_ptr.get()) };
+        }
+    });
+}
+
+#[derive(Clone, Copy)]
+struct AccPtr(*mut [[f64; 3]; 2]);
+// SAFETY: shared only for writes at disjoint indices (see `gather_all_lines`).
+unsafe impl Send for AccPtr {}
+unsafe impl Sync for AccPtr {}
+impl AccPtr {
+    fn get(self) -> *mut [[f64; 3]; 2] {
+        self.0
+    }
+}
+
+/// Emitted and absorbed power (world units) from the final gather.
+fn energy(
+    set: &SurfelSet,
+    radiosity: &[[[f32; 3]; 2]],
+    acc: &[[[f64; 3]; 2]],
+    cosine_sum: &[f64],
+    stats: &mut SolveStats,
+) {
+    let _ = radiosity;
+    let area_unit = set.grid.voxel_size * set.grid.voxel_size;
+    for (k, s) in set.surfels.iter().enumerate() {
+        let area = s.area as f64 * area_unit;
+        let norm = cosine_sum[s.normal_id as usize];
+        for side in 0..2 {
+            let m = &set.materials[s.material[side] as usize];
+            for ch in 0..3 {
+                stats.emitted_power[ch] += m.emission[ch] * area;
+                stats.absorbed_power[ch] +=
+                    (1.0 - m.reflectance[ch]) * acc[k][side][ch] / norm * area;
+            }
+        }
+    }
+}

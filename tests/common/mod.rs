@@ -1,0 +1,24 @@
+//! Helpers shared by the integration tests: small scenes built in code.
+#![allow(dead_code)]
+
+use glam::DVec3;
+use voxrad::scene::{Material, Scene};
+use voxrad::voxel::{Surfel, SurfelSet, FRONT};
+
+/// A closed cube `[0, 1]^3` whose six walls face inwards, all emitting `e` with reflectance `rho`.
+pub fn furnace(e: f64, rho: f64) -> Scene {
+    let mut scene = Scene::default();
+    let m = scene.add_material(Material::new("wall", [rho; 3], [e; 3]));
+    scene.add_box(DVec3::ZERO, DVec3::ONE, m, true);
+    scene
+}
+
+/// The side of a surfel that faces into the unit cube's centre.
+pub fn inner_side(s: &Surfel, set: &SurfelSet) -> usize {
+    let centre = set.grid.to_voxel_units(DVec3::splat(0.5));
+    if (centre - s.position()).dot(s.side_normal(FRONT)) > 0.0 {
+        0
+    } else {
+        1
+    }
+}
