@@ -1,0 +1,391 @@
+//! Probes: the radiosity at given surface points, on the side facing a given normal.
+//!
+//! Input is a CSV of rows `x,y,z,nx,ny,nz` in world units (one optional header line, recognised
+//! by having no numeric field; blank lines skipped). For each row, the answer is the area-weighted
+//! mean radiosity of the surfel sides within [`PROBE_RADIUS_VOXELS`] voxels of the point whose
+//! side normal agrees with `n` (dot product above [`MIN_NORMAL_DOT`]): the normal test picks the
+//! side of a wall the probe is on, and keeps the other wall of a corner out. If every such side
+//! has zero area (voxels only touched by the surface), sides are weighted by inverse distance. If
+//! there is none, the radiosity is 0 and [`ProbeRow::found`] is false.
+//!
+//! A hash map from voxel coordinates to surfel indices makes each lookup touch only the 4x4x4
+//! voxels around the point, whatever the scene size.
+//!
+//! Output rows are `x,y,z,nx,ny,nz,B_r,B_g,B_b`, the point and normal echoed as given.
+
+use super::results::{Record, Results};
+use super::{atomic, OutputError};
+use crate::voxel::{BACK, FRONT};
+use glam::DVec3;
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+
+/// Search radius around the probe point, in voxels.
+pub const PROBE_RADIUS_VOXELS: f64 = 1.5;
+/// Smallest cosine between a surfel side's normal and the probe normal for the side to count.
+pub const MIN_NORMAL_DOT: f64 = 0.5;
+
+/// The answer for one probe point.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ProbeRow {
+    /// The point, as given (world units).
+    pub point: DVec3,
+    /// The normal, as given (not normalised).
+    pub normal: DVec3,
+    /// Radiosity on the side facing `normal`, RGB.
+    pub radiosity: [f64; 3],
+    /// False if no surfel side near the point faces `normal` (then `radiosity` is 0).
+    pub found: bool,
+    /// Number of surfel sides averaged.
+    pub samples: usize,
+}
+
+/// Why probing failed. Every case names the CSV file; row errors also the line (1-based).
+#[derive(Debug, thiserror::Error)]
+pub enum ProbeError {
+    #[error("cannot read {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}:{line}: {what}", path.display())]
+    BadRow {
+        path: PathBuf,
+        line: usize,
+        what: String,
+    },
+}
+
+/// Surfels of a results file, indexed by voxel for fast neighbourhood lookups.
+pub struct ProbeIndex<'a> {
+    results: &'a Results,
+    /// Record indices sorted by voxel, so each voxel's records are one contiguous run.
+    order: Vec<usize>,
+    /// Voxel -> (start, length) of its run in `order`.
+    cells: HashMap<[i32; 3], (usize, usize)>,
+}
+
+impl<'a> ProbeIndex<'a> {
+    pub fn new(results: &'a Results) -> Self {
+        let records = &results.records;
+        let mut order: Vec<usize> = (0..records.len()).collect();
+        // Stable, so records of one voxel keep their file order (deterministic averages).
+        order.sort_by_key(|&i| records[i].voxel);
+        let mut cells = HashMap::new();
+        let mut start = 0;
+        while start < order.len() {
+            let voxel = records[order[start]].voxel;
+            let mut end = start + 1;
+            while end < order.len() && records[order[end]].voxel == voxel {
+                end += 1;
+            }
+            cells.insert(voxel, (start, end - start));
+            start = end;
+        }
+        ProbeIndex {
+            results,
+            order,
+            cells,
+        }
+    }
+
+    fn records_in(&self, voxel: [i32; 3]) -> impl Iterator<Item = &Record> + '_ {
+        let (start, len) = self.cells.get(&voxel).copied().unwrap_or((0, 0));
+        self.order[start..start + len]
+            .iter()
+            .map(move |&i| &self.results.records[i])
+    }
+
+    /// Radiosity at `point` (world units) on the side facing `normal` (see the module header).
+    /// `normal` need not be unit length; a zero or non-finite normal finds nothing.
+    pub fn lookup(&self, point: DVec3, normal: DVec3) -> ProbeRow {
+        let mut row = ProbeRow {
+            point,
+            normal,
+            radiosity: [0.0; 3],
+            found: false,
+            samples: 0,
+        };
+        let n = normal.normalize_or_zero();
+        let q = self.results.grid.to_voxel_units(point);
+        if n == DVec3::ZERO || !q.is_finite() {
+            return row;
+        }
+        let r = PROBE_RADIUS_VOXELS;
+        let lo = (q - DVec3::splat(r)).floor();
+        let hi = (q + DVec3::splat(r)).floor();
+        let in_range = |v: f64| v >= i32::MIN as f64 && v <= i32::MAX as f64;
+        if ![lo.x, lo.y, lo.z, hi.x, hi.y, hi.z]
+            .into_iter()
+            .all(in_range)
+        {
+            return row;
+        }
+        // (area, inverse distance, radiosity) of every matching side.
+        let mut matches: Vec<(f64, f64, [f32; 3])> = Vec::new();
+        for x in lo.x as i32..=hi.x as i32 {
+            for y in lo.y as i32..=hi.y as i32 {
+                for z in lo.z as i32..=hi.z as i32 {
+                    for rec in self.records_in([x, y, z]) {
+                        let d = rec.position().distance(q);
+                        if d > r {
+                            continue;
+                        }
+                        for side in [FRONT, BACK] {
+                            if rec.side_normal(side).dot(n) > MIN_NORMAL_DOT {
+                                let inv = 1.0 / d.max(1e-3);
+                                matches.push((rec.area as f64, inv, rec.radiosity[side]));
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        if matches.is_empty() {
+            return row;
+        }
+        let total_area: f64 = matches.iter().map(|m| m.0).sum();
+        let weight = |m: &(f64, f64, [f32; 3])| if total_area > 0.0 { m.0 } else { m.1 };
+        let total: f64 = matches.iter().map(weight).sum();
+        for m in &matches {
+            let w = weight(m) / total;
+            for c in 0..3 {
+                row.radiosity[c] += w * m.2[c] as f64;
+            }
+        }
+        row.found = true;
+        row.samples = matches.len();
+        row
+    }
+}
+
+/// Reads probe points `(point, normal)` from a CSV file (see the module header).
+pub fn read_points(path: &Path) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
+    let io = |source| ProbeError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let bad = |line: usize, what: String| ProbeError::BadRow {
+        path: path.to_path_buf(),
+        line,
+        what,
+    };
+    let mut reader = BufReader::new(File::open(path).map_err(io)?);
+    let mut points = Vec::new();
+    let mut raw = Vec::new();
+    let mut line_no = 0;
+    let mut seen_content = false;
+    loop {
+        raw.clear();
+        if reader.read_until(b'\n', &mut raw).map_err(io)? == 0 {
+            break;
+        }
+        line_no += 1;
+        let text = std::str::from_utf8(&raw)
+            .map_err(|_| bad(line_no, "the line is not UTF-8 text".into()))?;
+        let text = text.trim_start_matches('\u{feff}').trim();
+        if text.is_empty() {
+            continue;
+        }
+        let fields: Vec<&str> = text.split(',').map(str::trim).collect();
+        let first = !seen_content;
+        seen_content = true;
+        if first && fields.iter().all(|f| f.parse::<f64>().is_err()) {
+            continue; // a header line
+        }
+        if fields.len() != 6 {
+            return Err(bad(
+                line_no,
+                format!(
+                    "expected 6 columns x,y,z,nx,ny,nz but found {}",
+                    fields.len()
+                ),
+            ));
+        }
+        let mut v = [0.0f64; 6];
+        for (k, f) in fields.iter().enumerate() {
+            v[k] = match f.parse::<f64>() {
+                Ok(x) if x.is_finite() => x,
+                _ => {
+                    return Err(bad(
+                        line_no,
+                        format!("column {} ('{f}') is not a finite number", k + 1),
+                    ))
+                }
+            };
+        }
+        let normal = DVec3::new(v[3], v[4], v[5]);
+        if normal.length() == 0.0 {
+            return Err(bad(line_no, "the normal is zero".into()));
+        }
+        points.push((DVec3::new(v[0], v[1], v[2]), normal));
+    }
+    Ok(points)
+}
+
+/// Probes every point of `points_csv` in `results`.
+pub fn probe(results: &Results, points_csv: &Path) -> Result<Vec<ProbeRow>, ProbeError> {
+    let points = read_points(points_csv)?;
+    let index = ProbeIndex::new(results);
+    Ok(points
+        .into_iter()
+        .map(|(p, n)| index.lookup(p, n))
+        .collect())
+}
+
+/// Writes probe rows as CSV `x,y,z,nx,ny,nz,B_r,B_g,B_b`, after a header line if `header`.
+pub fn write_rows(out: &mut dyn Write, rows: &[ProbeRow], header: bool) -> std::io::Result<()> {
+    if header {
+        writeln!(out, "x,y,z,nx,ny,nz,B_r,B_g,B_b")?;
+    }
+    for r in rows {
+        let (p, n, b) = (r.point, r.normal, r.radiosity);
+        writeln!(
+            out,
+            "{},{},{},{},{},{},{},{},{}",
+            p.x, p.y, p.z, n.x, n.y, n.z, b[0], b[1], b[2]
+        )?;
+    }
+    Ok(())
+}
+
+/// Writes probe rows to a CSV file (with a header line), atomically.
+pub fn write_probe_csv(path: &Path, rows: &[ProbeRow]) -> Result<(), OutputError> {
+    atomic::write_atomically(path, |w| write_rows(w, rows, true))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::output::testutil;
+    use crate::solve::Solution;
+
+    /// A wall in the plane x = 2.5 (voxel units), front facing +x with B = (1, 2, 3), back facing
+    /// -x with B = (4, 5, 6); one voxel of the wall also holds a floor surfel facing +y (B = 9).
+    fn wall() -> Results {
+        let mut surfels = Vec::new();
+        let mut radiosity = Vec::new();
+        for y in 0..6 {
+            for z in 0..6 {
+                surfels.push(testutil::surfel([2, y, z], [0.5; 3], [1.0, 0.0, 0.0], 1.0));
+                radiosity.push([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]]);
+            }
+        }
+        surfels.push(testutil::surfel(
+            [2, 0, 3],
+            [0.5, 0.0, 0.5],
+            [0.0, 1.0, 0.0],
+            0.5,
+        ));
+        radiosity.push([[9.0; 3], [0.0; 3]]);
+        let set = testutil::set_of(surfels, 0.5);
+        Results::from_solution(
+            &set,
+            &Solution {
+                radiosity,
+                stats: Default::default(),
+            },
+        )
+        .unwrap()
+    }
+
+    /// World position of a voxel-unit point of the `wall` grid (origin (-1, 2, 0.5), size 0.5).
+    fn world(x: f64, y: f64, z: f64) -> String {
+        format!("{},{},{}", -1.0 + 0.5 * x, 2.0 + 0.5 * y, 0.5 + 0.5 * z)
+    }
+
+    #[test]
+    fn probe_picks_the_side_facing_the_normal() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let csv = dir.path().join("points.csv");
+        let text = format!(
+            "x,y,z,nx,ny,nz\n\n{},1,0,0\n{},-2,0.1,0\n{},0,1,0\n{},0,0,1\n{},1,0,0\n",
+            world(2.5, 3.0, 3.0),
+            world(2.5, 3.0, 3.0),
+            world(2.5, 0.0, 3.0),
+            world(2.5, 3.0, 3.0),
+            world(40.0, 3.0, 3.0),
+        );
+        std::fs::write(&csv, text).unwrap();
+        let results = wall();
+        let rows = probe(&results, &csv).unwrap();
+        assert_eq!(rows.len(), 5);
+        assert_eq!(rows[0].radiosity, [1.0, 2.0, 3.0]);
+        assert!(rows[0].found && rows[0].samples > 1);
+        assert_eq!(rows[1].radiosity, [4.0, 5.0, 6.0]);
+        assert_eq!(rows[2].radiosity, [9.0; 3]);
+        // Nothing faces +z, and nothing is near x = 40.
+        for r in &rows[3..] {
+            assert!(!r.found);
+            assert_eq!(r.radiosity, [0.0; 3]);
+        }
+        let mut out = Vec::new();
+        write_rows(&mut out, &rows[..1], false).unwrap();
+        assert_eq!(
+            String::from_utf8(out).unwrap(),
+            format!("{},1,0,0,1,2,3\n", world(2.5, 3.0, 3.0))
+        );
+        let path = dir.path().join("probes.csv");
+        write_probe_csv(&path, &rows).unwrap();
+        let back = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(back.lines().count(), 6);
+    }
+
+    #[test]
+    fn zero_area_sides_fall_back_to_inverse_distance() {
+        let set = testutil::set_of(
+            vec![
+                testutil::surfel([0, 0, 0], [0.5; 3], [0.0, 0.0, 1.0], 0.0),
+                testutil::surfel([1, 0, 0], [0.5; 3], [0.0, 0.0, 1.0], 0.0),
+            ],
+            1.0,
+        );
+        let results = Results::from_solution(
+            &set,
+            &Solution {
+                radiosity: vec![[[1.0; 3], [0.0; 3]], [[4.0; 3], [0.0; 3]]],
+                stats: Default::default(),
+            },
+        )
+        .unwrap();
+        let index = ProbeIndex::new(&results);
+        // Exactly between them: equal weights.
+        let p = results.grid.to_world(DVec3::new(1.0, 0.5, 0.5));
+        let row = index.lookup(p, DVec3::Z);
+        assert!(row.found);
+        assert!((row.radiosity[0] - 2.5).abs() < 1e-9, "{row:?}");
+    }
+
+    #[test]
+    fn bad_rows_name_the_file_and_line() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let csv = dir.path().join("points.csv");
+        let results = wall();
+        for (text, line, says) in [
+            (
+                "x,y,z,nx,ny,nz\n1,2,3,0,0,1\n1,2,3,0,0\n",
+                3,
+                "expected 6 columns",
+            ),
+            ("1,2,3,0,0,1\n\n1,2,abc,0,0,1\n", 3, "column 3 ('abc')"),
+            ("1,2,NaN,0,0,1\n", 1, "column 3 ('NaN')"),
+            ("1,2,3,0,0,1\n1,2,3,0,0,0\n", 2, "normal is zero"),
+            ("x,y,z,nx,ny,nz\nx,y,z,nx,ny,nz\n", 2, "column 1"),
+        ] {
+            std::fs::write(&csv, text).unwrap();
+            let e = probe(&results, &csv).unwrap_err();
+            match &e {
+                ProbeError::BadRow { line: l, .. } => assert_eq!(*l, line, "{text:?}: {e}"),
+                other => panic!("{other}"),
+            }
+            let msg = e.to_string();
+            assert!(msg.contains(&format!("points.csv:{line}:")), "{msg}");
+            assert!(msg.contains(says), "{msg}");
+        }
+        let e = probe(&results, &dir.path().join("missing.csv")).unwrap_err();
+        assert!(e.to_string().contains("missing.csv"), "{e}");
+    }
+}

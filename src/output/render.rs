@@ -1,0 +1,626 @@
+//! A tone-mapped PNG preview of the solution, and the tone mapping the PLY export shares.
+//!
+//! Rendering splats surfels, it does not ray-trace: every surfel's side that faces the camera is
+//! drawn as a screen-space square the size of its projected voxel (a little larger, so that
+//! neighbouring voxels leave no gaps), with a z-buffer so the nearest surfel wins each pixel. A
+//! surfel whose camera-facing side is dark still hides what is behind it, so the back of a wall
+//! is an opaque dark wall, as it should be.
+//!
+//! Tone mapping: linear radiosity times an exposure that maps the 99th percentile of the visible
+//! (positive) luminance to white, clipped, then sRGB-encoded. A percentile rather than the maximum
+//! keeps a small, very bright lamp from making the rest of the picture black.
+//!
+//! [`auto_camera`] frames the scene without help: it tries views from outside along the 6 axis
+//! directions and the 8 diagonals, each fitted to the scene's bounding box, renders each into a
+//! small buffer, and keeps the one that sees the most light (sum of visible luminance). A box open
+//! on one side, like the Cornell box, is then seen through its open side.
+//!
+//! A camera can also be given as text, for a command-line option (see [`Camera::parse`]):
+//! `eye=X,Y,Z;target=X,Y,Z[;up=X,Y,Z][;fov=DEGREES]`, items in any order, world units, `up`
+//! defaulting to `0,1,0` and `fov` (vertical field of view) to 40 degrees.
+
+use super::{atomic, check_pair, luminance, OutputError};
+use crate::solve::Solution;
+use crate::voxel::{SurfelSet, BACK, FRONT};
+use glam::DVec3;
+use std::path::Path;
+
+/// Background of the preview: dark grey, so black (unlit) surfaces stay distinguishable.
+pub const BACKGROUND: [u8; 3] = [40, 40, 40];
+/// The luminance percentile mapped to white.
+pub const EXPOSURE_PERCENTILE: f64 = 0.99;
+/// Largest width or height accepted, to keep a typo from allocating gigabytes.
+pub const MAX_SIDE: u32 = 16384;
+const DEFAULT_FOV: f64 = 40.0;
+
+/// A pinhole camera in world units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    pub eye: DVec3,
+    pub target: DVec3,
+    pub up: DVec3,
+    pub vertical_fov_degrees: f64,
+}
+
+/// Why a camera description was rejected.
+#[derive(Debug, thiserror::Error, PartialEq)]
+#[error("bad camera '{text}': {what} (expected eye=X,Y,Z;target=X,Y,Z[;up=X,Y,Z][;fov=DEGREES])")]
+pub struct CameraParseError {
+    pub text: String,
+    pub what: String,
+}
+
+impl Camera {
+    /// Parses `eye=X,Y,Z;target=X,Y,Z[;up=X,Y,Z][;fov=DEGREES]` (see the module header).
+    pub fn parse(text: &str) -> Result<Camera, CameraParseError> {
+        let fail = |what: String| CameraParseError {
+            text: text.to_string(),
+            what,
+        };
+        let (mut eye, mut target, mut up, mut fov) = (None, None, None, None);
+        for item in text.split(';').map(str::trim).filter(|s| !s.is_empty()) {
+            let (key, value) = item
+                .split_once('=')
+                .ok_or_else(|| fail(format!("'{item}' is not KEY=VALUE")))?;
+            let (key, value) = (key.trim(), value.trim());
+            let slot = match key {
+                "eye" => &mut eye,
+                "target" => &mut target,
+                "up" => &mut up,
+                "fov" => {
+                    let v = parse_number(value).map_err(|w| fail(format!("fov: {w}")))?;
+                    if fov.replace(v).is_some() {
+                        return Err(fail("fov is given twice".into()));
+                    }
+                    continue;
+                }
+                other => {
+                    return Err(fail(format!(
+                        "unknown key '{other}' (known: eye, target, up, fov)"
+                    )))
+                }
+            };
+            let v = parse_vector(value).map_err(|w| fail(format!("{key}: {w}")))?;
+            if slot.replace(v).is_some() {
+                return Err(fail(format!("{key} is given twice")));
+            }
+        }
+        let camera = Camera {
+            eye: eye.ok_or_else(|| fail("eye is missing".into()))?,
+            target: target.ok_or_else(|| fail("target is missing".into()))?,
+            up: up.unwrap_or(DVec3::Y),
+            vertical_fov_degrees: fov.unwrap_or(DEFAULT_FOV),
+        };
+        camera.validate().map_err(fail)?;
+        Ok(camera)
+    }
+
+    /// Checks that the camera defines a view: distinct eye and target, an up vector not along
+    /// the view direction, a field of view strictly between 0 and 180 degrees.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(self.eye.is_finite() && self.target.is_finite() && self.up.is_finite()) {
+            return Err("eye, target and up must be finite".into());
+        }
+        let forward = self.target - self.eye;
+        if forward.length() == 0.0 {
+            return Err("eye and target are the same point".into());
+        }
+        let f = forward.normalize();
+        if self.up.length() == 0.0 || f.cross(self.up.normalize()).length() < 1e-6 {
+            return Err("up is zero or parallel to the view direction".into());
+        }
+        let fov = self.vertical_fov_degrees;
+        if !(fov > 0.0 && fov < 180.0) {
+            return Err(format!("fov {fov} is not between 0 and 180 degrees"));
+        }
+        Ok(())
+    }
+}
+
+impl std::str::FromStr for Camera {
+    type Err = CameraParseError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Camera::parse(s)
+    }
+}
+
+fn parse_number(text: &str) -> Result<f64, String> {
+    match text.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("'{}' is not a finite number", text.trim())),
+    }
+}
+
+fn parse_vector(text: &str) -> Result<DVec3, String> {
+    let parts: Vec<&str> = text.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!("'{text}' needs 3 comma-separated numbers"));
+    }
+    Ok(DVec3::new(
+        parse_number(parts[0])?,
+        parse_number(parts[1])?,
+        parse_number(parts[2])?,
+    ))
+}
+
+/// Linear radiosity to 8-bit sRGB.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ToneMap {
+    /// Multiplier applied to linear radiosity before clipping to 1.
+    pub exposure: f64,
+}
+
+impl ToneMap {
+    /// Exposure mapping the [`EXPOSURE_PERCENTILE`] of the positive luminances to white
+    /// (exposure 1 when nothing is lit).
+    pub fn from_luminances(mut lums: Vec<f64>) -> ToneMap {
+        lums.retain(|l| *l > 0.0 && l.is_finite());
+        if lums.is_empty() {
+            return ToneMap { exposure: 1.0 };
+        }
+        let k = (((lums.len() - 1) as f64) * EXPOSURE_PERCENTILE).round() as usize;
+        let (_, white, _) = lums.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+        ToneMap {
+            exposure: 1.0 / *white,
+        }
+    }
+
+    /// The tone map for a whole solution: percentile over every side that has area or light
+    /// (what the PLY export shows).
+    pub fn for_solution(set: &SurfelSet, solution: &Solution) -> ToneMap {
+        let mut lums = Vec::new();
+        for (s, b) in set.surfels.iter().zip(&solution.radiosity) {
+            for side in [FRONT, BACK] {
+                if s.area > 0.0 || b[side].iter().any(|&v| v != 0.0) {
+                    lums.push(luminance(b[side]));
+                }
+            }
+        }
+        ToneMap::from_luminances(lums)
+    }
+
+    /// 8-bit sRGB colour of a linear radiosity.
+    pub fn map(&self, rgb: [f32; 3]) -> [u8; 3] {
+        rgb.map(|c| {
+            let v = (c as f64 * self.exposure).clamp(0.0, 1.0);
+            let v = if v.is_nan() { 0.0 } else { v };
+            let s = if v <= 0.0031308 {
+                12.92 * v
+            } else {
+                1.055 * v.powf(1.0 / 2.4) - 0.055
+            };
+            (s * 255.0 + 0.5).clamp(0.0, 255.0) as u8
+        })
+    }
+}
+
+/// Camera basis and projection for one image size.
+struct View {
+    eye: DVec3,
+    forward: DVec3,
+    right: DVec3,
+    up: DVec3,
+    width: usize,
+    height: usize,
+    /// Pixels per world unit at depth 1.
+    focal_px: f64,
+}
+
+impl View {
+    fn new(camera: &Camera, width: u32, height: u32) -> Result<View, String> {
+        camera.validate()?;
+        if width == 0 || height == 0 || width > MAX_SIDE || height > MAX_SIDE {
+            return Err(format!(
+                "image size {width}x{height} is not between 1x1 and {MAX_SIDE}x{MAX_SIDE}"
+            ));
+        }
+        let forward = (camera.target - camera.eye).normalize();
+        let right = forward.cross(camera.up).normalize();
+        let up = right.cross(forward);
+        let tan_half = (camera.vertical_fov_degrees.to_radians() * 0.5).tan();
+        Ok(View {
+            eye: camera.eye,
+            forward,
+            right,
+            up,
+            width: width as usize,
+            height: height as usize,
+            focal_px: 0.5 * height as f64 / tan_half,
+        })
+    }
+}
+
+/// A rendered frame in linear radiosity, before tone mapping.
+struct Frame {
+    width: usize,
+    depth: Vec<f32>,
+    color: Vec<[f32; 3]>,
+}
+
+impl Frame {
+    fn covered(&self) -> impl Iterator<Item = [f32; 3]> + '_ {
+        self.depth
+            .iter()
+            .zip(&self.color)
+            .filter(|(d, _)| d.is_finite())
+            .map(|(_, c)| *c)
+    }
+}
+
+/// Splats every surfel side facing the camera (see the module header).
+fn rasterize(set: &SurfelSet, solution: &Solution, view: &View) -> Frame {
+    let (w, h) = (view.width, view.height);
+    let mut frame = Frame {
+        width: w,
+        depth: vec![f32::INFINITY; w * h],
+        color: vec![[0.0; 3]; w * h],
+    };
+    let voxel = set.grid.voxel_size;
+    let near = 1e-3 * voxel;
+    // A splat larger than this is a surfel practically at the eye; drawing it would only cover
+    // the picture with one voxel and cost width x height.
+    let max_half = 0.25 * w.max(h) as f64 + 1.0;
+    for (s, b) in set.surfels.iter().zip(&solution.radiosity) {
+        let p = set.grid.to_world(s.position());
+        let to_eye = view.eye - p;
+        let facing = s.side_normal(FRONT).dot(to_eye);
+        let side = if facing > 0.0 {
+            FRONT
+        } else if facing < 0.0 {
+            BACK
+        } else {
+            continue;
+        };
+        let d = p - view.eye;
+        let z = d.dot(view.forward);
+        if z <= near {
+            continue;
+        }
+        let sx = 0.5 * w as f64 + d.dot(view.right) * view.focal_px / z;
+        let sy = 0.5 * h as f64 - d.dot(view.up) * view.focal_px / z;
+        let half = (0.5 * 1.2 * voxel * view.focal_px / z).clamp(0.5, max_half);
+        // Pixels whose centres (i + 0.5) lie within `half` of the splat centre.
+        let x0 = (sx - half - 0.5).ceil().max(0.0);
+        let x1 = (sx + half - 0.5).floor().min(w as f64 - 1.0);
+        let y0 = (sy - half - 0.5).ceil().max(0.0);
+        let y1 = (sy + half - 0.5).floor().min(h as f64 - 1.0);
+        if !(x0 <= x1 && y0 <= y1) {
+            continue;
+        }
+        let depth = z as f32;
+        for y in y0 as usize..=y1 as usize {
+            for x in x0 as usize..=x1 as usize {
+                let i = y * w + x;
+                if depth < frame.depth[i] {
+                    frame.depth[i] = depth;
+                    frame.color[i] = b[side];
+                }
+            }
+        }
+    }
+    frame
+}
+
+/// A tone-mapped picture.
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    /// Row-major RGB, 3 bytes per pixel.
+    pub rgb: Vec<u8>,
+    pub tone: ToneMap,
+}
+
+fn render_image(
+    set: &SurfelSet,
+    solution: &Solution,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+) -> Result<Image, String> {
+    let view = View::new(camera, width, height)?;
+    let frame = rasterize(set, solution, &view);
+    let tone = ToneMap::from_luminances(frame.covered().map(luminance).collect());
+    let mut rgb = Vec::with_capacity(frame.color.len() * 3);
+    for (d, c) in frame.depth.iter().zip(&frame.color) {
+        let px = if d.is_finite() {
+            tone.map(*c)
+        } else {
+            BACKGROUND
+        };
+        rgb.extend_from_slice(&px);
+    }
+    debug_assert_eq!(frame.width, width as usize);
+    Ok(Image {
+        width,
+        height,
+        rgb,
+        tone,
+    })
+}
+
+/// Renders the solution seen from `camera` into a `width` x `height` PNG at `path` (atomically).
+pub fn render_png(
+    path: &Path,
+    set: &SurfelSet,
+    solution: &Solution,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+) -> Result<(), OutputError> {
+    check_pair(path, set, solution)?;
+    let image = render_image(set, solution, camera, width, height)
+        .map_err(|what| OutputError::invalid(path, what))?;
+    atomic::write_atomically(path, |w| {
+        let mut encoder = png::Encoder::new(w, image.width, image.height);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Eight);
+        encoder.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+        let mut writer = encoder.write_header().map_err(png_io)?;
+        writer.write_image_data(&image.rgb).map_err(png_io)?;
+        writer.finish().map_err(png_io)
+    })
+}
+
+fn png_io(e: png::EncodingError) -> std::io::Error {
+    match e {
+        png::EncodingError::IoError(e) => e,
+        other => std::io::Error::other(other),
+    }
+}
+
+/// The 14 candidate view directions (from the scene towards the eye): axes first, so that on a
+/// tie the plainer view wins.
+fn candidate_directions() -> Vec<DVec3> {
+    let mut dirs = vec![
+        DVec3::Z,
+        DVec3::NEG_Z,
+        DVec3::X,
+        DVec3::NEG_X,
+        DVec3::Y,
+        DVec3::NEG_Y,
+    ];
+    for sx in [1.0, -1.0] {
+        for sy in [1.0, -1.0] {
+            for sz in [1.0, -1.0] {
+                dirs.push(DVec3::new(sx, sy, sz).normalize());
+            }
+        }
+    }
+    dirs
+}
+
+/// A camera looking at `center` from direction `dir`, far enough that all `corners` fit inside
+/// the vertical field of view (and, for images at least as wide as tall, the horizontal one).
+fn framed(center: DVec3, corners: &[DVec3], dir: DVec3, fov_degrees: f64, min_dist: f64) -> Camera {
+    let up_hint = if dir.y.abs() > 0.9 {
+        DVec3::Z
+    } else {
+        DVec3::Y
+    };
+    let forward = -dir;
+    let right = forward.cross(up_hint).normalize();
+    let up = right.cross(forward);
+    let tan_half = (fov_degrees.to_radians() * 0.5).tan();
+    let mut dist = min_dist;
+    for &c in corners {
+        let q = c - center;
+        let lateral = q.dot(up).abs().max(q.dot(right).abs());
+        dist = dist.max(q.dot(dir) + lateral / tan_half);
+    }
+    Camera {
+        eye: center + dir * dist * 1.05,
+        target: center,
+        up: up_hint,
+        vertical_fov_degrees: fov_degrees,
+    }
+}
+
+/// Frames the scene automatically (see the module header).
+pub fn auto_camera(set: &SurfelSet, solution: &Solution) -> Camera {
+    let grid = &set.grid;
+    let voxel = grid.voxel_size;
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for s in &set.surfels {
+        let p = grid.to_world(s.position());
+        lo = lo.min(p);
+        hi = hi.max(p);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        // No surfels: frame the grid itself.
+        lo = DVec3::from(grid.origin);
+        hi = lo
+            + DVec3::new(
+                grid.dims[0] as f64,
+                grid.dims[1] as f64,
+                grid.dims[2] as f64,
+            ) * voxel;
+    }
+    lo -= DVec3::splat(0.5 * voxel);
+    hi += DVec3::splat(0.5 * voxel);
+    let center = 0.5 * (lo + hi);
+    let corners: Vec<DVec3> = (0..8)
+        .map(|k| {
+            DVec3::new(
+                if k & 1 == 0 { lo.x } else { hi.x },
+                if k & 2 == 0 { lo.y } else { hi.y },
+                if k & 4 == 0 { lo.z } else { hi.z },
+            )
+        })
+        .collect();
+    let min_dist = 2.0 * voxel.max(f64::MIN_POSITIVE);
+    let cameras: Vec<Camera> = candidate_directions()
+        .into_iter()
+        .map(|d| framed(center, &corners, d, DEFAULT_FOV, min_dist))
+        .collect();
+    if set.surfels.len() != solution.radiosity.len() {
+        return cameras[0];
+    }
+    let mut best = (cameras[0], f64::NEG_INFINITY);
+    for camera in cameras {
+        let Ok(view) = View::new(&camera, 64, 64) else {
+            continue;
+        };
+        let seen: f64 = rasterize(set, solution, &view)
+            .covered()
+            .map(luminance)
+            .sum();
+        if seen > best.1 {
+            best = (camera, seen);
+        }
+    }
+    best.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::output::testutil;
+
+    fn decode(path: &Path) -> (u32, u32, Vec<u8>) {
+        let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+        let mut reader = png::Decoder::new(file).read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!(info.color_type, png::ColorType::Rgb);
+        buf.truncate(info.buffer_size());
+        (info.width, info.height, buf)
+    }
+
+    fn lum_at(buf: &[u8], width: u32, x: u32, y: u32) -> u32 {
+        let i = 3 * (y * width + x) as usize;
+        buf[i] as u32 + buf[i + 1] as u32 + buf[i + 2] as u32
+    }
+
+    #[test]
+    fn lit_square_renders_brighter_in_the_middle() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let path = dir.path().join("render.png");
+        let (set, solution) = testutil::lit_square(8);
+        // The square spans 2 x 2 world units around (0, 3, 0.625); look at it from 6 units.
+        let camera = Camera::parse("eye=0,3,6.625; target=0,3,0.625; fov=40").unwrap();
+        render_png(&path, &set, &solution, &camera, 80, 60).unwrap();
+        let (w, h, buf) = decode(&path);
+        assert_eq!((w, h), (80, 60));
+        assert!(lum_at(&buf, w, w / 2, h / 2) > lum_at(&buf, w, 0, 0));
+        assert_eq!(&buf[0..3], &BACKGROUND);
+        // The auto camera also sees the lit front.
+        let auto = auto_camera(&set, &solution);
+        assert!(auto.eye.z > auto.target.z + 1.0, "{auto:?}");
+        render_png(&path, &set, &solution, &auto, 64, 64).unwrap();
+        let (w, h, buf) = decode(&path);
+        assert!(lum_at(&buf, w, w / 2, h / 2) > lum_at(&buf, w, 0, 0));
+    }
+
+    /// An 8-voxel box open towards +z: floor, ceiling with a bright lamp, left, right and back
+    /// walls on the planes through the centres of the outer voxel layers, fronts facing inwards
+    /// and lit, backs dark. As a voxelizer would, each surfel's point is the centroid of its
+    /// wall's part inside the voxel, so the two surfels of an edge voxel do not coincide.
+    fn open_box() -> (SurfelSet, Solution) {
+        let mut surfels = Vec::new();
+        let mut radiosity = Vec::new();
+        let mut add = |voxel: [i32; 3], normal: [f32; 3], b: f32| {
+            let point = [0, 1, 2].map(|k| {
+                if normal[k] != 0.0 {
+                    0.5
+                } else {
+                    let v = voxel[k] as f32;
+                    0.5 * (v.max(0.5) + (v + 1.0).min(7.5)) - v
+                }
+            });
+            surfels.push(testutil::surfel(voxel, point, normal, 1.0));
+            radiosity.push([[b, b, b], [0.0; 3]]);
+        };
+        for a in 0..8 {
+            for c in 0..8 {
+                add([a, 0, c], [0.0, 1.0, 0.0], 1.0);
+                let lamp = (3..5).contains(&a) && (3..5).contains(&c);
+                add([a, 7, c], [0.0, -1.0, 0.0], if lamp { 30.0 } else { 0.5 });
+                add([0, a, c], [1.0, 0.0, 0.0], 0.8);
+                add([7, a, c], [-1.0, 0.0, 0.0], 0.8);
+                add([a, c, 0], [0.0, 0.0, 1.0], 0.8);
+            }
+        }
+        let set = testutil::set_of(surfels, 1.0);
+        (
+            set,
+            Solution {
+                radiosity,
+                stats: Default::default(),
+            },
+        )
+    }
+
+    #[test]
+    fn auto_camera_looks_into_the_open_side() {
+        let (set, solution) = open_box();
+        let camera = auto_camera(&set, &solution);
+        let view = (camera.target - camera.eye).normalize();
+        assert!(view.dot(DVec3::NEG_Z) > 0.99, "{camera:?}");
+        camera.validate().unwrap();
+        let dir = tempfile::TempDir::new().unwrap();
+        let path = dir.path().join("box.png");
+        render_png(&path, &set, &solution, &camera, 32, 32).unwrap();
+        let (w, h, buf) = decode(&path);
+        assert!(lum_at(&buf, w, w / 2, h / 2) > 3 * BACKGROUND[0] as u32);
+    }
+
+    #[test]
+    fn camera_text_is_parsed_and_checked() {
+        let c = Camera::parse(" target=0,0,0 ; eye=1, 2, 3;fov=30 ").unwrap();
+        assert_eq!(c.eye, DVec3::new(1.0, 2.0, 3.0));
+        assert_eq!(c.up, DVec3::Y);
+        assert_eq!(c.vertical_fov_degrees, 30.0);
+        assert_eq!(
+            "eye=1,2,3;target=0,0,0"
+                .parse::<Camera>()
+                .unwrap()
+                .vertical_fov_degrees,
+            40.0
+        );
+        for (bad, says) in [
+            ("eye=1,2;target=0,0,0", "3 comma-separated"),
+            ("eye=1,2,x;target=0,0,0", "'x' is not a finite number"),
+            ("eye=1,2,3", "target is missing"),
+            ("eye=1,2,3;target=1,2,3", "same point"),
+            ("eye=1,2,3;target=0,0,0;fov=200", "between 0 and 180"),
+            ("eye=0,5,0;target=0,0,0", "parallel"),
+            ("eye=1,2,3;target=0,0,0;zoom=2", "unknown key 'zoom'"),
+            ("eye 1,2,3", "not KEY=VALUE"),
+            ("eye=1,2,3;eye=1,2,3;target=0,0,0", "twice"),
+            ("eye=nan,2,3;target=0,0,0", "finite"),
+        ] {
+            let e = Camera::parse(bad).unwrap_err();
+            assert!(e.to_string().contains(says), "{bad}: {e}");
+            assert!(e.to_string().contains(bad), "{e}");
+        }
+    }
+
+    #[test]
+    fn bad_size_and_mismatched_solution_name_the_file() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let path = dir.path().join("render.png");
+        let (set, mut solution) = testutil::lit_square(2);
+        let camera = auto_camera(&set, &solution);
+        let e = render_png(&path, &set, &solution, &camera, 0, 10).unwrap_err();
+        assert!(e.to_string().contains("render.png"), "{e}");
+        solution.radiosity.pop();
+        let e = render_png(&path, &set, &solution, &camera, 10, 10).unwrap_err();
+        assert!(e.to_string().contains("render.png"), "{e}");
+        assert!(!path.exists());
+    }
+
+    #[test]
+    fn tone_map_percentile_and_srgb() {
+        let mut lums: Vec<f64> = (1..=100).map(f64::from).collect();
+        lums.push(0.0);
+        lums.push(1e9); // one hot pixel must not set the exposure
+        let t = ToneMap::from_luminances(lums);
+        assert!(t.exposure > 1.0 / 200.0 && t.exposure < 1.0 / 90.0, "{t:?}");
+        assert_eq!(t.map([1e6; 3]), [255; 3]);
+        assert_eq!(t.map([0.0; 3]), [0; 3]);
+        assert_eq!(ToneMap::from_luminances(vec![0.0]).exposure, 1.0);
+        // Mid grey in linear light is brighter than half in sRGB.
+        let mid = ToneMap { exposure: 1.0 }.map([0.5; 3]);
+        assert!(mid[0] > 180 && mid[0] < 192, "{mid:?}");
+    }
+}
