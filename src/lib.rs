@@ -6,6 +6,7 @@
 //! lines, lexicographic orders) -> `solve` (dispatch into lines, propagate, Jacobi iterations) ->
 //! `output` (report, per-voxel results, PLY, picture, probes). `gen` makes test and example scenes.
 
+pub mod app;
 pub mod gen;
 pub mod geometry;
 pub mod output;

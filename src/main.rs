@@ -1,1 +1,156 @@
-fn main() {}
+//! The `voxrad` command line: parses arguments and dispatches to `voxrad::app`; maps errors to
+//! exit statuses (0 success, 2 bad input, 1 anything else).
+
+use clap::{Parser, Subcommand};
+use std::path::PathBuf;
+use voxrad::app::{run_probe, run_render, run_solve, AppError, SolveCommand};
+use voxrad::solve::SolveOptions;
+use voxrad::voxel::voxelize::GridSpec;
+
+#[derive(Parser)]
+#[command(name = "voxrad", version, about = "Discrete voxel radiosity for very large scenes")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+    /// More log output (-v info, -vv debug); RUST_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Solve the radiosity of a scene (an .obj file with its .mtl) and write the results.
+    Solve {
+        /// The scene: an OBJ file (Kd = reflectance, Ke = emitted radiosity).
+        scene: PathBuf,
+        /// Output directory: report.json, surfels.bin, surfels.ply, render.png.
+        #[arg(long)]
+        out: PathBuf,
+        /// Voxels along the longest side of the scene.
+        #[arg(long, default_value_t = 128, conflicts_with = "voxel_size")]
+        resolution: u32,
+        /// Voxel edge length in scene units (instead of --resolution).
+        #[arg(long)]
+        voxel_size: Option<f64>,
+        /// Approximate number of line directions (each covers s and -s).
+        #[arg(long, default_value_t = 1000)]
+        directions: usize,
+        /// Largest number of iterations; given without --tolerance, exactly this many are run.
+        #[arg(long)]
+        iterations: Option<usize>,
+        /// Stop when the estimated relative error left falls below this.
+        #[arg(long)]
+        tolerance: Option<f64>,
+        /// Worker threads (default: all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+        /// Preview image size, WIDTHxHEIGHT.
+        #[arg(long, default_value = "800x600", value_parser = parse_size)]
+        image_size: (u32, u32),
+    },
+    /// Render a solved result directory to a PNG.
+    Render {
+        /// A directory written by `voxrad solve`.
+        dir: PathBuf,
+        /// The PNG to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Camera: eye=X,Y,Z;target=X,Y,Z[;up=X,Y,Z][;fov=DEGREES] (default: automatic framing).
+        #[arg(long)]
+        camera: Option<String>,
+        /// Image size, WIDTHxHEIGHT.
+        #[arg(long, default_value = "800x600", value_parser = parse_size)]
+        size: (u32, u32),
+    },
+    /// Radiosity at given surface points: reads x,y,z,nx,ny,nz rows, prints x,y,z,nx,ny,nz,B_r,B_g,B_b.
+    Probe {
+        /// A directory written by `voxrad solve`.
+        dir: PathBuf,
+        /// CSV file of points and normals.
+        #[arg(long)]
+        points: PathBuf,
+        /// Write the rows to this CSV file instead of standard output.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let (w, h) = text.split_once('x').ok_or_else(|| format!("'{text}' is not WIDTHxHEIGHT"))?;
+    let parse = |s: &str| s.trim().parse::<u32>().ok().filter(|&v| v > 0 && v <= 16384);
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("'{text}': width and height must be whole numbers from 1 to 16384")),
+    }
+}
+
+fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "warn,voxrad=info",
+        1 => "info",
+        _ => "debug",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+}
+
+fn run(cli: Cli) -> Result<(), AppError> {
+    match cli.command {
+        Command::Solve { scene, out, resolution, voxel_size, directions, iterations, tolerance, threads, image_size } => {
+            let grid = match voxel_size {
+                Some(v) => GridSpec::VoxelSize(v),
+                None => GridSpec::Resolution(resolution),
+            };
+            if let Some(t) = tolerance {
+                if !(t.is_finite() && t > 0.0) {
+                    return Err(AppError::BadInput(format!("--tolerance {t}: must be a positive number")));
+                }
+            }
+            if directions == 0 {
+                return Err(AppError::BadInput("--directions 0: at least one direction is needed".into()));
+            }
+            let defaults = SolveOptions::default();
+            let solve = SolveOptions {
+                directions,
+                max_iterations: iterations.unwrap_or(defaults.max_iterations),
+                tolerance: match (tolerance, iterations) {
+                    (Some(t), _) => Some(t),
+                    (None, Some(_)) => None,
+                    (None, None) => defaults.tolerance,
+                },
+                threads,
+            };
+            let cmd = SolveCommand { scene, out: out.clone(), grid, solve, image_size };
+            let report = run_solve(&cmd)?;
+            eprintln!(
+                "{} voxels, {} directions, {} iterations ({}), {:.1} s; results in {}",
+                report.voxels,
+                report.directions,
+                report.iterations,
+                if report.converged { "converged" } else { "not converged" },
+                report.seconds.get("total").copied().unwrap_or(0.0),
+                out.display()
+            );
+            Ok(())
+        }
+        Command::Render { dir, out, camera, size } => run_render(&dir, &out, camera.as_deref(), size),
+        Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
+    }
+}
+
+fn main() {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let code = if e.use_stderr() { 2 } else { 0 };
+            let _ = e.print();
+            std::process::exit(code);
+        }
+    };
+    init_logging(cli.verbose);
+    if let Err(e) = run(cli) {
+        eprintln!("error: {e}");
+        std::process::exit(e.exit_code());
+    }
+}

@@ -1,0 +1,214 @@
+//! The commands behind the `voxrad` binary, as library functions: `solve`, `render`, `probe`.
+//!
+//! The binary parses arguments (validation only) and calls these; each turns the parsed options
+//! into the real objects, runs the pipeline (read -> voxelize -> solve -> write) and returns an
+//! [`AppError`] that knows whether the user's input was at fault (exit status 2) or not (1).
+
+use crate::output::render::{auto_camera, render_png, Camera};
+use crate::output::report::{Effect, Report, RunInfo};
+use crate::output::results::{read_results, write_results, Results};
+use crate::output::{probe, ply, RENDER_FILE};
+use crate::scene::obj::load_obj;
+use crate::solve::{solve, Solution, SolveOptions};
+use crate::voxel::voxelize::{voxelize, GridSpec};
+use crate::voxel::{Surfel, SurfelSet};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// An error of a command, with the exit status it maps to.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// The user's input is wrong (file, line and what to do are in the message): exit status 2.
+    #[error("{0}")]
+    BadInput(String),
+    /// Anything else (I/O failures, resources): exit status 1.
+    #[error("{0}")]
+    Failure(String),
+}
+
+impl AppError {
+    pub fn exit_code(&self) -> i32 {
+        match self {
+            AppError::BadInput(_) => 2,
+            AppError::Failure(_) => 1,
+        }
+    }
+}
+
+/// Options of `voxrad solve`.
+#[derive(Clone, Debug)]
+pub struct SolveCommand {
+    pub scene: PathBuf,
+    pub out: PathBuf,
+    pub grid: GridSpec,
+    pub solve: SolveOptions,
+    pub image_size: (u32, u32),
+}
+
+/// Reads and voxelizes the scene, solves, writes every output; returns the report.
+pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
+    let started = Instant::now();
+    if cmd.scene.is_dir() {
+        return Err(AppError::BadInput(format!(
+            "{}: shard-set directories are not supported by this build yet; give an .obj file",
+            cmd.scene.display()
+        )));
+    }
+    let scene = load_obj(&cmd.scene).map_err(|e| {
+        if e.is_bad_input() {
+            AppError::BadInput(e.to_string())
+        } else {
+            AppError::Failure(e.to_string())
+        }
+    })?;
+    let read_seconds = started.elapsed().as_secs_f64();
+    tracing::info!(triangles = scene.triangles.len(), materials = scene.materials.len(), "scene read");
+
+    let t = Instant::now();
+    let set = voxelize(&scene, cmd.grid).map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
+    let voxelize_seconds = t.elapsed().as_secs_f64();
+    tracing::info!(
+        surfels = set.surfels.len(),
+        voxels = set.voxel_count(),
+        dims = ?set.grid.dims,
+        voxel_size = set.grid.voxel_size,
+        "voxelized"
+    );
+
+    let solution = solve(&set, &cmd.solve).map_err(|e| AppError::Failure(e.to_string()))?;
+    let stats = &solution.stats;
+    tracing::info!(
+        iterations = stats.iterations,
+        converged = stats.converged,
+        residual = stats.residual,
+        directions = stats.directions,
+        "solved"
+    );
+    if !stats.converged {
+        tracing::warn!(
+            "stopped after {} iterations with an estimated relative error of {:.2e} (tolerance {:?}); \
+             raise --iterations to go further",
+            stats.iterations,
+            stats.residual,
+            cmd.solve.tolerance
+        );
+    }
+
+    std::fs::create_dir_all(&cmd.out)
+        .map_err(|e| AppError::Failure(format!("cannot create output directory {}: {e}", cmd.out.display())))?;
+    let t = Instant::now();
+    write_outputs(&cmd.out, &set, &solution, cmd.image_size)?;
+    let write_seconds = t.elapsed().as_secs_f64();
+
+    let resolution = set.grid.dims.iter().copied().max().unwrap_or(0);
+    let run = RunInfo {
+        scene: cmd.scene.display().to_string(),
+        mode: "single".to_string(),
+        ranks: 1,
+        resolution,
+        tolerance: cmd.solve.tolerance.unwrap_or(0.0),
+    };
+    let mut report = Report::new(run, &set, stats);
+    report.effects = effects(&set, &solution);
+    report.set_phase("read", read_seconds);
+    report.set_phase("voxelize", voxelize_seconds);
+    report.set_phase("write", write_seconds);
+    report.set_total(started.elapsed().as_secs_f64());
+    report.refresh_peak_rss();
+    report.write(&cmd.out).map_err(|e| AppError::Failure(e.to_string()))?;
+    Ok(report)
+}
+
+fn write_outputs(out: &Path, set: &SurfelSet, solution: &Solution, size: (u32, u32)) -> Result<(), AppError> {
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    write_results(&out.join(crate::output::RESULTS_FILE), set, solution).map_err(fail)?;
+    ply::write_ply(&out.join(crate::output::PLY_FILE), set, solution).map_err(fail)?;
+    let camera = auto_camera(set, solution);
+    render_png(&out.join(RENDER_FILE), set, solution, &camera, size.0, size.1).map_err(fail)?;
+    Ok(())
+}
+
+/// What was simulated and why (the scene analysis is still plain: every solve is the full one).
+fn effects(set: &SurfelSet, solution: &Solution) -> Vec<Effect> {
+    let emitters = set.materials.iter().any(|m| m.is_emitter());
+    let reflective = set.materials.iter().any(|m| m.reflectance.iter().any(|&r| r > 0.0));
+    vec![
+        Effect::new(
+            "direct light",
+            emitters,
+            if emitters { "the scene has emitting materials (Ke > 0)" } else { "no material emits (no Ke > 0): nothing to light" },
+        ),
+        Effect::new(
+            "interreflection",
+            emitters && reflective,
+            if reflective {
+                "some material reflects (Kd > 0); iterated until the estimated error is below the tolerance"
+            } else {
+                "every reflectance is 0: light does not bounce"
+            },
+        ),
+        Effect::new(
+            "rgb channels",
+            true,
+            &format!("three channels solved; {} surfels", solution.radiosity.len()),
+        ),
+    ]
+}
+
+/// Rebuilds a surfel set and solution from a results file, for rendering.
+fn from_results(results: &Results) -> (SurfelSet, Solution) {
+    let surfels = results
+        .records
+        .iter()
+        .map(|r| Surfel {
+            voxel: r.voxel,
+            point: r.point,
+            normal: r.normal,
+            normal_id: 0,
+            group: 0,
+            area: r.area,
+            material: [0, 0],
+        })
+        .collect();
+    let radiosity = results.records.iter().map(|r| r.radiosity).collect();
+    let set = SurfelSet { grid: results.grid, surfels, normals: Vec::new(), materials: Vec::new() };
+    (set, Solution { radiosity, stats: Default::default() })
+}
+
+fn load_results(dir: &Path) -> Result<Results, AppError> {
+    let path = dir.join(crate::output::RESULTS_FILE);
+    if !path.exists() {
+        return Err(AppError::BadInput(format!(
+            "{}: no results file; is {} the --out directory of a finished `voxrad solve`?",
+            path.display(),
+            dir.display()
+        )));
+    }
+    read_results(&path).map_err(|e| AppError::BadInput(e.to_string()))
+}
+
+/// `voxrad render DIR --out IMG [--camera ...]`.
+pub fn run_render(dir: &Path, out: &Path, camera: Option<&str>, size: (u32, u32)) -> Result<(), AppError> {
+    let results = load_results(dir)?;
+    let (set, solution) = from_results(&results);
+    let camera = match camera {
+        Some(text) => Camera::parse(text).map_err(|e| AppError::BadInput(e.to_string()))?,
+        None => auto_camera(&set, &solution),
+    };
+    render_png(out, &set, &solution, &camera, size.0, size.1).map_err(|e| AppError::Failure(e.to_string()))
+}
+
+/// `voxrad probe DIR --points P.csv`: rows on standard output (or into `out`).
+pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), AppError> {
+    let results = load_results(dir)?;
+    let rows = probe::probe(&results, points).map_err(|e| AppError::BadInput(e.to_string()))?;
+    match out {
+        Some(path) => probe::write_probe_csv(path, &rows).map_err(|e| AppError::Failure(e.to_string())),
+        None => {
+            let stdout = std::io::stdout();
+            let mut lock = stdout.lock();
+            probe::write_rows(&mut lock, &rows, false)
+                .map_err(|e| AppError::Failure(format!("cannot write to standard output: {e}")))
+        }
+    }
+}
