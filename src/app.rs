@@ -7,7 +7,7 @@
 use crate::output::render::{auto_camera, render_png, Camera};
 use crate::output::report::{Effect, Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results};
-use crate::output::{probe, ply, RENDER_FILE};
+use crate::output::{ply, probe, RENDER_FILE};
 use crate::scene::obj::load_obj;
 use crate::solve::{solve, Solution, SolveOptions};
 use crate::voxel::voxelize::{voxelize, GridSpec};
@@ -62,10 +62,15 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         }
     })?;
     let read_seconds = started.elapsed().as_secs_f64();
-    tracing::info!(triangles = scene.triangles.len(), materials = scene.materials.len(), "scene read");
+    tracing::info!(
+        triangles = scene.triangles.len(),
+        materials = scene.materials.len(),
+        "scene read"
+    );
 
     let t = Instant::now();
-    let set = voxelize(&scene, cmd.grid).map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
+    let set = voxelize(&scene, cmd.grid)
+        .map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
     let voxelize_seconds = t.elapsed().as_secs_f64();
     tracing::info!(
         surfels = set.surfels.len(),
@@ -94,8 +99,12 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         );
     }
 
-    std::fs::create_dir_all(&cmd.out)
-        .map_err(|e| AppError::Failure(format!("cannot create output directory {}: {e}", cmd.out.display())))?;
+    std::fs::create_dir_all(&cmd.out).map_err(|e| {
+        AppError::Failure(format!(
+            "cannot create output directory {}: {e}",
+            cmd.out.display()
+        ))
+    })?;
     let t = Instant::now();
     write_outputs(&cmd.out, &set, &solution, cmd.image_size)?;
     let write_seconds = t.elapsed().as_secs_f64();
@@ -115,28 +124,50 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
     report.set_phase("write", write_seconds);
     report.set_total(started.elapsed().as_secs_f64());
     report.refresh_peak_rss();
-    report.write(&cmd.out).map_err(|e| AppError::Failure(e.to_string()))?;
+    report
+        .write(&cmd.out)
+        .map_err(|e| AppError::Failure(e.to_string()))?;
     Ok(report)
 }
 
-fn write_outputs(out: &Path, set: &SurfelSet, solution: &Solution, size: (u32, u32)) -> Result<(), AppError> {
+fn write_outputs(
+    out: &Path,
+    set: &SurfelSet,
+    solution: &Solution,
+    size: (u32, u32),
+) -> Result<(), AppError> {
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     write_results(&out.join(crate::output::RESULTS_FILE), set, solution).map_err(fail)?;
     ply::write_ply(&out.join(crate::output::PLY_FILE), set, solution).map_err(fail)?;
     let camera = auto_camera(set, solution);
-    render_png(&out.join(RENDER_FILE), set, solution, &camera, size.0, size.1).map_err(fail)?;
+    render_png(
+        &out.join(RENDER_FILE),
+        set,
+        solution,
+        &camera,
+        size.0,
+        size.1,
+    )
+    .map_err(fail)?;
     Ok(())
 }
 
 /// What was simulated and why (the scene analysis is still plain: every solve is the full one).
 fn effects(set: &SurfelSet, solution: &Solution) -> Vec<Effect> {
     let emitters = set.materials.iter().any(|m| m.is_emitter());
-    let reflective = set.materials.iter().any(|m| m.reflectance.iter().any(|&r| r > 0.0));
+    let reflective = set
+        .materials
+        .iter()
+        .any(|m| m.reflectance.iter().any(|&r| r > 0.0));
     vec![
         Effect::new(
             "direct light",
             emitters,
-            if emitters { "the scene has emitting materials (Ke > 0)" } else { "no material emits (no Ke > 0): nothing to light" },
+            if emitters {
+                "the scene has emitting materials (Ke > 0)"
+            } else {
+                "no material emits (no Ke > 0): nothing to light"
+            },
         ),
         Effect::new(
             "interreflection",
@@ -150,7 +181,10 @@ fn effects(set: &SurfelSet, solution: &Solution) -> Vec<Effect> {
         Effect::new(
             "rgb channels",
             true,
-            &format!("three channels solved; {} surfels", solution.radiosity.len()),
+            &format!(
+                "three channels solved; {} surfels",
+                solution.radiosity.len()
+            ),
         ),
     ]
 }
@@ -171,8 +205,19 @@ fn from_results(results: &Results) -> (SurfelSet, Solution) {
         })
         .collect();
     let radiosity = results.records.iter().map(|r| r.radiosity).collect();
-    let set = SurfelSet { grid: results.grid, surfels, normals: Vec::new(), materials: Vec::new() };
-    (set, Solution { radiosity, stats: Default::default() })
+    let set = SurfelSet {
+        grid: results.grid,
+        surfels,
+        normals: Vec::new(),
+        materials: Vec::new(),
+    };
+    (
+        set,
+        Solution {
+            radiosity,
+            stats: Default::default(),
+        },
+    )
 }
 
 fn load_results(dir: &Path) -> Result<Results, AppError> {
@@ -188,14 +233,20 @@ fn load_results(dir: &Path) -> Result<Results, AppError> {
 }
 
 /// `voxrad render DIR --out IMG [--camera ...]`.
-pub fn run_render(dir: &Path, out: &Path, camera: Option<&str>, size: (u32, u32)) -> Result<(), AppError> {
+pub fn run_render(
+    dir: &Path,
+    out: &Path,
+    camera: Option<&str>,
+    size: (u32, u32),
+) -> Result<(), AppError> {
     let results = load_results(dir)?;
     let (set, solution) = from_results(&results);
     let camera = match camera {
         Some(text) => Camera::parse(text).map_err(|e| AppError::BadInput(e.to_string()))?,
         None => auto_camera(&set, &solution),
     };
-    render_png(out, &set, &solution, &camera, size.0, size.1).map_err(|e| AppError::Failure(e.to_string()))
+    render_png(out, &set, &solution, &camera, size.0, size.1)
+        .map_err(|e| AppError::Failure(e.to_string()))
 }
 
 /// `voxrad probe DIR --points P.csv`: rows on standard output (or into `out`).
@@ -203,7 +254,9 @@ pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), Ap
     let results = load_results(dir)?;
     let rows = probe::probe(&results, points).map_err(|e| AppError::BadInput(e.to_string()))?;
     match out {
-        Some(path) => probe::write_probe_csv(path, &rows).map_err(|e| AppError::Failure(e.to_string())),
+        Some(path) => {
+            probe::write_probe_csv(path, &rows).map_err(|e| AppError::Failure(e.to_string()))
+        }
         None => {
             let stdout = std::io::stdout();
             let mut lock = stdout.lock();

@@ -8,7 +8,11 @@ use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::GridSpec;
 
 #[derive(Parser)]
-#[command(name = "voxrad", version, about = "Discrete voxel radiosity for very large scenes")]
+#[command(
+    name = "voxrad",
+    version,
+    about = "Discrete voxel radiosity for very large scenes"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -76,11 +80,20 @@ enum Command {
 }
 
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
-    let (w, h) = text.split_once('x').ok_or_else(|| format!("'{text}' is not WIDTHxHEIGHT"))?;
-    let parse = |s: &str| s.trim().parse::<u32>().ok().filter(|&v| v > 0 && v <= 16384);
+    let (w, h) = text
+        .split_once('x')
+        .ok_or_else(|| format!("'{text}' is not WIDTHxHEIGHT"))?;
+    let parse = |s: &str| {
+        s.trim()
+            .parse::<u32>()
+            .ok()
+            .filter(|&v| v > 0 && v <= 16384)
+    };
     match (parse(w), parse(h)) {
         (Some(w), Some(h)) => Ok((w, h)),
-        _ => Err(format!("'{text}': width and height must be whole numbers from 1 to 16384")),
+        _ => Err(format!(
+            "'{text}': width and height must be whole numbers from 1 to 16384"
+        )),
     }
 }
 
@@ -92,23 +105,41 @@ fn init_logging(verbose: u8) {
     };
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
         .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .init();
 }
 
 fn run(cli: Cli) -> Result<(), AppError> {
     match cli.command {
-        Command::Solve { scene, out, resolution, voxel_size, directions, iterations, tolerance, threads, image_size } => {
+        Command::Solve {
+            scene,
+            out,
+            resolution,
+            voxel_size,
+            directions,
+            iterations,
+            tolerance,
+            threads,
+            image_size,
+        } => {
             let grid = match voxel_size {
                 Some(v) => GridSpec::VoxelSize(v),
                 None => GridSpec::Resolution(resolution),
             };
             if let Some(t) = tolerance {
                 if !(t.is_finite() && t > 0.0) {
-                    return Err(AppError::BadInput(format!("--tolerance {t}: must be a positive number")));
+                    return Err(AppError::BadInput(format!(
+                        "--tolerance {t}: must be a positive number"
+                    )));
                 }
             }
             if directions == 0 {
-                return Err(AppError::BadInput("--directions 0: at least one direction is needed".into()));
+                return Err(AppError::BadInput(
+                    "--directions 0: at least one direction is needed".into(),
+                ));
             }
             let defaults = SolveOptions::default();
             let solve = SolveOptions {
@@ -121,20 +152,35 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 },
                 threads,
             };
-            let cmd = SolveCommand { scene, out: out.clone(), grid, solve, image_size };
+            let cmd = SolveCommand {
+                scene,
+                out: out.clone(),
+                grid,
+                solve,
+                image_size,
+            };
             let report = run_solve(&cmd)?;
             eprintln!(
                 "{} voxels, {} directions, {} iterations ({}), {:.1} s; results in {}",
                 report.voxels,
                 report.directions,
                 report.iterations,
-                if report.converged { "converged" } else { "not converged" },
+                if report.converged {
+                    "converged"
+                } else {
+                    "not converged"
+                },
                 report.seconds.get("total").copied().unwrap_or(0.0),
                 out.display()
             );
             Ok(())
         }
-        Command::Render { dir, out, camera, size } => run_render(&dir, &out, camera.as_deref(), size),
+        Command::Render {
+            dir,
+            out,
+            camera,
+            size,
+        } => run_render(&dir, &out, camera.as_deref(), size),
         Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
     }
 }

@@ -219,7 +219,7 @@ fn run(
     if options.tolerance.is_none() {
         stats.converged = stats.residual.is_finite();
     }
-    energy(set, &radiosity, &acc, &cosine_sum, &mut stats);
+    energy(set, &acc, &cosine_sum, &mut stats);
     Solution { radiosity, stats }
 }
 
@@ -273,24 +273,16 @@ impl AccPtr {
 }
 
 /// Emitted and absorbed power (world units) from the final gather.
-fn energy(
-    set: &SurfelSet,
-    radiosity: &[[[f32; 3]; 2]],
-    acc: &[[[f64; 3]; 2]],
-    cosine_sum: &[f64],
-    stats: &mut SolveStats,
-) {
-    let _ = radiosity;
+fn energy(set: &SurfelSet, acc: &[[[f64; 3]; 2]], cosine_sum: &[f64], stats: &mut SolveStats) {
     let area_unit = set.grid.voxel_size * set.grid.voxel_size;
-    for (k, s) in set.surfels.iter().enumerate() {
+    for (s, gathered) in set.surfels.iter().zip(acc) {
         let area = s.area as f64 * area_unit;
         let norm = cosine_sum[s.normal_id as usize];
-        for side in 0..2 {
-            let m = &set.materials[s.material[side] as usize];
-            for ch in 0..3 {
+        for (&material, side_gathered) in s.material.iter().zip(gathered) {
+            let m = &set.materials[material as usize];
+            for (ch, &h) in side_gathered.iter().enumerate() {
                 stats.emitted_power[ch] += m.emission[ch] * area;
-                stats.absorbed_power[ch] +=
-                    (1.0 - m.reflectance[ch]) * acc[k][side][ch] / norm * area;
+                stats.absorbed_power[ch] += (1.0 - m.reflectance[ch]) * h / norm * area;
             }
         }
     }

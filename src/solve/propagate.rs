@@ -123,12 +123,13 @@ pub fn find_partners(
     for g in 0..group_count {
         for k in groups[g]..groups[g + 1] {
             let x = &surfels[line[k] as usize];
-            let ahead = nearest(line, surfels, groups, g, k, s, true, |other| {
-                facing(x, other, s).map(|t| t.0)
-            });
-            let behind = nearest(line, surfels, groups, g, k, -s, false, |other| {
-                facing(other, x, s).map(|t| t.1)
-            });
+            let view = LineView {
+                line,
+                surfels,
+                groups,
+            };
+            let ahead = view.nearest(g, k, s, true, |other| facing(x, other, s).map(|t| t.0));
+            let behind = view.nearest(g, k, -s, false, |other| facing(other, x, s).map(|t| t.1));
             out.push([ahead, behind]);
         }
     }
@@ -142,66 +143,79 @@ pub fn find_partners(
 /// same side of each voxel-mate's plane as the candidate's surface point. Without this, the plane
 /// of a floor would catch rays that pass outside the room's corner, beyond the wall that bounds
 /// the floor, and light would leak out of closed rooms.
-#[inline]
-fn nearest(
-    line: &[u32],
-    surfels: &[PropSurfel],
-    groups: &[usize],
-    g: usize,
-    k: usize,
-    dir: DVec3,
-    forward: bool,
-    test: impl Fn(&PropSurfel) -> Option<f64>,
-) -> u32 {
-    let x = &surfels[line[k] as usize];
-    let best_in = |range: std::ops::Range<usize>| -> Option<usize> {
-        let mut best: Option<(f64, usize)> = None;
-        for k2 in range.clone() {
-            if k2 == k {
-                continue;
-            }
-            let c = &surfels[line[k2] as usize];
-            let Some(t) = test(c) else { continue };
-            if best.is_some_and(|(bt, _)| t >= bt) {
-                continue;
-            }
-            // Crossing point relative to the receiver's point.
-            let q = dir * t;
-            let on_piece = range.clone().all(|k3| {
-                let mate = &surfels[line[k3] as usize];
-                if k3 == k2 || k3 == k || mate.group == c.group {
-                    return true;
+impl LineView<'_> {
+    #[inline]
+    fn nearest(
+        &self,
+        g: usize,
+        k: usize,
+        dir: DVec3,
+        forward: bool,
+        test: impl Fn(&PropSurfel) -> Option<f64>,
+    ) -> u32 {
+        let LineView {
+            line,
+            surfels,
+            groups,
+        } = *self;
+        let x = &surfels[line[k] as usize];
+        let best_in = |range: std::ops::Range<usize>| -> Option<usize> {
+            let mut best: Option<(f64, usize)> = None;
+            for k2 in range.clone() {
+                if k2 == k {
+                    continue;
                 }
-                let n = mate.normal();
-                let piece_side = n.dot(offset(mate, c));
-                if piece_side.abs() <= EPS {
-                    return true;
+                let c = &surfels[line[k2] as usize];
+                let Some(t) = test(c) else { continue };
+                if best.is_some_and(|(bt, _)| t >= bt) {
+                    continue;
                 }
-                n.dot(q - offset(x, mate)) * piece_side.signum() >= -EPS
-            });
-            if on_piece {
-                best = Some((t, k2));
+                // Crossing point relative to the receiver's point.
+                let q = dir * t;
+                let on_piece = range.clone().all(|k3| {
+                    let mate = &surfels[line[k3] as usize];
+                    if k3 == k2 || k3 == k || mate.group == c.group {
+                        return true;
+                    }
+                    let n = mate.normal();
+                    let piece_side = n.dot(offset(mate, c));
+                    if piece_side.abs() <= EPS {
+                        return true;
+                    }
+                    n.dot(q - offset(x, mate)) * piece_side.signum() >= -EPS
+                });
+                if on_piece {
+                    best = Some((t, k2));
+                }
+            }
+            best.map(|b| b.1)
+        };
+        if let Some(found) = best_in(groups[g]..groups[g + 1]) {
+            return found as u32;
+        }
+        if forward {
+            for g2 in g + 1..groups.len() - 1 {
+                if let Some(found) = best_in(groups[g2]..groups[g2 + 1]) {
+                    return found as u32;
+                }
+            }
+        } else {
+            for g2 in (0..g).rev() {
+                if let Some(found) = best_in(groups[g2]..groups[g2 + 1]) {
+                    return found as u32;
+                }
             }
         }
-        best.map(|b| b.1)
-    };
-    if let Some(found) = best_in(groups[g]..groups[g + 1]) {
-        return found as u32;
+        u32::MAX
     }
-    if forward {
-        for g2 in g + 1..groups.len() - 1 {
-            if let Some(found) = best_in(groups[g2]..groups[g2 + 1]) {
-                return found as u32;
-            }
-        }
-    } else {
-        for g2 in (0..g).rev() {
-            if let Some(found) = best_in(groups[g2]..groups[g2 + 1]) {
-                return found as u32;
-            }
-        }
-    }
-    u32::MAX
+}
+
+/// One line of one direction, with its voxel groups (start positions, then the end).
+#[derive(Clone, Copy)]
+struct LineView<'a> {
+    line: &'a [u32],
+    surfels: &'a [PropSurfel],
+    groups: &'a [usize],
 }
 
 /// Gathers light along one line into `acc` (indexed by surfel).
