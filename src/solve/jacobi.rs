@@ -13,7 +13,7 @@
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::normalize::cosine_sums;
-use super::propagate::{gather_line, DirectionInput, PropSurfel};
+use super::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
 use super::{Solution, SolveStats};
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
@@ -248,7 +248,7 @@ fn gather_all_lines(
     bounds.push(line_count);
     let acc_ptr = AccPtr(acc.as_mut_ptr());
     bounds.par_windows(2).for_each(|w| {
-        let (mut groups, mut partners) = (Vec::new(), Vec::new());
+        let mut scratch = LineScratch::default();
         for l in w[0]..w[1] {
             let line = lines.line(l);
             if line.len() < 2 {
@@ -256,7 +256,7 @@ fn gather_all_lines(
             }
             // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of this
             // direction and line ranges are disjoint, so no entry is touched by two threads.
-            unsafe { gather_line(line, input, &mut groups, &mut partners, acc_ptr.get()) };
+            unsafe { gather_line(line, input, &mut scratch, acc_ptr.get()) };
         }
     });
 }

@@ -23,12 +23,17 @@
 //!
 //! Every surfel side receives exactly one gather per line direction, so accumulating in direction
 //! order makes the result independent of how lines are spread over threads.
+//!
+//! Cost: a line is first copied into a small local buffer (so the search touches contiguous
+//! memory and the cosine with `s` is computed once per surfel), and runs of consecutive voxels that
+//! hold only the receiver's own plane (a sheet seen at a grazing angle, possibly hundreds of voxels
+//! long) are skipped in one step, so finding all partners of a line costs about its length.
 
 use crate::voxel::{BACK, FRONT};
-use glam::DVec3;
+use glam::{DVec3, Vec3};
 
 /// Margin (voxel units) below which a point counts as lying on a plane rather than in front of it.
-pub const EPS: f64 = 1e-4;
+pub const EPS: f32 = 1e-4;
 
 /// What propagation needs of a surfel, packed for the hot loop.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -39,52 +44,47 @@ pub struct PropSurfel {
     pub normal: [f32; 3],
 }
 
-impl PropSurfel {
-    #[inline]
-    fn normal(&self) -> DVec3 {
-        DVec3::new(
-            self.normal[0] as f64,
-            self.normal[1] as f64,
-            self.normal[2] as f64,
-        )
-    }
+/// A surfel of the line being processed, with its cosine to the direction.
+#[derive(Clone, Copy, Debug)]
+struct Local {
+    voxel: [i32; 3],
+    group: u32,
+    point: Vec3,
+    normal: Vec3,
+    /// `normal . s` for the unit direction `s`.
+    ns: f32,
 }
 
 /// `p_c - p_r` in voxel units, exact in the integer part.
-#[inline]
-fn offset(r: &PropSurfel, c: &PropSurfel) -> DVec3 {
-    DVec3::new(
-        (c.voxel[0] - r.voxel[0]) as f64 + (c.point[0] - r.point[0]) as f64,
-        (c.voxel[1] - r.voxel[1]) as f64 + (c.point[1] - r.point[1]) as f64,
-        (c.voxel[2] - r.voxel[2]) as f64 + (c.point[2] - r.point[2]) as f64,
-    )
+#[inline(always)]
+fn offset(r: &Local, c: &Local) -> Vec3 {
+    Vec3::new(
+        (c.voxel[0] - r.voxel[0]) as f32,
+        (c.voxel[1] - r.voxel[1]) as f32,
+        (c.voxel[2] - r.voxel[2]) as f32,
+    ) + (c.point - r.point)
 }
 
-/// Whether `r` (behind) and `c` (ahead along unit direction `s`) light each other. Returns the
-/// distance along `s` from `r`'s point to `c`'s plane and the distance along `-s` from `c`'s point
-/// to `r`'s plane (both positive), used to pick the nearest candidate within a voxel.
-#[inline]
-pub fn facing(r: &PropSurfel, c: &PropSurfel, s: DVec3) -> Option<(f64, f64)> {
-    if r.group == c.group {
-        return None;
-    }
-    let (nr, nc) = (r.normal(), c.normal());
-    let (rs, cs) = (nr.dot(s), nc.dot(s));
-    if rs == 0.0 || cs == 0.0 {
+/// Whether `r` (behind) and `c` (ahead along the direction) light each other. Returns the distance
+/// along `s` from `r`'s point to `c`'s plane and the distance along `-s` from `c`'s point to `r`'s
+/// plane (both positive), used to pick the nearest candidate within a voxel.
+#[inline(always)]
+fn facing(r: &Local, c: &Local) -> Option<(f32, f32)> {
+    if r.group == c.group || r.ns == 0.0 || c.ns == 0.0 {
         return None;
     }
     let d = offset(r, c);
-    let (rd, cd) = (nr.dot(d), nc.dot(d));
-    if rd * rs.signum() <= EPS || cd * cs.signum() <= EPS {
+    let (rd, cd) = (r.normal.dot(d), c.normal.dot(d));
+    if rd * r.ns.signum() <= EPS || cd * c.ns.signum() <= EPS {
         return None;
     }
-    Some((cd / cs, rd / rs))
+    Some((cd / c.ns, rd / r.ns))
 }
 
-/// The side of a surfel (normal `n`) that faces along `s`.
-#[inline]
-pub fn side_facing(n: DVec3, s: DVec3) -> usize {
-    if n.dot(s) > 0.0 {
+/// The side of a surfel that faces along the direction, given `normal . s`.
+#[inline(always)]
+fn side_along(ns: f32) -> usize {
+    if ns > 0.0 {
         FRONT
     } else {
         BACK
@@ -102,120 +102,209 @@ pub struct DirectionInput<'a> {
     pub radiosity: &'a [[[f32; 3]; 2]],
 }
 
-/// Partners found on one line: for each position, the line position of the partner ahead and the
-/// partner behind (`u32::MAX` for none).
-pub fn find_partners(
-    line: &[u32],
-    surfels: &[PropSurfel],
-    s: DVec3,
-    groups: &mut Vec<usize>,
-    out: &mut Vec<[u32; 2]>,
-) {
+/// Reusable per-thread buffers for one line at a time.
+#[derive(Default)]
+pub struct LineScratch {
+    locals: Vec<Local>,
+    /// Start position of each voxel group, then the line length.
+    groups: Vec<usize>,
+    /// For each voxel group: the plane group if the voxel holds a single surfel, else `u32::MAX`.
+    single: Vec<u32>,
+    /// For each voxel group: the first voxel group after its run of equal `single` values, and
+    /// the last one before it.
+    run_after: Vec<u32>,
+    run_before: Vec<u32>,
+    /// For each line position: the positions of the partner ahead and behind (`u32::MAX`: none).
+    pub partners: Vec<[u32; 2]>,
+}
+
+/// Finds the partners of every surfel of one line (surfel indices in order along `s`); the result
+/// is in `scratch.partners`, by line position.
+pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &mut LineScratch) {
+    let sf = s.as_vec3();
+    let LineScratch {
+        locals,
+        groups,
+        single,
+        run_after,
+        run_before,
+        partners,
+    } = scratch;
+    locals.clear();
+    locals.extend(line.iter().map(|&m| {
+        let p = &surfels[m as usize];
+        let normal = Vec3::from(p.normal);
+        Local {
+            voxel: p.voxel,
+            group: p.group,
+            point: Vec3::from(p.point),
+            normal,
+            ns: normal.dot(sf),
+        }
+    }));
     groups.clear();
-    out.clear();
-    for (k, &m) in line.iter().enumerate() {
-        if k == 0 || surfels[m as usize].voxel != surfels[line[k - 1] as usize].voxel {
+    for k in 0..locals.len() {
+        if k == 0 || locals[k].voxel != locals[k - 1].voxel {
             groups.push(k);
         }
     }
-    groups.push(line.len());
+    groups.push(locals.len());
     let group_count = groups.len() - 1;
+    single.clear();
+    single.extend((0..group_count).map(|g| {
+        if groups[g + 1] - groups[g] == 1 {
+            locals[groups[g]].group
+        } else {
+            u32::MAX
+        }
+    }));
+    run_after.clear();
+    run_after.resize(group_count, 0);
+    for g in (0..group_count).rev() {
+        run_after[g] = if g + 1 < group_count && single[g] != u32::MAX && single[g + 1] == single[g]
+        {
+            run_after[g + 1]
+        } else {
+            g as u32 + 1
+        };
+    }
+    run_before.clear();
+    run_before.resize(group_count, 0);
+    for g in 0..group_count {
+        run_before[g] = if g > 0 && single[g] != u32::MAX && single[g - 1] == single[g] {
+            run_before[g - 1]
+        } else {
+            g as u32
+        };
+    }
+    partners.clear();
+    let view = LineView {
+        locals,
+        groups,
+        single,
+        run_after,
+        run_before,
+    };
     for g in 0..group_count {
         for k in groups[g]..groups[g + 1] {
-            let x = &surfels[line[k] as usize];
-            let view = LineView {
-                line,
-                surfels,
-                groups,
-            };
-            let ahead = view.nearest(g, k, s, true, |other| facing(x, other, s).map(|t| t.0));
-            let behind = view.nearest(g, k, -s, false, |other| facing(other, x, s).map(|t| t.1));
-            out.push([ahead, behind]);
+            let ahead = view.nearest::<true>(g, k, sf);
+            let behind = view.nearest::<false>(g, k, -sf);
+            partners.push([ahead, behind]);
         }
     }
 }
 
-/// Searches the receiver's own voxel group, then the groups ahead along `dir` (or behind, for
-/// `dir = -s`) in order; within a group the accepted candidate with the smallest distance wins.
-///
-/// A candidate sharing its voxel with other surfels (an edge or corner of an object) must also be
-/// crossed *on its own piece*: the crossing point of the ray from the receiver must lie on the
-/// same side of each voxel-mate's plane as the candidate's surface point. Without this, the plane
-/// of a floor would catch rays that pass outside the room's corner, beyond the wall that bounds
-/// the floor, and light would leak out of closed rooms.
-impl LineView<'_> {
-    #[inline]
-    fn nearest(
-        &self,
-        g: usize,
-        k: usize,
-        dir: DVec3,
-        forward: bool,
-        test: impl Fn(&PropSurfel) -> Option<f64>,
-    ) -> u32 {
-        let LineView {
-            line,
-            surfels,
-            groups,
-        } = *self;
-        let x = &surfels[line[k] as usize];
-        let best_in = |range: std::ops::Range<usize>| -> Option<usize> {
-            let mut best: Option<(f64, usize)> = None;
-            for k2 in range.clone() {
-                if k2 == k {
-                    continue;
-                }
-                let c = &surfels[line[k2] as usize];
-                let Some(t) = test(c) else { continue };
-                if best.is_some_and(|(bt, _)| t >= bt) {
-                    continue;
-                }
-                // Crossing point relative to the receiver's point.
-                let q = dir * t;
-                let on_piece = range.clone().all(|k3| {
-                    let mate = &surfels[line[k3] as usize];
-                    if k3 == k2 || k3 == k || mate.group == c.group {
-                        return true;
-                    }
-                    let n = mate.normal();
-                    let piece_side = n.dot(offset(mate, c));
-                    if piece_side.abs() <= EPS {
-                        return true;
-                    }
-                    n.dot(q - offset(x, mate)) * piece_side.signum() >= -EPS
-                });
-                if on_piece {
-                    best = Some((t, k2));
-                }
-            }
-            best.map(|b| b.1)
-        };
-        if let Some(found) = best_in(groups[g]..groups[g + 1]) {
-            return found as u32;
-        }
-        if forward {
-            for g2 in g + 1..groups.len() - 1 {
-                if let Some(found) = best_in(groups[g2]..groups[g2 + 1]) {
-                    return found as u32;
-                }
-            }
-        } else {
-            for g2 in (0..g).rev() {
-                if let Some(found) = best_in(groups[g2]..groups[g2 + 1]) {
-                    return found as u32;
-                }
-            }
-        }
-        u32::MAX
-    }
-}
-
-/// One line of one direction, with its voxel groups (start positions, then the end).
+/// One line of one direction, with its voxel groups and same-plane runs.
 #[derive(Clone, Copy)]
 struct LineView<'a> {
-    line: &'a [u32],
-    surfels: &'a [PropSurfel],
+    locals: &'a [Local],
     groups: &'a [usize],
+    single: &'a [u32],
+    run_after: &'a [u32],
+    run_before: &'a [u32],
+}
+
+impl LineView<'_> {
+    /// The acceptance test of candidate `c` for receiver `x`, looking ahead or behind: the distance
+    /// from `x`'s point to `c`'s plane along the search direction.
+    #[inline(always)]
+    fn test<const FORWARD: bool>(x: &Local, c: &Local) -> Option<f32> {
+        if FORWARD {
+            facing(x, c).map(|t| t.0)
+        } else {
+            facing(c, x).map(|t| t.1)
+        }
+    }
+
+    /// The accepted candidate of voxel group `g2` nearest to receiver `k`, if any (see `nearest`).
+    #[inline(always)]
+    fn best_in<const FORWARD: bool>(&self, g2: usize, k: usize, dir: Vec3) -> Option<usize> {
+        let locals = self.locals;
+        let x = &locals[k];
+        let range = self.groups[g2]..self.groups[g2 + 1];
+        let mut best: Option<(f32, usize)> = None;
+        for k2 in range.clone() {
+            if k2 == k {
+                continue;
+            }
+            let c = &locals[k2];
+            let Some(t) = Self::test::<FORWARD>(x, c) else {
+                continue;
+            };
+            if best.is_some_and(|(bt, _)| t >= bt) {
+                continue;
+            }
+            let on_piece = range.clone().all(|k3| {
+                let mate = &locals[k3];
+                if k3 == k2 || k3 == k || mate.group == c.group {
+                    return true;
+                }
+                let piece_side = mate.normal.dot(offset(mate, c));
+                if piece_side.abs() <= EPS {
+                    return true;
+                }
+                // Crossing point relative to the mate's point.
+                let q = dir * t - offset(x, mate);
+                mate.normal.dot(q) * piece_side.signum() >= -EPS
+            });
+            if on_piece {
+                best = Some((t, k2));
+            }
+        }
+        best.map(|b| b.1)
+    }
+
+    /// Searches the receiver's own voxel group, then the voxel groups ahead (or behind) in order;
+    /// within a voxel group the accepted candidate with the smallest distance wins. Runs of voxels
+    /// holding only the receiver's plane are jumped over (none of them can be its partner).
+    ///
+    /// A candidate sharing its voxel with other surfels (an edge or corner of an object) must also
+    /// be crossed *on its own piece*: the crossing point of the ray from the receiver must lie on the
+    /// same side of each voxel-mate's plane as the candidate's surface point. Without this, the
+    /// plane of a floor would catch rays that pass outside the room's corner, beyond the wall that
+    /// bounds the floor, and light would leak out of closed rooms.
+    #[inline(always)]
+    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3) -> u32 {
+        let x = &self.locals[k];
+        if self.single[g] == u32::MAX {
+            if let Some(found) = self.best_in::<FORWARD>(g, k, dir) {
+                return found as u32;
+            }
+        }
+        let group_count = self.groups.len() - 1;
+        let mut g2 = g;
+        loop {
+            if FORWARD {
+                g2 += 1;
+                if g2 >= group_count {
+                    return u32::MAX;
+                }
+            } else {
+                if g2 == 0 {
+                    return u32::MAX;
+                }
+                g2 -= 1;
+            }
+            let single = self.single[g2];
+            if single == x.group {
+                // A run of the receiver's own plane: jump to its far end.
+                g2 = if FORWARD {
+                    self.run_after[g2] as usize - 1
+                } else {
+                    self.run_before[g2] as usize
+                };
+                continue;
+            }
+            if single != u32::MAX {
+                let c = self.groups[g2];
+                if Self::test::<FORWARD>(x, &self.locals[c]).is_some() {
+                    return c as u32;
+                }
+            } else if let Some(found) = self.best_in::<FORWARD>(g2, k, dir) {
+                return found as u32;
+            }
+        }
+    }
 }
 
 /// Gathers light along one line into `acc` (indexed by surfel).
@@ -227,37 +316,36 @@ struct LineView<'a> {
 pub unsafe fn gather_line(
     line: &[u32],
     input: &DirectionInput,
-    groups: &mut Vec<usize>,
-    partners: &mut Vec<[u32; 2]>,
+    scratch: &mut LineScratch,
     acc: *mut [[f64; 3]; 2],
 ) {
     let s = input.unit;
-    find_partners(line, input.surfels, s, groups, partners);
+    find_partners(line, input.surfels, s, scratch);
     for (k, &m) in line.iter().enumerate() {
-        let x = &input.surfels[m as usize];
-        let n = x.normal();
-        let cos = n.dot(s).abs();
+        let local = &scratch.locals[k];
+        // The cosine in f64, exactly as `normalize::cosine` computes it for S(n).
+        let cos = crate::solve::normalize::cosine(input.surfels[m as usize].normal, s);
         if cos == 0.0 {
             continue;
         }
         let factor = cos * input.weight;
-        let [ahead, behind] = partners[k];
+        let [ahead, behind] = scratch.partners[k];
         // SAFETY: see the function's contract.
         let target = unsafe { &mut *acc.add(m as usize) };
         if ahead != u32::MAX {
-            let y = line[ahead as usize] as usize;
-            let from = input.radiosity[y][side_facing(input.surfels[y].normal(), -s)];
-            let to = &mut target[side_facing(n, s)];
-            for ch in 0..3 {
-                to[ch] += from[ch] as f64 * factor;
+            let partner = &scratch.locals[ahead as usize];
+            let from = input.radiosity[line[ahead as usize] as usize][side_along(-partner.ns)];
+            let to = &mut target[side_along(local.ns)];
+            for (t, f) in to.iter_mut().zip(from) {
+                *t += f as f64 * factor;
             }
         }
         if behind != u32::MAX {
-            let y = line[behind as usize] as usize;
-            let from = input.radiosity[y][side_facing(input.surfels[y].normal(), s)];
-            let to = &mut target[side_facing(n, -s)];
-            for ch in 0..3 {
-                to[ch] += from[ch] as f64 * factor;
+            let partner = &scratch.locals[behind as usize];
+            let from = input.radiosity[line[behind as usize] as usize][side_along(partner.ns)];
+            let to = &mut target[side_along(-local.ns)];
+            for (t, f) in to.iter_mut().zip(from) {
+                *t += f as f64 * factor;
             }
         }
     }
