@@ -202,6 +202,7 @@ fn from_results(results: &Results) -> (SurfelSet, Solution) {
             group: 0,
             area: r.area,
             material: [0, 0],
+            extent: [[0.0; 3], [1.0; 3]],
         })
         .collect();
     let radiosity = results.records.iter().map(|r| r.radiosity).collect();

@@ -121,6 +121,7 @@ pub(crate) mod testutil {
             group: 0,
             area,
             material: [0, 0],
+            extent: [[0.0; 3], [1.0; 3]],
         }
     }
 

@@ -98,6 +98,7 @@ fn run(
             group: s.group,
             point: s.point,
             normal: s.normal,
+            extent: s.extent,
         })
         .collect();
     // The four lexicographic orders, sorted once.

@@ -42,6 +42,8 @@ pub struct PropSurfel {
     pub group: u32,
     pub point: [f32; 3],
     pub normal: [f32; 3],
+    /// Bounding box of the surfel's piece in its voxel (see `Surfel::extent`).
+    pub extent: [[f32; 3]; 2],
 }
 
 /// A surfel of the line being processed, with its cosine to the direction.
@@ -53,6 +55,8 @@ struct Local {
     normal: Vec3,
     /// `normal . s` for the unit direction `s`.
     ns: f32,
+    lo: Vec3,
+    hi: Vec3,
 }
 
 /// `p_c - p_r` in voxel units, exact in the integer part.
@@ -65,20 +69,39 @@ fn offset(r: &Local, c: &Local) -> Vec3 {
     ) + (c.point - r.point)
 }
 
-/// Whether `r` (behind) and `c` (ahead along the direction) light each other. Returns the distance
-/// along `s` from `r`'s point to `c`'s plane and the distance along `-s` from `c`'s point to `r`'s
-/// plane (both positive), used to pick the nearest candidate within a voxel.
+/// How far the candidate's piece reaches along `v` beyond the receiver's point: the largest
+/// `v . (y - p_receiver)` over the corners `y` of the piece's bounding box.
 #[inline(always)]
-fn facing(r: &Local, c: &Local) -> Option<(f32, f32)> {
+fn reach(v: Vec3, receiver: &Local, candidate: &Local) -> f32 {
+    let (a, b) = (v * candidate.lo, v * candidate.hi);
+    v.dot(offset(receiver, candidate) - candidate.point) + a.max(b).element_sum()
+}
+
+/// Whether `r` (behind) and `c` (ahead along the direction) light each other; `RECEIVER_BEHIND`
+/// tells which of the two is the receiver. The ray from the receiver's point must cross the
+/// candidate's plane ahead, and some of the candidate's piece must lie in front of the receiver's
+/// side (the piece's bounding box, not just its centroid, so that a piece running past the
+/// receiver's plane, as at a T-junction, still counts). Returns the distance from the receiver's
+/// point to the candidate's plane along the search direction.
+#[inline(always)]
+fn facing<const RECEIVER_BEHIND: bool>(r: &Local, c: &Local) -> Option<f32> {
     if r.group == c.group || r.ns == 0.0 || c.ns == 0.0 {
         return None;
     }
     let d = offset(r, c);
     let (rd, cd) = (r.normal.dot(d), c.normal.dot(d));
-    if rd * r.ns.signum() <= EPS || cd * c.ns.signum() <= EPS {
-        return None;
+    if RECEIVER_BEHIND {
+        // Crossing ahead: the receiver r lies in front of c's side facing it.
+        if cd * c.ns.signum() <= EPS || reach(r.normal * r.ns.signum(), r, c) <= EPS {
+            return None;
+        }
+        Some(cd / c.ns)
+    } else {
+        if rd * r.ns.signum() <= EPS || reach(-c.normal * c.ns.signum(), c, r) <= EPS {
+            return None;
+        }
+        Some(rd / r.ns)
     }
-    Some((cd / c.ns, rd / r.ns))
 }
 
 /// The side of a surfel that faces along the direction, given `normal . s`.
@@ -140,6 +163,8 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             point: Vec3::from(p.point),
             normal,
             ns: normal.dot(sf),
+            lo: Vec3::from(p.extent[0]),
+            hi: Vec3::from(p.extent[1]),
         }
     }));
     groups.clear();
@@ -194,6 +219,29 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }
 }
 
+/// Plane groups a search has found to be crossed off their pieces (a few at most; more are
+/// dropped, which only costs exactness in pathological clutter).
+#[derive(Default)]
+struct Missed {
+    groups: [u32; 4],
+    len: usize,
+}
+
+impl Missed {
+    #[inline(always)]
+    fn contains(&self, group: u32) -> bool {
+        self.groups[..self.len].contains(&group)
+    }
+
+    #[inline(always)]
+    fn insert(&mut self, group: u32) {
+        if self.len < self.groups.len() && !self.contains(group) {
+            self.groups[self.len] = group;
+            self.len += 1;
+        }
+    }
+}
+
 /// One line of one direction, with its voxel groups and same-plane runs.
 #[derive(Clone, Copy)]
 struct LineView<'a> {
@@ -210,45 +258,83 @@ impl LineView<'_> {
     #[inline(always)]
     fn test<const FORWARD: bool>(x: &Local, c: &Local) -> Option<f32> {
         if FORWARD {
-            facing(x, c).map(|t| t.0)
+            facing::<true>(x, c)
         } else {
-            facing(c, x).map(|t| t.1)
+            facing::<false>(c, x)
         }
     }
 
     /// The accepted candidate of voxel group `g2` nearest to receiver `k`, if any (see `nearest`).
+    /// Planes whose crossing falls off their piece are added to `missed`.
     #[inline(always)]
-    fn best_in<const FORWARD: bool>(&self, g2: usize, k: usize, dir: Vec3) -> Option<usize> {
+    fn best_in<const FORWARD: bool>(
+        &self,
+        g2: usize,
+        k: usize,
+        dir: Vec3,
+        missed: &mut Missed,
+    ) -> Option<usize> {
         let locals = self.locals;
         let x = &locals[k];
         let range = self.groups[g2]..self.groups[g2 + 1];
         let mut best: Option<(f32, usize)> = None;
+        // Planes crossed off / on their pieces in this voxel: a plane with two pieces here (two
+        // facings) counts as missed only if neither piece was hit.
+        let (mut off, mut on) = (Missed::default(), Missed::default());
         for k2 in range.clone() {
             if k2 == k {
                 continue;
             }
             let c = &locals[k2];
+            if missed.contains(c.group) {
+                continue;
+            }
             let Some(t) = Self::test::<FORWARD>(x, c) else {
                 continue;
             };
-            if best.is_some_and(|(bt, _)| t >= bt) {
-                continue;
+            if let Some((bt, bk)) = best {
+                // Two coincident surfels of one plane facing opposite ways: the one whose front
+                // (the side its triangles face) faces the receiver wins.
+                let tie = (t - bt).abs() <= EPS && locals[bk].group == c.group;
+                let c_faces = c.normal.dot(dir) < 0.0;
+                if !(t < bt - EPS || tie && c_faces && locals[bk].normal.dot(dir) >= 0.0) {
+                    continue;
+                }
             }
             let on_piece = range.clone().all(|k3| {
                 let mate = &locals[k3];
                 if k3 == k2 || k3 == k || mate.group == c.group {
                     return true;
                 }
-                let piece_side = mate.normal.dot(offset(mate, c));
-                if piece_side.abs() <= EPS {
+                // Which side of the mate's plane the candidate's piece lies on, from the piece's
+                // bounding box; a piece running through the plane (a T-junction) is not bounded
+                // by it.
+                let n = mate.normal;
+                let base = n.dot(offset(mate, c) - c.point);
+                let (a, b) = (n * c.lo, n * c.hi);
+                let low = base + a.min(b).element_sum();
+                let high = base + a.max(b).element_sum();
+                let piece_side = if low >= -EPS {
+                    1.0
+                } else if high <= EPS {
+                    -1.0
+                } else {
                     return true;
-                }
+                };
                 // Crossing point relative to the mate's point.
                 let q = dir * t - offset(x, mate);
-                mate.normal.dot(q) * piece_side.signum() >= -EPS
+                n.dot(q) * piece_side >= -EPS
             });
             if on_piece {
                 best = Some((t, k2));
+                on.insert(c.group);
+            } else {
+                off.insert(c.group);
+            }
+        }
+        for &group in &off.groups[..off.len] {
+            if !on.contains(group) {
+                missed.insert(group);
             }
         }
         best.map(|b| b.1)
@@ -263,11 +349,17 @@ impl LineView<'_> {
     /// same side of each voxel-mate's plane as the candidate's surface point. Without this, the
     /// plane of a floor would catch rays that pass outside the room's corner, beyond the wall that
     /// bounds the floor, and light would leak out of closed rooms.
+    ///
+    /// A ray crosses a plane once: when that crossing falls off the plane's piece (past the edge
+    /// where the plane meets its voxel-mate), no later surfel of the same plane can catch the ray,
+    /// so the plane is remembered as missed for the rest of the search. This is what keeps a ray
+    /// that grazes past the outside corner of a room from meeting the inside of the wall beyond it.
     #[inline(always)]
     fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3) -> u32 {
         let x = &self.locals[k];
+        let mut missed = Missed::default();
         if self.single[g] == u32::MAX {
-            if let Some(found) = self.best_in::<FORWARD>(g, k, dir) {
+            if let Some(found) = self.best_in::<FORWARD>(g, k, dir, &mut missed) {
                 return found as u32;
             }
         }
@@ -297,10 +389,10 @@ impl LineView<'_> {
             }
             if single != u32::MAX {
                 let c = self.groups[g2];
-                if Self::test::<FORWARD>(x, &self.locals[c]).is_some() {
+                if !missed.contains(single) && Self::test::<FORWARD>(x, &self.locals[c]).is_some() {
                     return c as u32;
                 }
-            } else if let Some(found) = self.best_in::<FORWARD>(g2, k, dir) {
+            } else if let Some(found) = self.best_in::<FORWARD>(g2, k, dir, &mut missed) {
                 return found as u32;
             }
         }

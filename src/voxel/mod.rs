@@ -4,7 +4,8 @@
 //! (origin, voxel size, dimensions) and a list of [`Surfel`]s. A surfel is the part of one plane
 //! group (coplanar triangles, see `voxelize`) inside one voxel: a voxel where two walls meet holds
 //! two surfels, a corner voxel three. Surfels are two-sided: side 0 ("front") faces along
-//! `normal`, side 1 ("back") faces along `-normal`; each side has its own material and radiosity.
+//! `normal` and is the side its triangles face; side 1 ("back") faces along `-normal`. Each side
+//! has its own material and radiosity.
 //!
 //! Positions inside the solver are in voxel units: voxel `v` covers `[v, v + 1)` on each axis and
 //! a surfel's surface point is `v + point`. World position = `grid.origin + (v + point) * voxel_size`.
@@ -56,6 +57,10 @@ pub struct Surfel {
     pub area: f32,
     /// Material index of the front and the back side.
     pub material: [u32; 2],
+    /// Bounding box of the surface piece inside the voxel (low and high corner, voxel units
+    /// relative to the voxel's low corner). Tells at an edge whether the piece lies on one side of
+    /// a neighbouring plane or runs through it (a T-junction).
+    pub extent: [[f32; 3]; 2],
 }
 
 impl Surfel {

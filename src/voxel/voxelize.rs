@@ -13,11 +13,12 @@
 //! (voxel, group) pair becomes one [`Surfel`] whose surface point is the area-weighted centroid of
 //! the group's triangles clipped to the voxel (the mean contact point for zero area). So a voxel on
 //! the edge of two walls holds two surfels, a corner voxel three, and a thin two-sided sheet (a
-//! single quad lit from both sides) one surfel with two sides. The group normal's orientation is
-//! canonical (first non-zero component positive); a triangle facing the other way feeds the back
-//! side. Each side takes the material covering most of its area; a side no triangle faces (the
-//! back of a one-sided wall) takes the other side's reflectance without its emission, because
-//! emission leaves the front of a triangle only.
+//! single quad lit from both sides) one surfel with two sides. The surfel's front is the side its
+//! triangles face and takes the material covering most of its area; its back takes the same
+//! reflectance without emission (emission leaves the front of a triangle only). Where triangles of
+//! one plane face both ways in one voxel (two solids pressed together, a sheet modelled twice back
+//! to back), each facing gets its own surfel with its own piece: merging them would put the surface
+//! point where neither piece is, and rays would be misjudged at the seam.
 //!
 //! Not done here: triangles of a finely tessellated curved surface are not merged, so a voxel may
 //! hold several surfels of nearly parallel planes; they behave correctly (they do not light each
@@ -105,6 +106,9 @@ struct Piece {
     centroid_sum: DVec3,
     /// Mean of the clipped polygon's vertices, for zero-area contacts.
     contact: DVec3,
+    /// Bounding box of the clipped polygon.
+    lo: DVec3,
+    hi: DVec3,
 }
 
 /// A triangle's plane in voxel units, in canonical orientation.
@@ -205,6 +209,7 @@ pub fn voxelize(scene: &Scene, spec: GridSpec) -> Result<SurfelSet, VoxelizeErro
 
     let mut materials = scene.materials.clone();
     let mut unlit_copy: HashMap<u32, u32> = HashMap::new();
+    let mut flipped: HashMap<u32, u32> = HashMap::new();
     let mut surfels = Vec::new();
     let mut start = 0;
     while start < pieces.len() {
@@ -215,14 +220,26 @@ pub fn voxelize(scene: &Scene, spec: GridSpec) -> Result<SurfelSet, VoxelizeErro
         {
             end += 1;
         }
+        // Triangles of one plane facing opposite ways (two solids pressed together, or a sheet
+        // modelled twice back to back) become two surfels, each with its own piece and point, so
+        // that a ray can tell which piece it crosses. Pieces are sorted by side within the run.
         let run = &pieces[start..end];
-        surfels.push(merge_run(
-            run,
-            &group_normal,
-            &normals,
-            &mut materials,
-            &mut unlit_copy,
-        ));
+        let split = run
+            .iter()
+            .position(|p| p.side != run[0].side)
+            .unwrap_or(run.len());
+        for part in [&run[..split], &run[split..]] {
+            if !part.is_empty() {
+                surfels.push(merge_run(
+                    part,
+                    &group_normal,
+                    &mut normals,
+                    &mut flipped,
+                    &mut materials,
+                    &mut unlit_copy,
+                ));
+            }
+        }
         start = end;
     }
     if surfels.len() > u32::MAX as usize {
@@ -236,41 +253,57 @@ pub fn voxelize(scene: &Scene, spec: GridSpec) -> Result<SurfelSet, VoxelizeErro
     })
 }
 
-/// Merges the pieces of one (voxel, group) into a surfel.
+/// Merges the pieces of one (voxel, group, facing) into a surfel whose front is the side its
+/// triangles face; the back takes the front's reflectance without its emission.
 fn merge_run(
     run: &[Piece],
     group_normal: &[u32],
-    normals: &[[f32; 3]],
+    normals: &mut Vec<[f32; 3]>,
+    flipped: &mut HashMap<u32, u32>,
     materials: &mut Vec<Material>,
     unlit_copy: &mut HashMap<u32, u32>,
 ) -> Surfel {
     let area: f64 = run.iter().map(|p| p.area).sum();
-    let point = if area > 1e-12 {
+    let mut point = if area > 1e-12 {
         run.iter().map(|p| p.centroid_sum).sum::<DVec3>() / area
     } else {
         run.iter().map(|p| p.contact).sum::<DVec3>() / run.len() as f64
+    };
+    // The centroid of pieces that form an L (two faces meeting in the voxel) can fall in the
+    // notch, off the surface, where rays from it would start in the wrong room. When it lies in no
+    // piece's bounding box, use the centroid of the largest piece, which is on the surface.
+    let margin = 1e-6;
+    let inside_some = run
+        .iter()
+        .any(|p| point.cmpge(p.lo - margin).all() && point.cmple(p.hi + margin).all());
+    if !inside_some {
+        if let Some(largest) = run.iter().max_by(|a, b| a.area.total_cmp(&b.area)) {
+            point = if largest.area > 1e-12 {
+                largest.centroid_sum / largest.area
+            } else {
+                largest.contact
+            };
+        }
     }
-    .clamp(DVec3::ZERO, DVec3::ONE);
-    // Per side: the material with the largest area (pieces are sorted by side, then material).
-    let mut side_material: [Option<(u32, f64)>; 2] = [None, None];
+    let point = point.clamp(DVec3::ZERO, DVec3::ONE);
+    // The material with the largest area (pieces are sorted by material within the run).
+    let mut best: Option<(u32, f64)> = None;
     let mut k = 0;
     while k < run.len() {
-        let (side, material) = (run[k].side as usize, run[k].material);
+        let material = run[k].material;
         let mut a = 0.0;
-        while k < run.len() && run[k].side as usize == side && run[k].material == material {
+        while k < run.len() && run[k].material == material {
             a += run[k].area;
             k += 1;
         }
-        if side_material[side].is_none_or(|(_, best)| a > best) {
-            side_material[side] = Some((material, a));
+        if best.is_none_or(|(_, best_area)| a > best_area) {
+            best = Some((material, a));
         }
     }
-    let mut unlit = |m: u32| -> u32 {
-        if !materials[m as usize].is_emitter() {
-            return m;
-        }
-        *unlit_copy.entry(m).or_insert_with(|| {
-            let source = &materials[m as usize];
+    let front = best.map_or(run[0].material, |b| b.0);
+    let back = if materials[front as usize].is_emitter() {
+        *unlit_copy.entry(front).or_insert_with(|| {
+            let source = &materials[front as usize];
             let copy = Material::new(
                 &format!("{} (unlit side)", source.name),
                 source.reflectance,
@@ -279,15 +312,18 @@ fn merge_run(
             materials.push(copy);
             (materials.len() - 1) as u32
         })
-    };
-    let material = match side_material {
-        [Some((f, _)), Some((b, _))] => [f, b],
-        [Some((f, _)), None] => [f, unlit(f)],
-        [None, Some((b, _))] => [unlit(b), b],
-        [None, None] => unreachable!("a run holds at least one piece"),
+    } else {
+        front
     };
     let group = run[0].group;
-    let normal_id = group_normal[group as usize];
+    let mut normal_id = group_normal[group as usize];
+    if run[0].side as usize == BACK {
+        normal_id = *flipped.entry(normal_id).or_insert_with(|| {
+            let n = normals[normal_id as usize];
+            normals.push([-n[0], -n[1], -n[2]]);
+            (normals.len() - 1) as u32
+        });
+    }
     Surfel {
         voxel: run[0].voxel,
         point: point.as_vec3().to_array(),
@@ -295,7 +331,17 @@ fn merge_run(
         normal_id,
         group,
         area: area as f32,
-        material,
+        material: [front, back],
+        extent: [
+            run.iter()
+                .fold(DVec3::ONE, |a, p| a.min(p.lo))
+                .as_vec3()
+                .to_array(),
+            run.iter()
+                .fold(DVec3::ZERO, |a, p| a.max(p.hi))
+                .as_vec3()
+                .to_array(),
+        ],
     }
 }
 
@@ -349,6 +395,8 @@ fn triangle_pieces(
                 }
                 let (area, centroid_sum) = polygon_area_centroid(&polygon);
                 let contact = polygon.iter().sum::<DVec3>() / polygon.len() as f64;
+                let lo = polygon.iter().fold(DVec3::ONE, |a, p| a.min(*p));
+                let hi = polygon.iter().fold(DVec3::ZERO, |a, p| a.max(*p));
                 out.push(Piece {
                     voxel: voxel.map(|c| c as i32),
                     group,
@@ -357,6 +405,8 @@ fn triangle_pieces(
                     area,
                     centroid_sum,
                     contact,
+                    lo,
+                    hi,
                 });
             }
         }
