@@ -24,6 +24,9 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Solve the radiosity of a scene (an .obj file with its .mtl) and write the results.
+    // Negative numbers are values, so `--tolerance -1` reaches the validation that names the
+    // option instead of failing as an "unexpected argument '-1'".
+    #[command(allow_negative_numbers = true)]
     Solve {
         /// The scene: an OBJ file (Kd = reflectance, Ke = emitted radiosity).
         scene: PathBuf,
