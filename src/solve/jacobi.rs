@@ -218,7 +218,8 @@ fn run(
     }
     progress.finish_and_clear();
     if options.tolerance.is_none() {
-        stats.converged = stats.residual.is_finite();
+        // A fixed count of iterations: report whether it reached the default tolerance.
+        stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
     }
     energy(set, &acc, &cosine_sum, &mut stats);
     Solution { radiosity, stats }
