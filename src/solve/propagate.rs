@@ -357,6 +357,11 @@ impl LineView<'_> {
     #[inline(always)]
     fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3) -> u32 {
         let x = &self.locals[k];
+        if x.ns == 0.0 {
+            // The direction lies in the receiver's plane: it gathers nothing along it, and no
+            // candidate could pass the test anyway, so do not walk the line.
+            return u32::MAX;
+        }
         let mut missed = Missed::default();
         if self.single[g] == u32::MAX {
             if let Some(found) = self.best_in::<FORWARD>(g, k, dir, &mut missed) {
