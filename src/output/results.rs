@@ -73,25 +73,12 @@ impl Record {
 
     /// Surface point in voxel units (absolute).
     pub fn position(&self) -> DVec3 {
-        DVec3::new(
-            self.voxel[0] as f64 + self.point[0] as f64,
-            self.voxel[1] as f64 + self.point[1] as f64,
-            self.voxel[2] as f64 + self.point[2] as f64,
-        )
+        crate::voxel::absolute_position(self.voxel, self.point)
     }
 
     /// Unit normal of side `side` (`FRONT` or `BACK`).
     pub fn side_normal(&self, side: usize) -> DVec3 {
-        let n = DVec3::new(
-            self.normal[0] as f64,
-            self.normal[1] as f64,
-            self.normal[2] as f64,
-        );
-        if side == FRONT {
-            n
-        } else {
-            -n
-        }
+        crate::voxel::oriented_normal(self.normal, side)
     }
 
     /// Whether side `side` is worth exporting: it has surface, or it carries light.

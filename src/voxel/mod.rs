@@ -63,28 +63,34 @@ pub struct Surfel {
     pub extent: [[f32; 3]; 2],
 }
 
+/// Absolute position (voxel units) of a point given as a voxel and an offset inside it.
+pub fn absolute_position(voxel: [i32; 3], point: [f32; 3]) -> DVec3 {
+    DVec3::new(
+        voxel[0] as f64 + point[0] as f64,
+        voxel[1] as f64 + point[1] as f64,
+        voxel[2] as f64 + point[2] as f64,
+    )
+}
+
+/// The normal of side `side` (FRONT or BACK) of a surface whose front normal is `normal`.
+pub fn oriented_normal(normal: [f32; 3], side: usize) -> DVec3 {
+    let n = DVec3::new(normal[0] as f64, normal[1] as f64, normal[2] as f64);
+    if side == FRONT {
+        n
+    } else {
+        -n
+    }
+}
+
 impl Surfel {
     /// The surface point in voxel units (absolute).
     pub fn position(&self) -> DVec3 {
-        DVec3::new(
-            self.voxel[0] as f64 + self.point[0] as f64,
-            self.voxel[1] as f64 + self.point[1] as f64,
-            self.voxel[2] as f64 + self.point[2] as f64,
-        )
+        absolute_position(self.voxel, self.point)
     }
 
     /// Unit normal of side `side` (FRONT or BACK).
     pub fn side_normal(&self, side: usize) -> DVec3 {
-        let n = DVec3::new(
-            self.normal[0] as f64,
-            self.normal[1] as f64,
-            self.normal[2] as f64,
-        );
-        if side == FRONT {
-            n
-        } else {
-            -n
-        }
+        oriented_normal(self.normal, side)
     }
 }
 
