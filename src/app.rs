@@ -233,6 +233,48 @@ fn load_results(dir: &Path) -> Result<Results, AppError> {
     read_results(&path).map_err(|e| AppError::BadInput(e.to_string()))
 }
 
+/// A scene the `generate` command can write.
+#[derive(Clone, Copy, Debug)]
+pub enum GenerateScene {
+    Cornell,
+    Room {
+        furniture: usize,
+        seed: u64,
+    },
+    Building {
+        rooms: (usize, usize, usize),
+        seed: u64,
+    },
+    SealedRooms,
+    Furnace,
+}
+
+/// `voxrad generate KIND --out FILE.obj`: writes the scene and returns its triangle count.
+pub fn run_generate(which: GenerateScene, out: &Path) -> Result<usize, AppError> {
+    let scene = match which {
+        GenerateScene::Cornell => crate::gen::cornell_box(),
+        GenerateScene::Room { furniture, seed } => crate::gen::room(5.0, seed, furniture),
+        GenerateScene::Building {
+            rooms: (x, z, floors),
+            seed,
+        } => crate::gen::building(x, z, floors, seed),
+        GenerateScene::SealedRooms => crate::gen::sealed_rooms(),
+        GenerateScene::Furnace => crate::gen::furnace(1.0, 0.5),
+    };
+    if out
+        .extension()
+        .is_none_or(|e| !e.eq_ignore_ascii_case("obj"))
+    {
+        return Err(AppError::BadInput(format!(
+            "{}: the output must be an .obj file",
+            out.display()
+        )));
+    }
+    crate::gen::write_obj(&scene, out)
+        .map_err(|e| AppError::Failure(format!("cannot write {}: {e}", out.display())))?;
+    Ok(scene.triangles.len())
+}
+
 /// `voxrad render DIR --out IMG [--camera ...]`.
 pub fn run_render(
     dir: &Path,

@@ -3,7 +3,9 @@
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
-use voxrad::app::{run_probe, run_render, run_solve, AppError, SolveCommand};
+use voxrad::app::{
+    run_generate, run_probe, run_render, run_solve, AppError, GenerateScene, SolveCommand,
+};
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::GridSpec;
 
@@ -69,6 +71,24 @@ enum Command {
         #[arg(long, default_value = "800x600", value_parser = parse_size)]
         size: (u32, u32),
     },
+    /// Write a generated scene (OBJ + MTL) for tests, examples and scale runs.
+    Generate {
+        /// Which scene.
+        #[arg(value_enum)]
+        scene: SceneKind,
+        /// The OBJ file to write (its MTL is written beside it).
+        #[arg(long)]
+        out: PathBuf,
+        /// For `building`: rooms along x, along z, and floors, as XxZxF.
+        #[arg(long, default_value = "2x2x1", value_parser = parse_triple)]
+        rooms: (usize, usize, usize),
+        /// For `room`: pieces of furniture.
+        #[arg(long, default_value_t = 4)]
+        furniture: usize,
+        /// Seed of the generator (same seed, same scene).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Radiosity at given surface points: reads x,y,z,nx,ny,nz rows, prints x,y,z,nx,ny,nz,B_r,B_g,B_b.
     Probe {
         /// A directory written by `voxrad solve`.
@@ -80,6 +100,33 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum SceneKind {
+    /// The Cornell box (the same as examples/cornell_box.obj).
+    Cornell,
+    /// One closed, lit, furnished room.
+    Room,
+    /// A building of many rooms with thick walls and doors (size knob: --rooms).
+    Building,
+    /// A lit room beside a sealed dark one.
+    SealedRooms,
+    /// A closed glowing cube with exact answer B = E / (1 - rho) (E = 1, rho = 0.5).
+    Furnace,
+}
+
+fn parse_triple(text: &str) -> Result<(usize, usize, usize), String> {
+    let parts: Vec<Option<usize>> = text
+        .split('x')
+        .map(|p| p.trim().parse::<usize>().ok().filter(|&v| v > 0))
+        .collect();
+    match parts[..] {
+        [Some(a), Some(b), Some(c)] => Ok((a, b, c)),
+        _ => Err(format!(
+            "'{text}' is not XxZxF with whole numbers of at least 1"
+        )),
+    }
 }
 
 fn parse_size(text: &str) -> Result<(u32, u32), String> {
@@ -185,6 +232,24 @@ fn run(cli: Cli) -> Result<(), AppError> {
             size,
         } => run_render(&dir, &out, camera.as_deref(), size),
         Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
+        Command::Generate {
+            scene,
+            out,
+            rooms,
+            furniture,
+            seed,
+        } => {
+            let scene = match scene {
+                SceneKind::Cornell => GenerateScene::Cornell,
+                SceneKind::Room => GenerateScene::Room { furniture, seed },
+                SceneKind::Building => GenerateScene::Building { rooms, seed },
+                SceneKind::SealedRooms => GenerateScene::SealedRooms,
+                SceneKind::Furnace => GenerateScene::Furnace,
+            };
+            let triangles = run_generate(scene, &out)?;
+            eprintln!("{triangles} triangles written to {}", out.display());
+            Ok(())
+        }
     }
 }
 
