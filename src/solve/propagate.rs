@@ -53,8 +53,9 @@ struct Local {
     group: u32,
     point: Vec3,
     normal: Vec3,
-    /// `normal . s` for the unit direction `s`.
+    /// `normal . s` for the unit direction `s`, and its sign (+-1; 0 when `ns` is 0).
     ns: f32,
+    sgn: f32,
     lo: Vec3,
     hi: Vec3,
 }
@@ -92,12 +93,12 @@ fn facing<const RECEIVER_BEHIND: bool>(r: &Local, c: &Local) -> Option<f32> {
     let (rd, cd) = (r.normal.dot(d), c.normal.dot(d));
     if RECEIVER_BEHIND {
         // Crossing ahead: the receiver r lies in front of c's side facing it.
-        if cd * c.ns.signum() <= EPS || reach(r.normal * r.ns.signum(), r, c) <= EPS {
+        if cd * c.sgn <= EPS || reach(r.normal * r.sgn, r, c) <= EPS {
             return None;
         }
         Some(cd / c.ns)
     } else {
-        if rd * r.ns.signum() <= EPS || reach(-c.normal * c.ns.signum(), c, r) <= EPS {
+        if rd * r.sgn <= EPS || reach(-c.normal * c.sgn, c, r) <= EPS {
             return None;
         }
         Some(rd / r.ns)
@@ -163,6 +164,16 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             point: Vec3::from(p.point),
             normal,
             ns: normal.dot(sf),
+            sgn: {
+                let ns = normal.dot(sf);
+                if ns > 0.0 {
+                    1.0
+                } else if ns < 0.0 {
+                    -1.0
+                } else {
+                    0.0
+                }
+            },
             lo: Vec3::from(p.extent[0]),
             hi: Vec3::from(p.extent[1]),
         }
