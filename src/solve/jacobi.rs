@@ -151,7 +151,9 @@ fn run(
     let any_light = emission
         .iter()
         .any(|e| e.iter().flatten().any(|&v| v > 0.0));
-    let progress = crate::progress::bar(options.max_iterations as u64, "iterations");
+    // One bar per iteration over its directions: on a large scene a single iteration is long.
+    let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
+    let solve_started = Instant::now();
 
     for iteration in 1..=options.max_iterations {
         if !any_light {
@@ -159,6 +161,8 @@ fn run(
             break;
         }
         acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+        progress.reset();
+        progress.set_message(format!("iteration {iteration}"));
         for (d, frame) in directions.directions.iter().zip(&frames) {
             let t0 = Instant::now();
             dispatch(
@@ -177,6 +181,7 @@ fn run(
             gather_all_lines(&lines, &input, &mut acc, threads);
             stats.dispatch_seconds += (t1 - t0).as_secs_f64();
             stats.propagate_seconds += t1.elapsed().as_secs_f64();
+            progress.inc(1);
         }
         stats.updates += (n * directions.len()) as u64;
 
@@ -208,8 +213,13 @@ fn run(
         stats.iterations = iteration;
         stats.last_change = relative;
         stats.residual = estimate;
-        progress.inc(1);
-        tracing::debug!(iteration, relative, estimate, "iteration done");
+        tracing::info!(
+            iteration,
+            change = format!("{relative:.3e}"),
+            estimated_error = format!("{estimate:.3e}"),
+            seconds = format!("{:.1}", solve_started.elapsed().as_secs_f64()),
+            "iteration done"
+        );
         previous_change = Some(relative);
         if options.tolerance.is_some_and(|tol| estimate <= tol) {
             stats.converged = true;
