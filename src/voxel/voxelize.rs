@@ -94,6 +94,19 @@ pub fn grid_for(scene: &Scene, spec: GridSpec) -> Result<Grid, VoxelizeError> {
     })
 }
 
+/// Interleaves the bits of three non-negative coordinates (below 2^21) into a Morton code.
+pub fn morton(voxel: [i32; 3]) -> u64 {
+    fn spread(v: i32) -> u64 {
+        let mut x = (v as u64) & 0x1f_ffff;
+        x = (x | x << 32) & 0x1f00000000ffff;
+        x = (x | x << 16) & 0x1f0000ff0000ff;
+        x = (x | x << 8) & 0x100f00f00f00f00f;
+        x = (x | x << 4) & 0x10c30c30c30c30c3;
+        (x | x << 2) & 0x1249249249249249
+    }
+    spread(voxel[0]) | spread(voxel[1]) << 1 | spread(voxel[2]) << 2
+}
+
 /// One triangle's share of one voxel.
 #[derive(Clone, Copy, Debug)]
 struct Piece {
@@ -201,11 +214,10 @@ pub fn voxelize(scene: &Scene, spec: GridSpec) -> Result<SurfelSet, VoxelizeErro
         .collect();
     progress.finish_and_clear();
 
-    pieces.par_sort_unstable_by_key(|p| {
-        (
-            p.voxel[2], p.voxel[1], p.voxel[0], p.group, p.side, p.material,
-        )
-    });
+    // Surfels are stored in Morton (Z-curve) order of their voxels: discrete lines run in every
+    // direction, and along a Z-curve voxels that are close in space are mostly close in memory,
+    // which keeps the solver's per-line gathers in cache far better than a row-major order.
+    pieces.par_sort_unstable_by_key(|p| (morton(p.voxel), p.group, p.side, p.material));
 
     let mut materials = scene.materials.clone();
     let mut unlit_copy: HashMap<u32, u32> = HashMap::new();
@@ -616,6 +628,17 @@ mod tests {
                 .collect();
             assert_eq!(emits.iter().filter(|&&e| e).count(), 1);
         }
+    }
+
+    #[test]
+    fn morton_interleaves_bits() {
+        assert_eq!(morton([1, 0, 0]), 1);
+        assert_eq!(morton([0, 1, 0]), 2);
+        assert_eq!(morton([0, 0, 1]), 4);
+        assert_eq!(morton([3, 3, 3]), 63);
+        assert_eq!(morton([0x1f_ffff, 0, 0]), 0x1249249249249249);
+        // Order-preserving along each axis.
+        assert!(morton([5, 9, 2]) < morton([6, 9, 2]));
     }
 
     #[test]
