@@ -432,7 +432,7 @@ pub unsafe fn gather_line(
     for (k, &m) in line.iter().enumerate() {
         let local = &scratch.locals[k];
         // The cosine in f64, exactly as `normalize::cosine` computes it for S(n).
-        let cos = crate::solve::normalize::cosine(input.surfels[m as usize].normal, s);
+        let cos = crate::solve::normalize::cosine(local.normal.to_array(), s);
         if cos == 0.0 {
             continue;
         }
