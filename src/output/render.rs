@@ -455,20 +455,113 @@ pub fn auto_camera(set: &SurfelSet, solution: &Solution) -> Camera {
     if set.surfels.len() != solution.radiosity.len() {
         return cameras[0];
     }
-    let mut best = (cameras[0], f64::NEG_INFINITY);
+    let (best, seen, covered) = best_of(set, solution, cameras, f64::INFINITY, 0.0);
+    // A closed scene (a building) is dark from outside: if what the best outside view sees is
+    // far dimmer than the lit surfaces of the scene, look from inside instead, from a few
+    // points in the bounds and along the six axes, with a wider lens.
+    let (mut lit_area, mut lit_sum) = (0.0f64, 0.0f64);
+    for (s, b) in set.surfels.iter().zip(&solution.radiosity) {
+        for side in b {
+            let l = luminance(*side);
+            if l > 0.0 {
+                lit_area += s.area as f64;
+                lit_sum += s.area as f64 * l;
+            }
+        }
+    }
+    let scene_mean = if lit_area > 0.0 {
+        lit_sum / lit_area
+    } else {
+        0.0
+    };
+    let _ = (seen, covered);
+    let seen_median = best_view_median(set, solution, &best);
+    if scene_mean > 0.0 && seen_median < 0.05 * scene_mean {
+        let mut inside = Vec::new();
+        for fx in [0.25, 0.5, 0.75] {
+            for fy in [0.25, 0.5, 0.75] {
+                for fz in [0.25, 0.5, 0.75] {
+                    let eye = lo + (hi - lo) * DVec3::new(fx, fy, fz);
+                    for dir in &candidate_directions()[..6] {
+                        let up = if dir.y.abs() > 0.9 {
+                            DVec3::Z
+                        } else {
+                            DVec3::Y
+                        };
+                        inside.push(Camera {
+                            eye,
+                            target: eye + *dir,
+                            up,
+                            vertical_fov_degrees: 70.0,
+                        });
+                    }
+                }
+            }
+        }
+        // Luminance capped at the scene's mean, so that a view filled with lit walls beats a
+        // close-up of a lamp.
+        let (camera, inside_seen, inside_covered) =
+            best_of(set, solution, inside, scene_mean, (hi - lo).length());
+        if inside_covered > 0 && inside_seen > 0.0 {
+            return camera;
+        }
+    }
+    best
+}
+
+/// Median luminance of the covered pixels of `camera`'s 64 x 64 view (0 if nothing is covered):
+/// from outside a closed scene most pixels are unlit walls, whatever bright seams show.
+fn best_view_median(set: &SurfelSet, solution: &Solution, camera: &Camera) -> f64 {
+    let Ok(view) = View::new(camera, 64, 64) else {
+        return 0.0;
+    };
+    let mut lums: Vec<f64> = rasterize(set, solution, &view)
+        .covered()
+        .map(luminance)
+        .collect();
+    if lums.is_empty() {
+        return 0.0;
+    }
+    lums.sort_by(|a, b| a.total_cmp(b));
+    lums[lums.len() / 2]
+}
+
+/// The camera whose 64 x 64 depth-buffered view sees the most light (each pixel's luminance
+/// capped at `cap`); with that light and the number of covered pixels. With `room_size` > 0
+/// (cameras inside the scene), a view whose median depth is under a tenth of `room_size` (a
+/// camera pressed against a wall) is scored down in proportion.
+fn best_of(
+    set: &SurfelSet,
+    solution: &Solution,
+    cameras: Vec<Camera>,
+    cap: f64,
+    room_size: f64,
+) -> (Camera, f64, usize) {
+    let mut best = (cameras[0], f64::NEG_INFINITY, 0);
     for camera in cameras {
         let Ok(view) = View::new(&camera, 64, 64) else {
             continue;
         };
-        let seen: f64 = rasterize(set, solution, &view)
+        let frame = rasterize(set, solution, &view);
+        let (mut seen, covered) = frame
             .covered()
-            .map(luminance)
-            .sum();
+            .fold((0.0, 0), |(s, c), rgb| (s + luminance(rgb).min(cap), c + 1));
+        if room_size > 0.0 && covered > 0 {
+            let mut depths: Vec<f32> = frame
+                .depth
+                .iter()
+                .copied()
+                .filter(|d| d.is_finite())
+                .collect();
+            depths.sort_by(|a, b| a.total_cmp(b));
+            let median = depths[depths.len() / 2] as f64;
+            seen *= (median / (0.1 * room_size)).min(1.0);
+        }
         if seen > best.1 {
-            best = (camera, seen);
+            best = (camera, seen, covered);
         }
     }
-    best.0
+    best
 }
 
 #[cfg(test)]
@@ -548,6 +641,31 @@ mod tests {
                 stats: Default::default(),
             },
         )
+    }
+
+    #[test]
+    fn auto_camera_goes_inside_a_closed_lit_room() {
+        use crate::scene::{Material, Scene};
+        use crate::voxel::voxelize::{voxelize, GridSpec};
+        let mut scene = Scene::default();
+        let wall = scene.add_material(Material::new("wall", [0.5; 3], [1.0; 3]));
+        scene.add_box(DVec3::ZERO, DVec3::new(2.0, 1.0, 1.5), wall, true);
+        let set = voxelize(&scene, GridSpec::Resolution(24)).unwrap();
+        let solution = crate::solve::solve(
+            &set,
+            &crate::solve::SolveOptions {
+                directions: 50,
+                max_iterations: 3,
+                tolerance: None,
+                threads: 1,
+            },
+        )
+        .unwrap();
+        let eye = auto_camera(&set, &solution).eye;
+        assert!(
+            eye.cmpgt(DVec3::ZERO).all() && eye.cmplt(DVec3::new(2.0, 1.0, 1.5)).all(),
+            "camera outside the closed room: {eye:?}"
+        );
     }
 
     #[test]
