@@ -13,4 +13,5 @@ pub mod output;
 pub mod progress;
 pub mod scene;
 pub mod solve;
+pub mod storage;
 pub mod voxel;
