@@ -18,7 +18,8 @@
 //!                 the manifest by reading its footer only
 //! ```
 //!
-//! Written atomically (temporary file, sync, rename; `output::atomic`), and written last when a
+//! Written atomically (temporary file, sync, rename; `output::atomic`), readable by all like the
+//! shards, and written last when a
 //! set is made, so a directory with a manifest has all its shards. [`Manifest::read`] checks, in
 //! order, the `format` marker, the version, the JSON structure, then every value (finite, in
 //! range, unique file names that stay inside the directory, sizes that agree with counts); every
@@ -31,6 +32,7 @@ use crate::scene::Material;
 use crate::voxel::Grid;
 use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 pub const MANIFEST_FILE: &str = "manifest.json";
@@ -162,10 +164,13 @@ impl Manifest {
     pub fn write(&self, dir: &Path) -> Result<PathBuf, StorageError> {
         let path = Self::path_in(dir);
         self.validate(&path)?;
-        atomic::write_atomically(&path, |w| {
-            serde_json::to_writer_pretty(&mut *w, self).map_err(std::io::Error::other)?;
-            w.write_all(b"\n")
-        })?;
+        let mut json = serde_json::to_vec_pretty(self)
+            .map_err(|e| StorageError::invalid(&path, format!("cannot encode it: {e}")))?;
+        json.push(b'\n');
+        let mut tmp = shard::temp_beside_shared(&path)?;
+        tmp.write_all(&json)
+            .map_err(|e| StorageError::io(&path, "write", e))?;
+        atomic::commit(tmp, &path)?;
         Ok(path)
     }
 

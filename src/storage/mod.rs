@@ -12,7 +12,7 @@
 //! - [`shard`]: the shard file format, its writer (footer only by an explicit `finish`), its
 //!   reader (magic, version, lengths, checksum) and `verify` (also the order).
 //! - [`window`]: memory maps in bounded, page-aligned windows, and the record iterator over
-//!   them. The only `unsafe` in voxrad, with its safety argument.
+//!   them. The only memory maps and the only `unsafe` in `storage`, with the safety argument.
 //! - [`merge`]: the generic k-way merge of sorted iterators, with the tie rule as a parameter.
 //! - [`external_sort`]: sorting more records than fit in a memory budget: runs and merges, the
 //!   budget's split and its counters.

@@ -53,6 +53,21 @@ pub const ORDERS: usize = 4;
 
 const KIND: &str = "shard file";
 
+/// A temporary file beside `path` (see `output::atomic`) that others may read once renamed into
+/// place. `tempfile` creates files readable by their owner only, which is right for secrets but
+/// wrong for a shard set that other users, or ranks running under another account, must read.
+pub(crate) fn temp_beside_shared(path: &Path) -> Result<NamedTempFile, StorageError> {
+    let tmp = atomic::temp_beside(path)?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644))
+            .map_err(|e| StorageError::io(path, "set permissions of", e))?;
+    }
+    Ok(tmp)
+}
+
 /// Byte offset of record `index` in a shard file.
 pub fn record_offset(index: u64) -> u64 {
     HEADER_LEN + index * RECORD_LEN as u64
@@ -154,7 +169,7 @@ impl ShardWriter {
                 format!("order {order} does not exist (there are {ORDERS})"),
             ));
         }
-        let tmp = atomic::temp_beside(path)?;
+        let tmp = temp_beside_shared(path)?;
         let mut out = BufWriter::with_capacity(options.buffer_bytes.max(1), tmp);
         // A placeholder header, patched in `finish`; an unfinished file has count 0 and no footer,
         // so it can never pass for a valid shard.
@@ -580,6 +595,12 @@ pub(crate) mod tests {
         assert_eq!(read_all(&path).unwrap(), surfels);
         // Only the finished file is left: no temporary beside it.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(&path).unwrap().permissions().mode();
+            assert_eq!(mode & 0o777, 0o644, "readable by all, like any data file");
+        }
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! Memory maps in bounded windows: the only place in voxrad with `unsafe`.
+//! Memory maps in bounded windows: the only place in voxrad that maps files, and the only
+//! `unsafe` in `storage`.
 //!
 //! A solve reads every shard once per streaming pass. Mapping a whole shard would make the
 //! process's address space (what `prlimit --as` limits) as large as the data, so a
