@@ -269,7 +269,7 @@ fn merge_runs(
     paths: &[PathBuf],
     order: usize,
     io_bytes: u64,
-) -> Result<impl Iterator<Item = Result<Surfel, StorageError>>, StorageError> {
+) -> Result<impl Iterator<Item = Result<Surfel, StorageError>> + Send, StorageError> {
     let sources = paths
         .iter()
         .map(|p| ShardReader::open_lazy(p)?.records(io_bytes as usize))
@@ -283,7 +283,8 @@ fn merge_runs(
 
 /// The sorted records, produced as they are consumed. Holds the temporary runs until dropped.
 pub struct SortedRecords {
-    inner: Box<dyn Iterator<Item = Result<Surfel, StorageError>>>,
+    /// `Send`, so that a sort can feed a pass running on another thread.
+    inner: Box<dyn Iterator<Item = Result<Surfel, StorageError>> + Send>,
     stats: SortStats,
     _dir: Option<TempDir>,
 }
