@@ -5,6 +5,8 @@
 //! `voxel` (tunnel-free voxelization into surfels) -> `geometry` (integer directions, discrete
 //! lines, lexicographic orders) -> `solve` (dispatch into lines, propagate, Jacobi iterations) ->
 //! `output` (report, per-voxel results, PLY, picture, probes). `gen` makes test and example scenes.
+//! `storage` keeps surfels out of core: sorted shard files, bounded memory-map windows, k-way
+//! merges and an external sort under a memory budget (not yet used by the solver).
 
 pub mod app;
 pub mod gen;
@@ -13,4 +15,5 @@ pub mod output;
 pub mod progress;
 pub mod scene;
 pub mod solve;
+pub mod storage;
 pub mod voxel;
