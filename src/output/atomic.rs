@@ -20,9 +20,19 @@ pub fn parent_dir(path: &Path) -> &Path {
     }
 }
 
-/// Creates a temporary file in the directory of `path`.
+/// Creates a temporary file in the directory of `path`, readable by all like an ordinary new file
+/// (tempfile makes it owner-only, which would stay so after the rename: results of a cluster job
+/// are usually read by other users and programs).
 pub fn temp_beside(path: &Path) -> Result<NamedTempFile, OutputError> {
-    NamedTempFile::new_in(parent_dir(path)).map_err(|e| OutputError::io(path, e))
+    let tmp = NamedTempFile::new_in(parent_dir(path)).map_err(|e| OutputError::io(path, e))?;
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tmp.as_file()
+            .set_permissions(std::fs::Permissions::from_mode(0o644))
+            .map_err(|e| OutputError::io(path, e))?;
+    }
+    Ok(tmp)
 }
 
 /// Syncs `tmp` to disk and renames it to `path`, then syncs the directory so the rename itself

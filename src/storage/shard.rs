@@ -57,15 +57,8 @@ const KIND: &str = "shard file";
 /// place. `tempfile` creates files readable by their owner only, which is right for secrets but
 /// wrong for a shard set that other users, or ranks running under another account, must read.
 pub(crate) fn temp_beside_shared(path: &Path) -> Result<NamedTempFile, StorageError> {
-    let tmp = atomic::temp_beside(path)?;
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        tmp.as_file()
-            .set_permissions(std::fs::Permissions::from_mode(0o644))
-            .map_err(|e| StorageError::io(path, "set permissions of", e))?;
-    }
-    Ok(tmp)
+    // `atomic::temp_beside` already makes the file readable by all.
+    Ok(atomic::temp_beside(path)?)
 }
 
 /// Byte offset of record `index` in a shard file.
