@@ -421,8 +421,9 @@ pub fn read_results(path: &Path) -> Result<Results, ResultsError> {
     Ok(Results { grid, records })
 }
 
-/// Fills `buf` as far as the reader allows; returns how many bytes were read.
-fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
+/// Fills `buf` as far as the reader allows; returns how many bytes were read. (A short read is
+/// not an error here: readers of checked files report short files as length errors.)
+pub(crate) fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
     let mut got = 0;
     while got < buf.len() {
         match r.read(&mut buf[got..]) {

@@ -34,6 +34,7 @@ use super::record::{self, RECORD_LEN};
 use super::StorageError;
 use crate::geometry::order;
 use crate::output::atomic;
+use crate::output::results::read_up_to;
 use crate::voxel::Surfel;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
@@ -517,20 +518,6 @@ fn u64_at(b: &[u8], i: usize) -> u64 {
     let mut w = [0u8; 8];
     w.copy_from_slice(&b[i..i + 8]);
     u64::from_le_bytes(w)
-}
-
-/// Fills `buf` as far as the reader allows; returns how many bytes were read.
-fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut got = 0;
-    while got < buf.len() {
-        match r.read(&mut buf[got..]) {
-            Ok(0) => break,
-            Ok(n) => got += n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
-            Err(e) => return Err(e),
-        }
-    }
-    Ok(got)
 }
 
 #[cfg(test)]
