@@ -68,6 +68,7 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         "scene read"
     );
 
+    check_memory(&scene, cmd)?;
     let t = Instant::now();
     let set = voxelize(&scene, cmd.grid)
         .map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
@@ -128,6 +129,63 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         .write(&cmd.out)
         .map_err(|e| AppError::Failure(e.to_string()))?;
     Ok(report)
+}
+
+/// Bytes the in-memory solver holds per surfel (surfel set, solver arrays, voxelization pieces at
+/// their peak), measured by `benches/throughput.rs` (80 + about 280) plus a margin.
+const BYTES_PER_SURFEL: f64 = 500.0;
+
+/// Refuses, before any allocation, a solve that cannot fit in this machine's memory (a typo in
+/// `--resolution` would otherwise end in the kernel killing the process hours later). Estimates
+/// the surfel count from the surface area (a tunnel-free surface holds up to about two voxels per
+/// voxel-sized patch) and the per-direction line arrays from the grid.
+fn check_memory(scene: &crate::scene::Scene, cmd: &SolveCommand) -> Result<(), AppError> {
+    let Ok(grid) = crate::voxel::voxelize::grid_for(scene, cmd.grid) else {
+        return Ok(()); // voxelize reports the problem itself
+    };
+    let area: f64 = scene.triangles.iter().map(|t| t.area()).sum();
+    let surfels = 2.0 * area / (grid.voxel_size * grid.voxel_size);
+    let [x, y, z] = grid.dims.map(|d| d as f64);
+    let longest = x.max(y).max(z);
+    let lines = (x.max(y) + longest) * (y.max(z) + longest);
+    let threads = if cmd.solve.threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        cmd.solve.threads
+    } as f64;
+    let need = surfels * BYTES_PER_SURFEL + lines * 4.0 * (threads + 1.0);
+    let Some(available) = available_memory_bytes() else {
+        return Ok(());
+    };
+    if need > available as f64 {
+        let gib = |b: f64| b / (1u64 << 30) as f64;
+        let fits = (longest * (available as f64 / need).sqrt())
+            .floor()
+            .max(2.0);
+        return Err(AppError::BadInput(format!(
+            "{}: at this grid ({} x {} x {} voxels of {:.4} scene units) the solve would need about \
+             {:.1} GiB ({:.2e} surfels), but only {:.1} GiB of memory is available; use \
+             --resolution {} or less",
+            cmd.scene.display(),
+            grid.dims[0],
+            grid.dims[1],
+            grid.dims[2],
+            grid.voxel_size,
+            gib(need),
+            surfels,
+            gib(available as f64),
+            fits
+        )));
+    }
+    Ok(())
+}
+
+/// `MemAvailable` from `/proc/meminfo` (Linux), in bytes.
+fn available_memory_bytes() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }
 
 fn write_outputs(

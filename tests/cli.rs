@@ -367,7 +367,7 @@ fn bad_options_exit_2() {
     let tmp = TempDir::new().unwrap();
     let out = s(&tmp.path().join("out"));
     let scene = example("cornell_box.obj");
-    let cases: [(&[&str], &[&str]); 9] = [
+    let cases: [(&[&str], &[&str]); 10] = [
         (&["--resolution", "1"], &["cornell_box.obj", "resolution"]),
         (&["--resolution", "-3"], &["resolution"]),
         (&["--tolerance=-1"], &["tolerance"]),
@@ -377,6 +377,11 @@ fn bad_options_exit_2() {
         (&["--tolerance", "nan"], &["tolerance"]),
         (&["--directions", "0"], &["directions"]),
         (&["--no-such-flag"], &["--no-such-flag"]),
+        // A grid far beyond this machine's memory is refused before anything is allocated.
+        (
+            &["--resolution", "1000000"],
+            &["cornell_box.obj", "memory", "--resolution"],
+        ),
     ];
     for (extra, needles) in cases {
         let mut args = vec!["solve", scene.as_str(), "--out", out.as_str()];
