@@ -67,9 +67,9 @@ fn black_scene_is_direct_light_only_in_one_pass() {
         "a scene that reflects nothing needs one pass"
     );
     for (s, b) in set.surfels.iter().zip(&solution.radiosity) {
-        for side in 0..2 {
-            let e = set.materials[s.material[side] as usize].emission[0] as f32;
-            assert_eq!(b[side][0], e, "B must equal E when nothing reflects");
+        for (&material, side) in s.material.iter().zip(b) {
+            let e = set.materials[material as usize].emission[0] as f32;
+            assert_eq!(side[0], e, "B must equal E when nothing reflects");
         }
     }
 }
