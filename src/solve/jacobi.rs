@@ -90,10 +90,13 @@ fn run(
     let cosine_sum = cosine_sums(&set.normals, directions);
     let normalize_seconds = started.elapsed().as_secs_f64();
 
+    let coverage = super::coverage::coverages(set);
     let surfels: Vec<PropSurfel> = set
         .surfels
         .iter()
-        .map(|s| PropSurfel {
+        .zip(&coverage)
+        .map(|(s, &coverage)| PropSurfel {
+            coverage,
             voxel: s.voxel,
             group: s.group,
             point: s.point,

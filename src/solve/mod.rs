@@ -5,6 +5,7 @@
 //! (`dispatch`) and gathers light along each line (`propagate`). `jacobi` owns the iteration loop,
 //! the stopping rule and the result.
 
+pub mod coverage;
 pub mod dispatch;
 pub mod jacobi;
 pub mod normalize;

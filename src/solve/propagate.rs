@@ -44,6 +44,9 @@ pub struct PropSurfel {
     pub normal: [f32; 3],
     /// Bounding box of the surfel's piece in its voxel (see `Surfel::extent`).
     pub extent: [[f32; 3]; 2],
+    /// Fraction of the voxel's slice of the surfel's plane that its piece covers, for a piece at
+    /// the open edge of a surface (alone in its voxel, not filling it); 1 everywhere else.
+    pub coverage: f32,
 }
 
 /// A surfel of the line being processed, with its cosine to the direction.
@@ -58,6 +61,7 @@ struct Local {
     sgn: f32,
     lo: Vec3,
     hi: Vec3,
+    coverage: f32,
 }
 
 /// `p_c - p_r` in voxel units, exact in the integer part.
@@ -139,7 +143,33 @@ pub struct LineScratch {
     run_after: Vec<u32>,
     run_before: Vec<u32>,
     /// For each line position: the positions of the partner ahead and behind (`u32::MAX`: none).
-    pub partners: Vec<[u32; 2]>,
+    pub partners: Vec<[Chain; 2]>,
+}
+
+/// Longest chain of partners one search may return.
+pub const MAX_CHAIN: usize = 4;
+
+/// The partners one search found: line positions with the share of the light each sends. A ray
+/// that meets the open edge of a surface (a piece covering part of its voxel) takes that piece's
+/// coverage from it and goes on to what lies behind with the rest; every other hit ends it.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Chain {
+    pub len: u8,
+    pub items: [(u32, f32); MAX_CHAIN],
+}
+
+impl Chain {
+    fn push(&mut self, position: usize, weight: f32) {
+        if (self.len as usize) < MAX_CHAIN {
+            self.items[self.len as usize] = (position as u32, weight);
+            self.len += 1;
+        }
+    }
+
+    /// The partners and their weights.
+    pub fn iter(&self) -> impl Iterator<Item = (u32, f32)> + '_ {
+        self.items[..self.len as usize].iter().copied()
+    }
 }
 
 /// Finds the partners of every surfel of one line (surfel indices in order along `s`); the result
@@ -176,6 +206,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             },
             lo: Vec3::from(p.extent[0]),
             hi: Vec3::from(p.extent[1]),
+            coverage: p.coverage,
         }
     }));
     groups.clear();
@@ -366,17 +397,20 @@ impl LineView<'_> {
     /// so the plane is remembered as missed for the rest of the search. This is what keeps a ray
     /// that grazes past the outside corner of a room from meeting the inside of the wall beyond it.
     #[inline(always)]
-    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3) -> u32 {
+    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3) -> Chain {
+        let mut chain = Chain::default();
         let x = &self.locals[k];
         if x.ns == 0.0 {
             // The direction lies in the receiver's plane: it gathers nothing along it, and no
             // candidate could pass the test anyway, so do not walk the line.
-            return u32::MAX;
+            return chain;
         }
         let mut missed = Missed::default();
+        let mut left = 1.0f32;
         if self.single[g] == u32::MAX {
             if let Some(found) = self.best_in::<FORWARD>(g, k, dir, &mut missed) {
-                return found as u32;
+                chain.push(found, left);
+                return chain;
             }
         }
         let group_count = self.groups.len() - 1;
@@ -385,11 +419,11 @@ impl LineView<'_> {
             if FORWARD {
                 g2 += 1;
                 if g2 >= group_count {
-                    return u32::MAX;
+                    return chain;
                 }
             } else {
                 if g2 == 0 {
-                    return u32::MAX;
+                    return chain;
                 }
                 g2 -= 1;
             }
@@ -405,11 +439,36 @@ impl LineView<'_> {
             }
             if single != u32::MAX {
                 let c = self.groups[g2];
-                if !missed.contains(single) && Self::test::<FORWARD>(x, &self.locals[c]).is_some() {
-                    return c as u32;
+                let candidate = &self.locals[c];
+                if !missed.contains(single) && Self::test::<FORWARD>(x, candidate).is_some() {
+                    if candidate.coverage < 1.0 && (chain.len as usize) < MAX_CHAIN - 1 {
+                        // An open edge: it sends its share, and the ray goes on past its plane
+                        // (now crossed, so no other piece of that plane can catch it).
+                        chain.push(c, left * candidate.coverage);
+                        left *= 1.0 - candidate.coverage;
+                        missed.insert(single);
+                        if left <= 1e-3 {
+                            return chain;
+                        }
+                        continue;
+                    }
+                    chain.push(c, left);
+                    return chain;
                 }
             } else if let Some(found) = self.best_in::<FORWARD>(g2, k, dir, &mut missed) {
-                return found as u32;
+                let candidate = &self.locals[found];
+                if candidate.coverage < 1.0 && (chain.len as usize) < MAX_CHAIN - 1 {
+                    // The open edge of a sheet modelled twice, back to back (see above).
+                    chain.push(found, left * candidate.coverage);
+                    left *= 1.0 - candidate.coverage;
+                    missed.insert(candidate.group);
+                    if left <= 1e-3 {
+                        return chain;
+                    }
+                    continue;
+                }
+                chain.push(found, left);
+                return chain;
             }
         }
     }
@@ -440,20 +499,22 @@ pub unsafe fn gather_line(
         let [ahead, behind] = scratch.partners[k];
         // SAFETY: see the function's contract.
         let target = unsafe { &mut *acc.add(m as usize) };
-        if ahead != u32::MAX {
-            let partner = &scratch.locals[ahead as usize];
-            let from = input.radiosity[line[ahead as usize] as usize][side_along(-partner.ns)];
+        for (position, weight) in ahead.iter() {
+            let partner = &scratch.locals[position as usize];
+            let from = input.radiosity[line[position as usize] as usize][side_along(-partner.ns)];
             let to = &mut target[side_along(local.ns)];
-            for (t, f) in to.iter_mut().zip(from) {
-                *t += f as f64 * factor;
+            let f = factor * weight as f64;
+            for (t, b) in to.iter_mut().zip(from) {
+                *t += b as f64 * f;
             }
         }
-        if behind != u32::MAX {
-            let partner = &scratch.locals[behind as usize];
-            let from = input.radiosity[line[behind as usize] as usize][side_along(partner.ns)];
+        for (position, weight) in behind.iter() {
+            let partner = &scratch.locals[position as usize];
+            let from = input.radiosity[line[position as usize] as usize][side_along(partner.ns)];
             let to = &mut target[side_along(-local.ns)];
-            for (t, f) in to.iter_mut().zip(from) {
-                *t += f as f64 * factor;
+            let f = factor * weight as f64;
+            for (t, b) in to.iter_mut().zip(from) {
+                *t += b as f64 * f;
             }
         }
     }

@@ -428,7 +428,7 @@ fn triangle_pieces(
 /// Sutherland-Hodgman clipping of a convex polygon to the closed cube `[0, 1]^3`. Points on the
 /// cube's boundary are kept, so contacts along faces, edges and corners survive as degenerate
 /// polygons. Intersection points get the bound's exact coordinate.
-fn clip_to_unit_cube(polygon: &mut Vec<DVec3>, scratch: &mut Vec<DVec3>) {
+pub(crate) fn clip_to_unit_cube(polygon: &mut Vec<DVec3>, scratch: &mut Vec<DVec3>) {
     for axis in 0..3 {
         for (bound, keep_below) in [(0.0, false), (1.0, true)] {
             if polygon.is_empty() {
@@ -478,7 +478,7 @@ fn only_on_far_face(polygon: &[DVec3], normal: [f64; 3]) -> bool {
 }
 
 /// Area and area-weighted centroid sum of a planar convex polygon (fan triangulation).
-fn polygon_area_centroid(polygon: &[DVec3]) -> (f64, DVec3) {
+pub(crate) fn polygon_area_centroid(polygon: &[DVec3]) -> (f64, DVec3) {
     let mut area = 0.0;
     let mut sum = DVec3::ZERO;
     for k in 1..polygon.len().saturating_sub(1) {
