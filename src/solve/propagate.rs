@@ -143,7 +143,10 @@ pub struct LineScratch {
     run_after: Vec<u32>,
     run_before: Vec<u32>,
     /// For each line position: the positions of the partner ahead and behind (`u32::MAX`: none).
-    pub partners: Vec<[Chain; 2]>,
+    pub partners: Vec<[(u32, f32); 2]>,
+    /// Further partners of chains longer than one (rare: rays past open edges), as
+    /// (line position, 0 ahead / 1 behind, partner position, weight).
+    pub extra: Vec<(u32, u8, u32, f32)>,
 }
 
 /// Longest chain of partners one search may return.
@@ -183,6 +186,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         run_after,
         run_before,
         partners,
+        extra,
     } = scratch;
     locals.clear();
     locals.extend(line.iter().map(|&m| {
@@ -245,6 +249,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         };
     }
     partners.clear();
+    extra.clear();
     let view = LineView {
         locals,
         groups,
@@ -256,7 +261,21 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         for k in groups[g]..groups[g + 1] {
             let ahead = view.nearest::<true>(g, k, sf);
             let behind = view.nearest::<false>(g, k, -sf);
-            partners.push([ahead, behind]);
+            let first = |c: &Chain| {
+                if c.len > 0 {
+                    c.items[0]
+                } else {
+                    (u32::MAX, 0.0)
+                }
+            };
+            partners.push([first(&ahead), first(&behind)]);
+            for (which, chain) in [&ahead, &behind].into_iter().enumerate() {
+                for &(position, weight) in
+                    &chain.items[1.min(chain.len as usize)..chain.len as usize]
+                {
+                    extra.push((k as u32, which as u8, position, weight));
+                }
+            }
         }
     }
 }
@@ -488,34 +507,33 @@ pub unsafe fn gather_line(
 ) {
     let s = input.unit;
     find_partners(line, input.surfels, s, scratch);
-    for (k, &m) in line.iter().enumerate() {
+    let gather = |k: usize, which: u8, position: u32, weight: f32| {
         let local = &scratch.locals[k];
         // The cosine in f64, exactly as `normalize::cosine` computes it for S(n).
         let cos = crate::solve::normalize::cosine(local.normal.to_array(), s);
-        if cos == 0.0 {
-            continue;
+        if cos == 0.0 || position == u32::MAX {
+            return;
         }
-        let factor = cos * input.weight;
-        let [ahead, behind] = scratch.partners[k];
+        let partner = &scratch.locals[position as usize];
+        // The receiver's side facing the partner gathers from the partner's side facing it.
+        let (to_side, from_side) = if which == 0 {
+            (side_along(local.ns), side_along(-partner.ns))
+        } else {
+            (side_along(-local.ns), side_along(partner.ns))
+        };
+        let from = input.radiosity[line[position as usize] as usize][from_side];
         // SAFETY: see the function's contract.
-        let target = unsafe { &mut *acc.add(m as usize) };
-        for (position, weight) in ahead.iter() {
-            let partner = &scratch.locals[position as usize];
-            let from = input.radiosity[line[position as usize] as usize][side_along(-partner.ns)];
-            let to = &mut target[side_along(local.ns)];
-            let f = factor * weight as f64;
-            for (t, b) in to.iter_mut().zip(from) {
-                *t += b as f64 * f;
-            }
+        let to = unsafe { &mut (*acc.add(line[k] as usize))[to_side] };
+        let f = cos * input.weight * weight as f64;
+        for (t, b) in to.iter_mut().zip(from) {
+            *t += b as f64 * f;
         }
-        for (position, weight) in behind.iter() {
-            let partner = &scratch.locals[position as usize];
-            let from = input.radiosity[line[position as usize] as usize][side_along(partner.ns)];
-            let to = &mut target[side_along(-local.ns)];
-            let f = factor * weight as f64;
-            for (t, b) in to.iter_mut().zip(from) {
-                *t += b as f64 * f;
-            }
-        }
+    };
+    for (k, [ahead, behind]) in scratch.partners.iter().enumerate() {
+        gather(k, 0, ahead.0, ahead.1);
+        gather(k, 1, behind.0, behind.1);
+    }
+    for &(k, which, position, weight) in &scratch.extra {
+        gather(k as usize, which, position, weight);
     }
 }
