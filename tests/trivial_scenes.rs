@@ -28,17 +28,26 @@ fn open_box(reflectance: f64, emission: f64) -> Scene {
     scene
 }
 
-#[test]
-fn no_emitter_means_nothing_to_solve() {
-    let set = voxelize(&open_box(0.8, 0.0), GridSpec::Resolution(24)).unwrap();
+/// Voxelizes at resolution 24 and solves with the default stopping rule.
+fn solve_default(
+    scene: Scene,
+    directions: usize,
+) -> (voxrad::voxel::SurfelSet, voxrad::solve::Solution) {
+    let set = voxelize(&scene, GridSpec::Resolution(24)).unwrap();
     let solution = solve(
         &set,
         &SolveOptions {
-            directions: 100,
+            directions,
             ..Default::default()
         },
     )
     .unwrap();
+    (set, solution)
+}
+
+#[test]
+fn no_emitter_means_nothing_to_solve() {
+    let (_, solution) = solve_default(open_box(0.8, 0.0), 100);
     assert_eq!(solution.stats.iterations, 0);
     assert!(solution.stats.converged);
     assert!(solution
@@ -51,15 +60,7 @@ fn no_emitter_means_nothing_to_solve() {
 
 #[test]
 fn black_scene_is_direct_light_only_in_one_pass() {
-    let set = voxelize(&open_box(0.0, 5.0), GridSpec::Resolution(24)).unwrap();
-    let solution = solve(
-        &set,
-        &SolveOptions {
-            directions: 100,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let (set, solution) = solve_default(open_box(0.0, 5.0), 100);
     assert_eq!(
         solution.stats.iterations, 1,
         "a scene that reflects nothing needs one pass"
@@ -92,15 +93,7 @@ fn black_box_with_a_glowing_ceiling_absorbs_all_it_emits() {
     for t in &mut scene.triangles[ceiling_start..] {
         t.material = lamp;
     }
-    let set = voxelize(&scene, GridSpec::Resolution(24)).unwrap();
-    let solution = solve(
-        &set,
-        &SolveOptions {
-            directions: 200,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let (_, solution) = solve_default(scene, 200);
     assert_eq!(solution.stats.iterations, 1);
     let (emitted, absorbed) = (
         solution.stats.emitted_power[0],
