@@ -225,7 +225,8 @@ fn solve_out_of_core_to(
         write_previews(&cmd.out, &set, &solution, cmd.image_size)?;
     } else {
         tracing::warn!(
-            "{} surfels: the PLY and the picture are not written within --memory {}; use              `voxrad-shard export` and `voxrad render` with more memory",
+            "{} surfels: the PLY and the picture are not written within --memory {}; use \
+             `voxrad-shard export` and `voxrad render` with more memory",
             info.count,
             crate::outcore::budget::format_bytes(budget)
         );

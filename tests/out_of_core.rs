@@ -49,8 +49,11 @@ fn compare(name: &str, scene: &Scene, resolution: u32, budgets: &[u64], threads:
             }
             println!(
                 "{name}: budget {budget}, {t} threads: worst relative difference {worst:.2e}, \
-                 {} bands, {} bytes read, {} written",
-                solution.stats.bands, solution.stats.bytes_read, solution.stats.bytes_written
+                 {} bands ({} columns in blocks), {} bytes read, {} written",
+                solution.stats.bands,
+                solution.stats.tiled_columns,
+                solution.stats.bytes_read,
+                solution.stats.bytes_written
             );
             assert!(
                 worst <= 1e-5,
@@ -81,7 +84,7 @@ fn cornell_box_matches_the_in_memory_solver() {
         "cornell",
         &voxrad::gen::cornell_box(),
         32,
-        &[64 << 20, 400 << 10],
+        &[64 << 20, 400 << 10, 160 << 10],
         &[1, 2],
     );
 }

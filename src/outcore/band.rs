@@ -56,24 +56,36 @@ pub struct BandTimes {
     pub propagate: f64,
     pub write: f64,
     pub bands: u64,
+    /// Columns too big for one band, solved in blocks.
+    pub tiled_columns: u64,
 }
 
-/// The lines of a band: columns `j0..j0 + width` of every row `i`, numbered `i * width + j - j0`.
-struct BandNumbering<'a> {
-    frame: &'a LineFrame,
+/// A block of lines: rows `i0..i0 + rows` of columns `j0..j0 + width`, numbered
+/// `(i - i0) * width + j - j0`.
+#[derive(Clone, Copy, Debug)]
+struct Block {
+    i0: u64,
+    rows: u64,
     j0: u64,
     width: u64,
 }
 
+struct BandNumbering<'a> {
+    frame: &'a LineFrame,
+    block: Block,
+}
+
 impl LineNumbering for BandNumbering<'_> {
     fn line_count(&self) -> usize {
-        (self.frame.ni * self.width) as usize
+        (self.block.rows * self.block.width) as usize
     }
 
     #[inline]
     fn line_index(&self, voxel: [i32; 3]) -> u64 {
         let (su, sv) = self.frame.layer_shift(voxel[self.frame.main] as usize);
-        (voxel[self.frame.u] as u64 + su) * self.width + (voxel[self.frame.v] as u64 + sv - self.j0)
+        let b = &self.block;
+        (voxel[self.frame.u] as u64 + su - b.i0) * b.width
+            + (voxel[self.frame.v] as u64 + sv - b.j0)
     }
 }
 
@@ -141,67 +153,41 @@ impl DirectionPass<'_> {
                 surfels += c;
                 width += 1;
             }
-            if surfels > self.plan.band_surfels || frame.ni > self.plan.band_lines {
-                let per_surfel = super::budget::BAND_BYTES_PER_SURFEL;
-                return Err(OocError::BudgetTooSmall {
-                    budget: self.plan.budget,
-                    needed: (self.plan.budget - self.plan.working)
-                        + surfels * per_surfel * 4 / 3
-                        + frame.ni * 16 * (self.threads as u64 + 2),
-                    what: format!(
-                        "one column of lines of direction {:?} ({} lines, {surfels} surfels)",
-                        d.vector, frame.ni
-                    ),
-                });
-            }
-            if surfels > 0 {
-                self.band(&frame, unit, weight, j0, width, surfels, buffers, io, times)?;
+            let block = Block {
+                i0: 0,
+                rows: frame.ni,
+                j0,
+                width,
+            };
+            if surfels == 0 {
+                self.take_rows(&frame, j0 + width, buffers, false);
+            } else if surfels <= self.plan.band_surfels && frame.ni * width <= self.plan.band_lines
+            {
+                self.take_rows(&frame, j0 + width, buffers, true);
+                self.process(&frame, unit, weight, block, surfels, buffers, io, times)?;
             } else {
-                self.skip_rows(&frame, j0 + width, buffers);
+                // One column too big for a band (a floor seen along its own plane): cut it
+                // along i as well.
+                let column = Column {
+                    vector: d.vector,
+                    j0,
+                    surfels,
+                };
+                self.tiled_column(&frame, unit, weight, column, buffers, io, times)?;
             }
             j0 += width;
         }
         Ok(())
     }
 
-    /// Advances the per-layer row cursors to the rows of columns below `j1`; returns nothing read.
-    fn skip_rows(&self, frame: &LineFrame, j1: u64, buffers: &mut BandBuffers) {
-        for z in 0..self.copy.layers {
-            let sv = frame.layer_shift(z).1;
-            let end = (j1.saturating_sub(sv) as usize).min(self.copy.rows);
-            let row = buffers.next_row[z];
-            if end > row {
-                let base = z * self.copy.rows;
-                let count: u64 = self.histogram[base + row..base + end]
-                    .iter()
-                    .map(|&h| h as u64)
-                    .sum();
-                buffers.cursor[z] += count;
-                buffers.next_row[z] = end;
-            }
-        }
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn band(
-        &self,
-        frame: &LineFrame,
-        unit: glam::DVec3,
-        weight: f64,
-        j0: u64,
-        width: u64,
-        surfels: u64,
-        buffers: &mut BandBuffers,
-        io: &mut IoCounters,
-        times: &mut BandTimes,
-    ) -> Result<(), OocError> {
-        let t0 = Instant::now();
+    /// Advances the per-layer row cursors past the rows of columns below `j1`, and (if
+    /// `keep`) records the ranges of copy records they hold in `buffers.ranges`.
+    fn take_rows(&self, frame: &LineFrame, j1: u64, buffers: &mut BandBuffers, keep: bool) {
         let copy = self.copy;
-        // The band's range in each layer.
         buffers.ranges.clear();
         for z in 0..copy.layers {
             let sv = frame.layer_shift(z).1;
-            let end = ((j0 + width).saturating_sub(sv) as usize).min(copy.rows);
+            let end = (j1.saturating_sub(sv) as usize).min(copy.rows);
             let row = buffers.next_row[z];
             if end > row {
                 let base = z * copy.rows;
@@ -209,13 +195,129 @@ impl DirectionPass<'_> {
                     .iter()
                     .map(|&h| h as u64)
                     .sum();
-                if count > 0 {
+                if keep && count > 0 {
                     buffers.ranges.push((buffers.cursor[z], count));
                 }
                 buffers.cursor[z] += count;
                 buffers.next_row[z] = end;
             }
         }
+    }
+
+    /// The voxel coordinate along `u` of copy record `index`.
+    fn u_of(&self, index: u64, io: &mut IoCounters) -> Result<i64, OocError> {
+        let mut w = [0u8; 4];
+        let offset = index * STATIC_LEN as u64 + 4 * self.copy.u as u64;
+        self.files.statics.read_at(offset, &mut w, io)?;
+        Ok(i32::from_le_bytes(w) as i64)
+    }
+
+    /// Solves a column `j0` holding `surfels`, in blocks of rows `i` that fit the budget. In each
+    /// layer the column is one row of the copy, sorted by `u`, so a block's part of it is a
+    /// contiguous range found by binary search.
+    #[allow(clippy::too_many_arguments)]
+    fn tiled_column(
+        &self,
+        frame: &LineFrame,
+        unit: glam::DVec3,
+        weight: f64,
+        column: Column,
+        buffers: &mut BandBuffers,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
+        let Column {
+            vector,
+            j0,
+            surfels,
+        } = column;
+        let copy = self.copy;
+        // This column's range of the copy in each layer: [from, to).
+        let mut spans: Vec<(usize, u64, u64)> = Vec::new();
+        let cursor_before: Vec<u64> = buffers.cursor.clone();
+        self.take_rows(frame, j0 + 1, buffers, false);
+        for (z, (&before, &after)) in cursor_before.iter().zip(&buffers.cursor).enumerate() {
+            if after > before {
+                spans.push((z, before, after));
+            }
+        }
+        drop(cursor_before);
+        times.tiled_columns += 1;
+        let capacity = self.plan.band_surfels;
+        let mut remaining = surfels;
+        let mut i0 = 0u64;
+        let mut ends = vec![0u64; spans.len()];
+        while i0 < frame.ni && remaining > 0 {
+            let left = frame.ni - i0;
+            let guess = (left as f64 * capacity as f64 * 0.9 / remaining as f64) as u64;
+            let mut rows = guess.clamp(1, left).min(self.plan.band_lines.max(1));
+            let count = loop {
+                let mut count = 0;
+                for (k, &(z, from, to)) in spans.iter().enumerate() {
+                    let limit = (i0 + rows) as i64 - frame.layer_shift(z).0 as i64;
+                    // First record of [from, to) with u >= limit.
+                    let (mut lo, mut hi) = (from, to);
+                    while lo < hi {
+                        let mid = lo + (hi - lo) / 2;
+                        if self.u_of(mid, io)? < limit {
+                            lo = mid + 1;
+                        } else {
+                            hi = mid;
+                        }
+                    }
+                    ends[k] = lo;
+                    count += lo - from;
+                }
+                if count <= capacity || rows == 1 {
+                    break count;
+                }
+                rows = (rows / 2).max(1);
+            };
+            if count > capacity {
+                return Err(OocError::BudgetTooSmall {
+                    budget: self.plan.budget,
+                    needed: (self.plan.budget - self.plan.working)
+                        + count * super::budget::BAND_BYTES_PER_SURFEL * 4 / 3,
+                    what: format!("one line of direction {vector:?} holding {count} surfels"),
+                });
+            }
+            buffers.ranges.clear();
+            for (k, span) in spans.iter_mut().enumerate() {
+                if ends[k] > span.1 {
+                    buffers.ranges.push((span.1, ends[k] - span.1));
+                }
+                span.1 = ends[k];
+            }
+            if count > 0 {
+                let block = Block {
+                    i0,
+                    rows,
+                    j0,
+                    width: 1,
+                };
+                self.process(frame, unit, weight, block, count, buffers, io, times)?;
+            }
+            remaining -= count;
+            i0 += rows;
+        }
+        Ok(())
+    }
+
+    /// Reads the records of `buffers.ranges` (`surfels` of them), solves their lines, which all
+    /// lie in `block`, and adds the light gathered to the copy's file.
+    #[allow(clippy::too_many_arguments)]
+    fn process(
+        &self,
+        frame: &LineFrame,
+        unit: glam::DVec3,
+        weight: f64,
+        block: Block,
+        surfels: u64,
+        buffers: &mut BandBuffers,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
+        let t0 = Instant::now();
         let n = surfels as usize;
         buffers.props.clear();
         buffers.props.reserve_exact(n);
@@ -269,7 +371,7 @@ impl DirectionPass<'_> {
         }
         debug_assert_eq!(buffers.props.len(), n);
         let t1 = Instant::now();
-        let numbering = BandNumbering { frame, j0, width };
+        let numbering = BandNumbering { frame, block };
         dispatch(
             &buffers.entries,
             &numbering,
@@ -311,4 +413,12 @@ impl DirectionPass<'_> {
         times.bands += 1;
         Ok(())
     }
+}
+
+/// A column of lines too big for one band.
+#[derive(Clone, Copy, Debug)]
+struct Column {
+    vector: [i64; 3],
+    j0: u64,
+    surfels: u64,
 }

@@ -98,7 +98,7 @@ impl MemoryPlan {
         let histogram = (0..3).map(|m| d[m] * d[(m + 2) % 3] * 4).max().unwrap_or(0);
         let per_layer = 48 * (d[0] + d[1] + d[2]);
         let fixed = histogram + per_layer + 8 * io_bytes as u64;
-        let minimum_working = 256 << 10;
+        let minimum_working = 64 << 10;
         if budget < fixed + minimum_working {
             return Err(OocError::BudgetTooSmall {
                 budget,

@@ -252,7 +252,15 @@ pub enum ReportReadError {
 }
 
 /// Peak resident set size of this process so far, in bytes (0 if the system will not say).
+///
+/// On Linux this is `VmHWM` of `/proc/self/status`: the high-water mark of this program's own
+/// memory. `getrusage` is the fallback; on Linux its figure also counts what the parent had
+/// resident when it forked this process (the kernel carries the high-water mark across `exec`),
+/// so a small program started by a big one would report the big one's size.
 pub fn peak_rss_bytes() -> u64 {
+    if let Some(bytes) = status_high_water_mark() {
+        return bytes;
+    }
     // SAFETY: `getrusage` only writes into the zero-initialised struct we pass it.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     let rc = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) };
@@ -266,6 +274,14 @@ pub fn peak_rss_bytes() -> u64 {
     } else {
         maxrss * 1024
     }
+}
+
+/// `VmHWM` from `/proc/self/status`, in bytes.
+fn status_high_water_mark() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = text.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }
 
 #[cfg(test)]
