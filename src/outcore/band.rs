@@ -231,7 +231,6 @@ impl DirectionPass<'_> {
             j0,
             surfels,
         } = column;
-        let copy = self.copy;
         // This column's range of the copy in each layer: [from, to).
         let mut spans: Vec<(usize, u64, u64)> = Vec::new();
         let cursor_before: Vec<u64> = buffers.cursor.clone();
