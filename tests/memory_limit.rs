@@ -56,6 +56,8 @@ fn run_limited(args: &[String], limit: u64) -> (Option<i32>, String, u64) {
             Ok(())
         });
     }
+    // Reaped below by `wait4`, which also gives its resource usage.
+    #[allow(clippy::zombie_processes)]
     let mut child = command.spawn().expect("spawn voxrad");
     let mut stderr = child.stderr.take().expect("stderr");
     let reader = std::thread::spawn(move || {
