@@ -97,13 +97,14 @@ pub fn convert(o: &ConvertOptions) -> Result<ConvertSummary, ConvertError> {
             )));
         }
     }
+    // The output is checked before the scene is read, which may take a while.
+    let staging = Staging::new(&o.out)?;
     let scene = load_scene(&o.scene)?;
     tracing::info!(
         triangles = scene.triangles.len(),
         materials = scene.materials.len(),
         "scene read"
     );
-    let staging = Staging::new(&o.out)?;
     let scene_err = |e: ConvertError| match e {
         ConvertError::BadInput(m) if !m.contains(&*o.scene.to_string_lossy()) => {
             ConvertError::BadInput(format!("{}: {m}", o.scene.display()))

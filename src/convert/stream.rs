@@ -154,6 +154,21 @@ mod tests {
         assert_eq!(streamed.materials, expected.materials);
         assert_eq!(canonical(got), canonical(expected.surfels));
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        // The budget: the run buffer (its peak, in pieces) and one write buffer.
+        let plan = options.plan;
+        let held = streamed.sort.peak_buffered * std::mem::size_of::<Piece>() as u64;
+        assert!(
+            held + plan.io_bytes <= budget,
+            "{:?} {plan:?}",
+            streamed.sort
+        );
+        if streamed.sort.pieces > plan.run_pieces {
+            assert_eq!(
+                streamed.sort.runs,
+                streamed.sort.pieces.div_ceil(plan.run_pieces),
+                "runs of the full buffer size"
+            );
+        }
         streamed.sort
     }
 
