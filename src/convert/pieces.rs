@@ -458,6 +458,47 @@ mod tests {
         }
     }
 
+    /// More runs than one merge takes: intermediate passes, the same order.
+    #[test]
+    fn many_runs_take_several_merge_passes() {
+        let budget = 64 << 10;
+        let plan = PiecePlan::new(budget).unwrap();
+        let n = plan.run_pieces * plan.fan_in * 2;
+        let input: Vec<Piece> = (0..n).map(|k| piece(k * 13 + 2)).collect();
+        let dir = tempfile::TempDir::new().unwrap();
+        let mut sorter = PieceSorter::new(0, plan, dir.path(), false).unwrap();
+        for p in &input {
+            sorter.push(*p).unwrap();
+        }
+        let sorted = sorter.finish().unwrap();
+        let stats = *sorted.stats();
+        let out: Vec<Piece> = sorted.collect::<Result<_, _>>().unwrap();
+        let mut expected = input;
+        expected.sort_by_key(|p| key(0, p));
+        assert!(out == expected);
+        assert!(stats.runs > plan.fan_in, "{stats:?} {plan:?}");
+        assert_eq!(stats.merge_passes, 2, "{stats:?} {plan:?}");
+        // The runs, then the intermediate pass, each wrote every piece once.
+        assert_eq!(stats.bytes_spilled, 2 * n * PIECE_LEN as u64);
+    }
+
+    #[test]
+    fn a_damaged_run_is_an_error() {
+        let plan = PiecePlan::new(64 << 10).unwrap();
+        let dir = tempfile::TempDir::new().unwrap();
+        let mut sorter = PieceSorter::new(0, plan, dir.path(), false).unwrap();
+        for k in 0..plan.run_pieces * 2 {
+            sorter.push(piece(k)).unwrap();
+        }
+        let run = sorter.runs[0].path.clone();
+        let mut bytes = std::fs::read(&run).unwrap();
+        bytes[PIECE_LEN + 40] ^= 1;
+        std::fs::write(&run, bytes).unwrap();
+        let items: Vec<_> = sorter.finish().unwrap().collect();
+        let e = items.last().unwrap().as_ref().unwrap_err();
+        assert!(e.to_string().contains("checksum"), "{e}");
+    }
+
     #[test]
     fn tiny_budgets_are_refused() {
         let e = PiecePlan::new(1024).unwrap_err();

@@ -19,7 +19,7 @@
 //! - [`manifest`]: the shard set's JSON manifest.
 //! - [`error`]: [`StorageError`], which names the file and says what to do.
 //!
-//! Not yet wired into the solver or the CLI.
+//! Used by the shard tool (`convert`, binary `voxrad-shard`); not yet by the solver.
 
 pub mod error;
 pub mod external_sort;
