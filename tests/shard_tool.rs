@@ -174,6 +174,35 @@ fn convert_a_generated_building_equals_the_in_memory_voxelization() {
     assert_matches_in_memory(&set, &expected, 4);
 }
 
+/// The sort key of every piece is unique, so the files are the same bytes whatever the budget
+/// (one buffer or many runs) and the number of threads.
+#[test]
+fn the_set_does_not_depend_on_budget_or_threads() {
+    let tmp = TempDir::new().unwrap();
+    let mut manifests = Vec::new();
+    for (memory, threads) in [("64KiB", "1"), ("256MiB", "2"), ("300KiB", "0")] {
+        let set = tmp.path().join(format!("set-{memory}-{threads}"));
+        let o = shard_tool(&[
+            "convert",
+            &s(&cornell()),
+            "--resolution",
+            "28",
+            "--out",
+            &s(&set),
+            "--ranks",
+            "2",
+            "--memory",
+            memory,
+            "--threads",
+            threads,
+        ]);
+        assert_ok(&o, "convert");
+        manifests.push(std::fs::read_to_string(set.join("manifest.json")).unwrap());
+    }
+    assert_eq!(manifests[0], manifests[1]);
+    assert_eq!(manifests[0], manifests[2]);
+}
+
 #[test]
 fn reshard_keeps_the_records_in_order() {
     let tmp = TempDir::new().unwrap();

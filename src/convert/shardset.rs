@@ -320,6 +320,8 @@ pub fn describe(dir: &Path, m: &Manifest) -> String {
         "grid          {} x {} x {} voxels of {} scene units",
         g.dims[0], g.dims[1], g.dims[2], g.voxel_size
     );
+    let _ = writeln!(t, "voxel size    {}", g.voxel_size);
+    let _ = writeln!(t, "origin        {:?}", g.origin);
     let _ = writeln!(t, "bounds        {lo:?} to {hi:?}");
     let _ = writeln!(
         t,
