@@ -356,3 +356,122 @@ pub fn describe(dir: &Path, m: &Manifest) -> String {
     );
     t
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::storage::ShardEntry;
+    use crate::voxel::Grid;
+
+    fn surfels(n: i32) -> Vec<Surfel> {
+        (0..n)
+            .map(|k| Surfel {
+                voxel: [k % 3, k / 3, 0],
+                point: [0.5; 3],
+                normal: [0.0, 0.0, 1.0],
+                normal_id: 0,
+                group: k as u32,
+                area: 1.0,
+                material: [0, 0],
+                extent: [[0.0; 3], [1.0; 3]],
+            })
+            .collect::<Vec<_>>()
+    }
+
+    fn split(n: i32, ranks: usize) -> (tempfile::TempDir, Vec<ShardInfo>, Vec<Surfel>) {
+        let dir = tempfile::TempDir::new().unwrap();
+        let mut v = surfels(n);
+        v.sort_by_key(|s| shard::key(0, s));
+        let infos = write_split(
+            v.iter().map(|s| Ok(*s)),
+            n as u64,
+            ranks,
+            dir.path(),
+            0,
+            4096,
+        )
+        .unwrap();
+        (dir, infos, v)
+    }
+
+    #[test]
+    fn split_counts_are_equal_to_one_and_contiguous() {
+        let (dir, infos, v) = split(10, 3);
+        let counts: Vec<u64> = infos.iter().map(|i| i.count).collect();
+        assert_eq!(counts, [3, 3, 4]);
+        let readers: Vec<ShardReader> = infos
+            .iter()
+            .map(|i| ShardReader::open(&i.path).unwrap())
+            .collect();
+        let back: Vec<Surfel> = records_of(&readers, 4096)
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
+        assert_eq!(back, v);
+        // More ranks than records: empty shards are valid and verify.
+        let (dir2, infos, _) = split(2, 4);
+        let counts: Vec<u64> = infos.iter().map(|i| i.count).collect();
+        assert_eq!(counts, [0, 1, 0, 1]);
+        let entries = infos
+            .iter()
+            .map(|i| ShardEntry::from_info(i).unwrap())
+            .collect();
+        let grid = Grid {
+            origin: [0.0; 3],
+            voxel_size: 1.0,
+            dims: [3, 4, 1],
+        };
+        Manifest::new(grid, &[], vec![[0.0, 0.0, 1.0]], 0, entries)
+            .write(dir2.path())
+            .unwrap();
+        let (_, v) = verify_set(dir2.path()).unwrap();
+        assert!(v.problems.is_empty(), "{:?}", v.problems);
+        drop(dir);
+    }
+
+    #[test]
+    fn a_short_or_long_input_is_refused() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let v = surfels(5);
+        let e = write_split(v.iter().map(|s| Ok(*s)), 6, 2, dir.path(), 0, 4096).unwrap_err();
+        assert!(e.to_string().contains("ended before"), "{e}");
+        let e = write_split(v.iter().map(|s| Ok(*s)), 4, 2, dir.path(), 0, 4096).unwrap_err();
+        assert!(e.to_string().contains("more than"), "{e}");
+    }
+
+    #[test]
+    fn staging_refuses_what_is_not_a_set_and_replaces_a_set() {
+        let tmp = tempfile::TempDir::new().unwrap();
+        let file = tmp.path().join("file");
+        std::fs::write(&file, "x").unwrap();
+        assert!(matches!(
+            Staging::new(&file),
+            Err(ConvertError::BadInput(_))
+        ));
+        let deep = tmp.path().join("no/such/parent");
+        assert!(matches!(
+            Staging::new(&deep),
+            Err(ConvertError::BadInput(_))
+        ));
+        // Replacing: the old directory goes, the new one takes its name.
+        let target = tmp.path().join("set");
+        for round in 0..2 {
+            let staging = Staging::new(&target).unwrap();
+            let grid = Grid {
+                origin: [0.0; 3],
+                voxel_size: 1.0 + round as f64,
+                dims: [1, 1, 1],
+            };
+            Manifest::new(grid, &[], vec![], 0, vec![])
+                .write(staging.path())
+                .unwrap();
+            staging.commit().unwrap();
+            assert_eq!(
+                Manifest::read_dir(&target).unwrap().grid.voxel_size,
+                1.0 + round as f64
+            );
+        }
+        let names: Vec<_> = std::fs::read_dir(tmp.path()).unwrap().collect();
+        assert_eq!(names.len(), 2, "the file and the set only: {names:?}");
+    }
+}

@@ -55,7 +55,8 @@ enum Command {
         /// Number of shards (one per rank).
         #[arg(long, default_value_t = 1)]
         ranks: usize,
-        /// Memory budget for the surfels being sorted and the I/O buffers, e.g. 64MiB, 1GiB.
+        /// Memory budget for the pieces being sorted and the I/O buffers, e.g. 64MiB, 1GiB (at
+        /// least 64KiB; the scene's triangles and about 8 MiB of code and stack come on top).
         #[arg(long, default_value = "256MiB", value_parser = parse_bytes)]
         memory: u64,
         /// Lexicographic order of the records (0 to 3: the sign pattern of x and y).
