@@ -522,6 +522,10 @@ fn export_streams_the_same_ply_and_csv_as_the_solver() {
     voxrad::output::write_csv(&reference, &results).unwrap();
     assert_eq!(rows, std::fs::read_to_string(&reference).unwrap());
 
+    // Exporting onto the input is refused (it would replace the results).
+    let o = shard_tool(&["export", &s(&solved), "--format", "csv", "--out", &s(&bin)]);
+    assert_bad_input(&o, "export onto its input", &["surfels.bin", "itself"]);
+
     // A corrupted results file: named, exit 2, and the earlier export is untouched.
     edit(&solved.join("surfels.bin"), |b| b[100] ^= 0x10);
     let o = shard_tool(&["export", &s(&solved), "--format", "csv", "--out", &s(&csv)]);

@@ -64,6 +64,14 @@ pub fn export(input: &Path, format: Format, out: &Path) -> Result<Exported, Conv
         input.to_path_buf()
     };
     let reader = ResultsReader::open(&path).map_err(results_err)?;
+    if let (Ok(a), Ok(b)) = (std::fs::canonicalize(&path), std::fs::canonicalize(out)) {
+        if a == b {
+            return Err(ConvertError::BadInput(format!(
+                "{}: --out is the results file itself; give another file",
+                out.display()
+            )));
+        }
+    }
     let mut passes = 0;
     let mut pass = |f: &mut dyn FnMut(&Record)| -> Result<(), ConvertError> {
         passes += 1;
