@@ -3,7 +3,7 @@
 //! thread, converting a generated building into a shard set at least 16 times the limit. It must
 //! succeed, stay within its `--memory` budget plus a stated allowance in peak RSS (read with
 //! `getrusage(RUSAGE_CHILDREN)` once it has exited), sort through several runs on disk, and
-//! produce a set that verifies.
+//! produce a set that verifies. `reshard` of that set runs under the same limit and budget.
 //!
 //! Sizes are parameters, so that a larger run can be made by hand:
 //! - `VOXRAD_MEMTEST_LIMIT_MIB`: the address-space limit (default 16);
@@ -83,33 +83,14 @@ fn convert_stays_inside_an_address_space_limit_16_times_below_its_output() {
 
     let set = tmp.path().join("set");
     let started = std::time::Instant::now();
-    let mut cmd = Command::new(env!("CARGO_BIN_EXE_voxrad-shard"));
-    cmd.args(["convert", &obj.display().to_string()])
+    let out = limited(limit)
+        .args(["convert", &obj.display().to_string()])
         .args(["--resolution", &resolution.to_string()])
         .args(["--out", &set.display().to_string()])
         .args(["--ranks", "2", "--threads", "1"])
         .args(["--memory", &budget.to_string()])
-        .env("MALLOC_ARENA_MAX", "2")
-        .env_remove("RUST_LOG");
-    {
-        use std::os::unix::process::CommandExt;
-        let limit = limit as libc::rlim_t;
-        // SAFETY: the closure runs in the child between fork and exec and only calls
-        // `setrlimit`, which is async-signal-safe, on a struct on its own stack.
-        unsafe {
-            cmd.pre_exec(move || {
-                let rl = libc::rlimit {
-                    rlim_cur: limit,
-                    rlim_max: limit,
-                };
-                if libc::setrlimit(libc::RLIMIT_AS, &rl) != 0 {
-                    return Err(std::io::Error::last_os_error());
-                }
-                Ok(())
-            });
-        }
-    }
-    let out = cmd.output().unwrap();
+        .output()
+        .unwrap();
     let seconds = started.elapsed().as_secs_f64();
     let peak = children_peak_rss();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -146,9 +127,66 @@ fn convert_stays_inside_an_address_space_limit_16_times_below_its_output() {
         .expect("the summary names the number of runs");
     assert!(runs >= 8, "{stdout}");
 
-    let v = Command::new(env!("CARGO_BIN_EXE_voxrad-shard"))
-        .args(["verify", &set.display().to_string()])
+    // Re-split the big set under the same limit: a streaming merge and a verification pass.
+    let resharded = tmp.path().join("resharded");
+    let started = std::time::Instant::now();
+    let out = limited(limit)
+        .args(["reshard", &set.display().to_string(), "--ranks", "3"])
+        .args(["--out", &resharded.display().to_string()])
+        .args(["--memory", &budget.to_string()])
         .output()
         .unwrap();
-    assert!(v.status.success(), "{}", String::from_utf8_lossy(&v.stderr));
+    let seconds = started.elapsed().as_secs_f64();
+    let peak = children_peak_rss();
+    assert!(
+        out.status.success(),
+        "reshard under the limit failed: {:?}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    eprintln!(
+        "reshard 2 -> 3 shards under the same limit: {seconds:.1} s, peak RSS of both {:.1} MiB",
+        peak as f64 / MIB as f64
+    );
+    assert!(
+        peak <= budget + OVERHEAD,
+        "peak RSS {peak} bytes after reshard"
+    );
+    assert_eq!(
+        shard_bytes(&resharded),
+        bytes + 52,
+        "one more header and footer"
+    );
+
+    // Unlimited from here on (the peak has been read).
+    for dir in [&set, &resharded] {
+        let v = Command::new(env!("CARGO_BIN_EXE_voxrad-shard"))
+            .args(["verify", &dir.display().to_string()])
+            .output()
+            .unwrap();
+        assert!(v.status.success(), "{}", String::from_utf8_lossy(&v.stderr));
+    }
+}
+
+/// `voxrad-shard` with `RLIMIT_AS` set to `limit` before it starts, one allocator arena pair.
+fn limited(limit: u64) -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_voxrad-shard"));
+    cmd.env("MALLOC_ARENA_MAX", "2").env_remove("RUST_LOG");
+    use std::os::unix::process::CommandExt;
+    let limit = limit as libc::rlim_t;
+    // SAFETY: the closure runs in the child between fork and exec and only calls `setrlimit`,
+    // which is async-signal-safe, on a struct on its own stack.
+    unsafe {
+        cmd.pre_exec(move || {
+            let rl = libc::rlimit {
+                rlim_cur: limit,
+                rlim_max: limit,
+            };
+            if libc::setrlimit(libc::RLIMIT_AS, &rl) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    cmd
 }
