@@ -189,14 +189,18 @@ fn tone_map(pass: &mut Pass<'_>) -> Result<(ToneMap, u64), ConvertError> {
     loop {
         // The bucket of the histogram holding rank k.
         let mut below = 0;
-        let mut bucket = 0;
+        let mut found = None;
         for (b, &c) in histogram.iter().enumerate() {
             if below + c > k {
-                bucket = b as u64;
+                found = Some(b as u64);
                 break;
             }
             below += c;
         }
+        // Only a file rewritten (with a valid checksum) between two passes can lose the rank.
+        let bucket = found.ok_or_else(|| {
+            ConvertError::Failure("the results file changed while it was exported".into())
+        })?;
         let in_bucket = histogram[bucket as usize];
         k -= below;
         prefix = (prefix << 16) | bucket;
