@@ -354,6 +354,10 @@ pub fn describe(dir: &Path, m: &Manifest) -> String {
         bytes,
         super::size::human(bytes)
     );
+    let _ = writeln!(
+        t,
+        "(from {MANIFEST_FILE} alone; `voxrad-shard verify` checks the files)"
+    );
     t
 }
 
