@@ -30,7 +30,8 @@ enum Command {
     // option instead of failing as an "unexpected argument '-1'".
     #[command(allow_negative_numbers = true)]
     Solve {
-        /// The scene: an OBJ file (Kd = reflectance, Ke = emitted radiosity).
+        /// The scene: an OBJ file (Kd = reflectance, Ke = emitted radiosity), or a shard-set
+        /// directory made by `voxrad-shard convert` (solved out of core).
         scene: PathBuf,
         /// Output directory: report.json, surfels.bin, surfels.ply, render.png.
         #[arg(long)]
@@ -56,6 +57,10 @@ enum Command {
         /// Preview image size, WIDTHxHEIGHT.
         #[arg(long, default_value = "800x600", value_parser = parse_size)]
         image_size: (u32, u32),
+        /// Solve out of core, holding at most this much (e.g. 512MiB, 4G); a shard set is always
+        /// solved out of core (default: a quarter of the available memory).
+        #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
+        memory: Option<u64>,
     },
     /// Render a solved result directory to a PNG.
     Render {
@@ -175,6 +180,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             tolerance,
             threads,
             image_size,
+            memory,
         } => {
             let grid = match voxel_size {
                 Some(v) => GridSpec::VoxelSize(v),
@@ -209,6 +215,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 grid,
                 solve,
                 image_size,
+                memory,
             };
             let report = run_solve(&cmd)?;
             eprintln!(

@@ -3,7 +3,6 @@
 //! exported. Everything streams under a memory budget.
 //!
 //! One concept per file:
-//! - [`size`]: byte sizes as people write them (`64MiB`), for `--memory`.
 //! - [`pieces`]: the external sort of voxelization pieces (runs on disk, k-way merge).
 //! - [`stream`]: out-of-core voxelization: the same surfels as `voxel::voxelize`, produced in
 //!   shard order without holding them all.
@@ -19,7 +18,6 @@ pub mod commands;
 pub mod export;
 pub mod pieces;
 pub mod shardset;
-pub mod size;
 pub mod stream;
 
 use crate::storage::StorageError;

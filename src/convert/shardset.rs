@@ -352,7 +352,7 @@ pub fn describe(dir: &Path, m: &Manifest) -> String {
         "total         {} records, {} bytes ({})",
         m.records(),
         bytes,
-        super::size::human(bytes)
+        crate::outcore::budget::format_bytes(bytes)
     );
     let _ = writeln!(
         t,

@@ -19,7 +19,7 @@
 //! - [`manifest`]: the shard set's JSON manifest.
 //! - [`error`]: [`StorageError`], which names the file and says what to do.
 //!
-//! Used by the shard tool (`convert`, binary `voxrad-shard`); not yet by the solver.
+//! Used by the out-of-core solver (`outcore`) and the shard tool (`convert`, `voxrad-shard`).
 
 pub mod error;
 pub mod external_sort;

@@ -22,3 +22,24 @@ pub fn inner_side(s: &Surfel, set: &SurfelSet) -> usize {
         1
     }
 }
+
+/// Writes `set` as a shard set of `shards` files in order 0 (what `voxrad-shard convert` makes
+/// of the same scene, made here from the in-memory voxelization).
+pub fn write_shard_set(set: &SurfelSet, dir: &std::path::Path, shards: usize) {
+    use voxrad::storage::{shard::key, Manifest, ShardEntry, ShardWriter};
+    std::fs::create_dir_all(dir).expect("shard set directory");
+    let mut surfels = set.surfels.clone();
+    surfels.sort_by_key(|s| key(0, s));
+    let per = surfels.len().div_ceil(shards.max(1)).max(1);
+    let mut entries = Vec::new();
+    for (k, part) in surfels.chunks(per).enumerate() {
+        let mut w = ShardWriter::create(&dir.join(format!("shard-{k:05}.vxs")), 0).expect("create");
+        for s in part {
+            w.push(s).expect("push");
+        }
+        entries.push(ShardEntry::from_info(&w.finish().expect("finish")).expect("entry"));
+    }
+    Manifest::new(set.grid, &set.materials, set.normals.clone(), 0, entries)
+        .write(dir)
+        .expect("manifest");
+}

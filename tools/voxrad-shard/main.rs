@@ -5,7 +5,7 @@ use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 use voxrad::convert::commands::{self, ConvertOptions};
 use voxrad::convert::export::{self, Format};
-use voxrad::convert::size::{human, parse_bytes};
+use voxrad::outcore::budget::{format_bytes as human, parse_bytes};
 use voxrad::convert::ConvertError;
 use voxrad::voxel::voxelize::GridSpec;
 
