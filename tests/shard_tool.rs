@@ -554,11 +554,23 @@ fn the_solver_reads_a_converted_set_and_gives_the_obj_answer() {
         let mut r = voxrad::output::read_results(&out.join("surfels.bin"))
             .unwrap()
             .records;
-        r.sort_by_key(|r| (r.voxel, r.normal.map(f32::to_bits), r.point.map(f32::to_bits)));
+        r.sort_by_key(|r| {
+            (
+                r.voxel,
+                r.normal.map(f32::to_bits),
+                r.point.map(f32::to_bits),
+            )
+        });
         r
     };
-    let reference = solve(&[&s(&cornell()), "--resolution", "24"], &tmp.path().join("obj"));
-    let got = solve(&[&s(&set), "--memory", "16MiB"], &tmp.path().join("from-set"));
+    let reference = solve(
+        &[&s(&cornell()), "--resolution", "24"],
+        &tmp.path().join("obj"),
+    );
+    let got = solve(
+        &[&s(&set), "--memory", "16MiB"],
+        &tmp.path().join("from-set"),
+    );
     assert_eq!(got.len(), reference.len());
     let peak = reference
         .iter()
@@ -566,8 +578,16 @@ fn the_solver_reads_a_converted_set_and_gives_the_obj_answer() {
         .fold(0f32, |a, &b| a.max(b));
     assert!(peak > 0.0);
     for (a, b) in got.iter().zip(&reference) {
-        assert_eq!((a.voxel, a.point, a.normal, a.area), (b.voxel, b.point, b.normal, b.area));
-        for (x, y) in a.radiosity.iter().flatten().zip(b.radiosity.iter().flatten()) {
+        assert_eq!(
+            (a.voxel, a.point, a.normal, a.area),
+            (b.voxel, b.point, b.normal, b.area)
+        );
+        for (x, y) in a
+            .radiosity
+            .iter()
+            .flatten()
+            .zip(b.radiosity.iter().flatten())
+        {
             let rel = (x - y).abs() / x.abs().max(y.abs()).max(1e-3 * peak);
             assert!(rel <= 1e-5, "{a:?} vs {b:?}");
         }

@@ -5,8 +5,8 @@ use clap::{Parser, Subcommand, ValueEnum};
 use std::path::PathBuf;
 use voxrad::convert::commands::{self, ConvertOptions};
 use voxrad::convert::export::{self, Format};
-use voxrad::outcore::budget::{format_bytes as human, parse_bytes};
 use voxrad::convert::ConvertError;
+use voxrad::outcore::budget::{format_bytes as human, parse_bytes};
 use voxrad::voxel::voxelize::GridSpec;
 
 #[derive(Parser)]
