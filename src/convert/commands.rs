@@ -105,12 +105,13 @@ pub fn convert(o: &ConvertOptions) -> Result<ConvertSummary, ConvertError> {
         materials = scene.materials.len(),
         "scene read"
     );
+    // The only bad input the voxelization itself can find is about the scene (its grid, its
+    // size); everything else in this stage concerns files this command writes.
     let scene_err = |e: ConvertError| match e {
-        ConvertError::BadInput(m) if !m.contains(&*o.scene.to_string_lossy()) => {
-            ConvertError::BadInput(format!("{}: {m}", o.scene.display()))
-        }
+        ConvertError::BadInput(m) => ConvertError::BadInput(format!("{}: {m}", o.scene.display())),
         other => other,
     };
+    let scratch_err = |e: ConvertError| ConvertError::Failure(e.to_string());
     let (streamed, infos) = with_threads(o.threads, |parallel| {
         let options = StreamOptions {
             spec: o.spec,
@@ -136,8 +137,9 @@ pub fn convert(o: &ConvertOptions) -> Result<ConvertSummary, ConvertError> {
         if o.ranks == 1 {
             return Ok((streamed, vec![info]));
         }
-        let reader = ShardReader::open_lazy(&first)?;
-        let records = records_of(std::slice::from_ref(&reader), plan.io_bytes as usize)?;
+        let reader = ShardReader::open_lazy(&first).map_err(|e| scratch_err(e.into()))?;
+        let records = records_of(std::slice::from_ref(&reader), plan.io_bytes as usize)
+            .map_err(scratch_err)?;
         let infos = shardset::write_split(
             records,
             info.count,
@@ -145,7 +147,8 @@ pub fn convert(o: &ConvertOptions) -> Result<ConvertSummary, ConvertError> {
             staging.path(),
             o.order,
             plan.out_bytes as usize,
-        )?;
+        )
+        .map_err(scratch_err)?;
         std::fs::remove_file(&first).map_err(|e| {
             ConvertError::Failure(format!("cannot remove {}: {e}", first.display()))
         })?;

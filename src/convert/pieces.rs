@@ -169,12 +169,16 @@ pub(crate) struct PieceSorter {
     stats: PieceStats,
 }
 
+/// Scratch files are this program's own: whatever goes wrong with them is never bad input.
 fn io_err(path: &Path, action: &'static str, e: std::io::Error) -> ConvertError {
-    ConvertError::from(StorageError::Io {
-        path: path.to_path_buf(),
-        action,
-        source: e,
-    })
+    ConvertError::Failure(
+        StorageError::Io {
+            path: path.to_path_buf(),
+            action,
+            source: e,
+        }
+        .to_string(),
+    )
 }
 
 impl PieceSorter {
@@ -336,11 +340,12 @@ impl Iterator for RunReader {
             self.done = true;
             let computed = self.hasher.clone().finalize();
             return (computed != self.crc32).then(|| {
-                Err(ConvertError::from(StorageError::ChecksumMismatch {
-                    path: self.path.clone(),
-                    stored: self.crc32,
-                    computed,
-                }))
+                Err(ConvertError::Failure(format!(
+                    "scratch file {} of the external sort reads back with checksum {computed:#010x}, \
+                     not the {:#010x} written: the disk or file system returned wrong data",
+                    self.path.display(),
+                    self.crc32
+                )))
             });
         }
         let mut b = [0u8; PIECE_LEN];
@@ -497,6 +502,7 @@ mod tests {
         let items: Vec<_> = sorter.finish().unwrap().collect();
         let e = items.last().unwrap().as_ref().unwrap_err();
         assert!(e.to_string().contains("checksum"), "{e}");
+        assert_eq!(e.exit_code(), 1, "a scratch file is not the user's input");
     }
 
     #[test]
