@@ -306,17 +306,21 @@ pub fn reshard(
     new.write(staging.path())?;
 
     // The new set must verify and hold the same records in the same order.
-    let (new_manifest, v) = verify_set(staging.path())?;
+    // Problems found in the new set are this command's failures, not the user's input.
+    let ours = |e: ConvertError| ConvertError::Failure(e.to_string());
+    let (new_manifest, v) = verify_set(staging.path()).map_err(ours)?;
     if !v.problems.is_empty() {
         return Err(ConvertError::Failure(format!(
             "the new set failed verification: {}",
             v.problems.join("; ")
         )));
     }
-    let new_readers = new_manifest.check_shards(staging.path())?;
+    let new_readers = new_manifest
+        .check_shards(staging.path())
+        .map_err(|e| ours(e.into()))?;
     let mut after = Digest::default();
-    for s in records_of(&new_readers, buffer as usize)? {
-        after.add(&s?);
+    for s in records_of(&new_readers, buffer as usize).map_err(ours)? {
+        after.add(&s.map_err(ours)?);
     }
     if after.value() != before.value() {
         return Err(ConvertError::Failure(format!(
