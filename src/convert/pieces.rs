@@ -210,12 +210,11 @@ impl PieceSorter {
         if self.buffer.len() as u64 == self.plan.run_pieces {
             self.spill()?;
         }
-        if self.buffer.len() == self.buffer.capacity() {
-            // Grow by doubling, never past the run size: the capacity is what the budget holds.
-            let want = (self.buffer.capacity() as u64 * 2)
-                .max(1024)
-                .min(self.plan.run_pieces) as usize;
-            self.buffer.reserve_exact(want - self.buffer.len());
+        if self.buffer.capacity() == 0 {
+            // The whole run buffer at once, never grown: growing would hold the old and the new
+            // buffer together for a moment, half as much again as the budget. Pages untouched
+            // (a small scene) cost address space only, which the budget covers anyway.
+            self.buffer.reserve_exact(self.plan.run_pieces as usize);
         }
         self.buffer.push(p);
         self.stats.pieces += 1;
