@@ -255,6 +255,13 @@ fn verify_names_every_damaged_file() {
     let good = tmp.path().join("good");
     convert(&cornell(), &good, 16, 3, "1MiB");
     assert_ok(&shard_tool(&["verify", &s(&good)]), "verify the good set");
+    // A stray file is mentioned, not an error.
+    let stray = tmp.path().join("stray");
+    copy_set(&good, &stray);
+    std::fs::write(stray.join("shard-00009.vxs"), b"left over").unwrap();
+    let o = shard_tool(&["verify", &s(&stray)]);
+    assert_ok(&o, "verify with a stray file");
+    assert!(text(&o.stdout).contains("not part of the set: shard-00009.vxs"));
     let case = |name: &str, damage: &dyn Fn(&Path), needles: &[&str]| {
         let set = tmp.path().join(name);
         copy_set(&good, &set);

@@ -215,7 +215,7 @@ pub fn verify(set: &Path) -> Result<String, ConvertError> {
         )));
     }
     let bytes: u64 = v.good.iter().map(|i| i.bytes).sum();
-    Ok(format!(
+    let mut report = format!(
         "{}: {} shards, {} records, {} bytes: all magic numbers, versions, lengths, checksums \
          and orders are correct and match {}",
         set.display(),
@@ -223,7 +223,15 @@ pub fn verify(set: &Path) -> Result<String, ConvertError> {
         m.records(),
         bytes,
         crate::storage::MANIFEST_FILE
-    ))
+    );
+    if !v.unlisted.is_empty() {
+        report.push_str(&format!(
+            "\nnote: not listed in {}, so not part of the set: {}",
+            crate::storage::MANIFEST_FILE,
+            v.unlisted.join(", ")
+        ));
+    }
+    Ok(report)
 }
 
 /// What a re-shard did.

@@ -217,6 +217,9 @@ pub struct Verification {
     pub good: Vec<ShardInfo>,
     /// One line per problem, each naming its file.
     pub problems: Vec<String>,
+    /// Files in the directory that the manifest does not list (not part of the set, so not a
+    /// problem, but worth knowing: a leftover of another set, or a shard the manifest lost).
+    pub unlisted: Vec<String>,
 }
 
 /// Checks every file of the shard set `dir` (see the module header). An unreadable manifest is
@@ -227,6 +230,16 @@ pub fn verify_set(dir: &Path) -> Result<(Manifest, Verification), ConvertError> 
     }
     let manifest = Manifest::read_dir(dir)?;
     let mut v = Verification::default();
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        let listed: std::collections::HashSet<&str> =
+            manifest.shards.iter().map(|s| s.file.as_str()).collect();
+        v.unlisted = entries
+            .filter_map(|e| e.ok())
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .filter(|n| n != MANIFEST_FILE && !listed.contains(n.as_str()))
+            .collect();
+        v.unlisted.sort();
+    }
     // The last voxel of the previous shard that could be read, for the order across shards.
     let mut previous: Option<(PathBuf, [i32; 3])> = None;
     for entry in &manifest.shards {
