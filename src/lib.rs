@@ -7,9 +7,12 @@
 //! `output` (report, per-voxel results, PLY, picture, probes). `gen` makes test and example scenes.
 //! `storage` keeps surfels out of core: sorted shard files, bounded memory-map windows, k-way
 //! merges and an external sort under a memory budget. `outcore` solves from a shard set with
-//! every array that grows with the scene in files, under a `--memory` budget.
+//! every array that grows with the scene in files, under a `--memory` budget. `convert` is the
+//! library of the `voxrad-shard` tool: scenes into shard sets out of core, sets verified,
+//! re-split, results exported.
 
 pub mod app;
+pub mod convert;
 pub mod gen;
 pub mod geometry;
 pub mod outcore;

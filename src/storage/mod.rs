@@ -20,7 +20,7 @@
 //! - [`error`]: [`StorageError`], which names the file and says what to do.
 //! - [`write_set`]: a surfel set in memory written as a shard set.
 //!
-//! The out-of-core solver (`crate::outcore`) reads shard sets through these.
+//! Used by the out-of-core solver (`outcore`) and the shard tool (`convert`, `voxrad-shard`).
 
 pub mod error;
 pub mod external_sort;
