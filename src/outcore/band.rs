@@ -16,7 +16,7 @@ use crate::solve::jacobi::gather_all_lines;
 use crate::solve::propagate::{DirectionInput, PropSurfel};
 use std::time::Instant;
 
-/// The open files of one axis copy.
+/// The open files of one axis copy, and the shared file of gathered light.
 pub struct CopyFiles {
     pub statics: RecordFile,
     pub radiosity: RecordFile,
@@ -24,11 +24,11 @@ pub struct CopyFiles {
 }
 
 impl CopyFiles {
-    pub fn open(copy: &AxisCopy) -> Result<Self, OocError> {
+    pub fn open(copy: &AxisCopy, gathered: &std::path::Path) -> Result<Self, OocError> {
         Ok(CopyFiles {
             statics: RecordFile::open(&copy.statics)?,
             radiosity: RecordFile::open(&copy.radiosity)?,
-            gathered: RecordFile::open(&copy.gathered)?,
+            gathered: RecordFile::open(gathered)?,
         })
     }
 }

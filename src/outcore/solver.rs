@@ -6,12 +6,12 @@
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
 use super::files::{
-    decode_gathered, decode_radiosity, encode_radiosity, Gathered, IoCounters, Radiosity,
-    RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN,
+    decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, Gathered, IoCounters,
+    Radiosity, RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN,
 };
 use super::scatter::Scatter;
 use super::source::SurfelSource;
-use super::workset::{self, WorkSet};
+use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
 use crate::geometry::directions::DirectionSet;
 use crate::solve::jacobi::error_estimate;
@@ -160,6 +160,7 @@ fn run(
     // B = E to start with; tells whether anything emits.
     let t = Instant::now();
     let first = update(source, &work, &plan, &cosine_sum, false, &mut io)?;
+    let mut fold_seconds = 0.0;
     stats.update_seconds += t.elapsed().as_secs_f64();
     let any_light = first.emitted.iter().any(|&e| e > 0.0);
 
@@ -174,7 +175,7 @@ fn run(
     let files: Vec<CopyFiles> = work
         .copies
         .iter()
-        .map(CopyFiles::open)
+        .map(|c| CopyFiles::open(c, &work.gathered))
         .collect::<Result<_, _>>()?;
     let mut buffers = BandBuffers::default();
     let mut times = BandTimes::default();
@@ -190,7 +191,7 @@ fn run(
         progress.reset();
         progress.set_message(format!("iteration {iteration}"));
         let mut gathered_any = false;
-        for (m, copy) in work.copies.iter().enumerate() {
+        for (m, (copy, copy_files)) in work.copies.iter().zip(&files).enumerate() {
             if by_axis[m].is_empty() {
                 continue;
             }
@@ -198,7 +199,7 @@ fn run(
             for (k, &d) in by_axis[m].iter().enumerate() {
                 let pass = DirectionPass {
                     copy,
-                    files: &files[m],
+                    files: copy_files,
                     histogram: &histogram,
                     dims: info.grid.dims,
                     plan: &plan,
@@ -208,20 +209,16 @@ fn run(
                 pass.run(&directions.directions[d], &mut buffers, &mut io, &mut times)?;
                 progress.inc(1);
             }
+            drop(histogram);
+            // This axis's light joins the canonical sum before the next axis reuses the file.
+            let t = Instant::now();
+            fold_gathered(copy, &work, &plan, !gathered_any, &mut io)?;
+            fold_seconds += t.elapsed().as_secs_f64();
             gathered_any = true;
         }
-        let used: Vec<bool> = by_axis.iter().map(|b| !b.is_empty()).collect();
         stats.solve.updates += work.count * directions.len() as u64;
         let t = Instant::now();
-        let result = update_with(
-            source,
-            &work,
-            &plan,
-            &cosine_sum,
-            &used,
-            gathered_any,
-            &mut io,
-        )?;
+        let result = update(source, &work, &plan, &cosine_sum, gathered_any, &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         let relative = if result.total > 0.0 {
             result.change / result.total
@@ -257,6 +254,7 @@ fn run(
     stats.solve.propagate_seconds = times.propagate;
     stats.read_seconds = times.read;
     stats.write_seconds = times.write;
+    stats.update_seconds += fold_seconds;
     stats.bands = times.bands;
     stats.tiled_columns = times.tiled_columns;
     stats.bytes_read = io.read;
@@ -277,7 +275,60 @@ struct Update {
     absorbed: [f64; 3],
 }
 
-/// The first update: `B = E` everywhere.
+/// Adds the light gathered in `copy`'s order (the shared gathered file) to the canonical sum,
+/// or starts the sum with it (`first`).
+fn fold_gathered(
+    copy: &AxisCopy,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    first: bool,
+    io: &mut IoCounters,
+) -> Result<(), OocError> {
+    let n = work.count;
+    let chunk = plan.chunk_surfels.min(n).max(1);
+    let buffer = plan.bucket_buffer(n.div_ceil(chunk));
+    let mut scatter = Scatter::<GATHER_LEN>::new(work.dir.path(), "gathered", n, chunk, buffer)?;
+    let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
+    let mut values = SeqReader::<GATHER_LEN>::open(&work.gathered, plan.io_bytes)?;
+    while let Some(id) = ids.next_record()? {
+        let value = values.expect_record()?;
+        scatter.push(u32::from_le_bytes(id) as u64, &value)?;
+    }
+    io.read += n * (4 + GATHER_LEN as u64);
+    let mut chunks = scatter.into_chunks()?;
+    let canonical = RecordFile::open(&work.canonical_gathered)?;
+    let mut sum: Vec<Gathered> = Vec::new();
+    let mut bytes = vec![0u8; chunk as usize * GATHER_LEN];
+    loop {
+        sum.clear();
+        sum.resize(chunk as usize, [[0.0; 3]; 2]);
+        let Some((start, len)) = chunks.next_chunk(|at, value| sum[at] = decode_gathered(value))?
+        else {
+            break;
+        };
+        let slots = &mut bytes[..len as usize * GATHER_LEN];
+        if !first {
+            canonical.read_at(start * GATHER_LEN as u64, slots, io)?;
+            for (h, slot) in sum.iter_mut().zip(slots.chunks_exact(GATHER_LEN)) {
+                let before = decode_gathered(slot);
+                for (t, b) in h.iter_mut().flatten().zip(before.iter().flatten()) {
+                    // The earlier axes' sum first, then this axis: a fixed order.
+                    *t += *b;
+                }
+            }
+        }
+        for (h, slot) in sum.iter().zip(slots.chunks_exact_mut(GATHER_LEN)) {
+            encode_gathered(h, slot);
+        }
+        canonical.write_at(start * GATHER_LEN as u64, slots, io)?;
+    }
+    io.written += chunks.written;
+    io.read += chunks.read;
+    Ok(())
+}
+
+/// `B = E + rho H / S(n)` in canonical order, `H` the canonical sum of gathered light (none
+/// gathered yet: `H = 0`); then the new `B` is sent to every copy, one copy at a time.
 fn update(
     source: &dyn SurfelSource,
     work: &WorkSet,
@@ -286,83 +337,36 @@ fn update(
     gathered: bool,
     io: &mut IoCounters,
 ) -> Result<Update, OocError> {
-    update_with(source, work, plan, cosine_sum, &[false; 3], gathered, io)
-}
-
-/// `B = E + rho H / S(n)` in canonical order, from the gathered files of the copies marked
-/// `used` (none: `H = 0`), then the new `B` sent to every copy.
-fn update_with(
-    source: &dyn SurfelSource,
-    work: &WorkSet,
-    plan: &MemoryPlan,
-    cosine_sum: &[f64],
-    used: &[bool],
-    gathered: bool,
-    io: &mut IoCounters,
-) -> Result<Update, OocError> {
     let info = source.info();
     let n = work.count;
     let chunk = plan.chunk_surfels.min(n).max(1);
-    let chunks = n.div_ceil(chunk);
-    // Four scatters at once (gathered light in, radiosity out to three copies) share the
-    // buckets' half of the working memory.
-    let buffer = plan.bucket_buffer(4 * chunks);
-    // 1. The gathered light of every copy, to canonical chunks.
-    let mut gathered_chunks = if gathered {
-        let mut scatter =
-            Scatter::<GATHER_LEN>::new(work.dir.path(), "gathered", n, chunk, buffer)?;
-        for (copy, _) in work.copies.iter().zip(used).filter(|(_, &u)| u) {
-            let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
-            let mut values = SeqReader::<GATHER_LEN>::open(&copy.gathered, plan.io_bytes)?;
-            while let Some(id) = ids.next_record()? {
-                let value = values.expect_record()?;
-                scatter.push(u32::from_le_bytes(id) as u64, &value)?;
-            }
-            io.read += n * (4 + GATHER_LEN as u64);
-        }
-        Some(scatter.into_chunks()?)
-    } else {
-        None
-    };
-    // 2. Canonical pass.
-    let mut out_scatters = Vec::with_capacity(3);
-    let mut positions = Vec::with_capacity(3);
-    for copy in &work.copies {
-        out_scatters.push(Scatter::<RADIOSITY_LEN>::new(
-            work.dir.path(),
-            &format!("radiosity-{}", copy.main),
-            n,
-            chunk,
-            buffer,
-        )?);
-        positions.push(SeqReader::<4>::open(&copy.positions, plan.io_bytes)?);
-    }
     let canonical = RecordFile::open(&work.canonical_radiosity)?;
+    let canonical_gathered = RecordFile::open(&work.canonical_gathered)?;
     let mut stream = source.stream(plan.io_bytes as u64)?;
     let area_unit = info.grid.voxel_size * info.grid.voxel_size;
     let mut result = Update::default();
-    let mut h: Vec<Gathered> = Vec::new();
+    let mut h_bytes = vec![0u8; chunk as usize * GATHER_LEN];
     let mut bytes = vec![0u8; chunk as usize * RADIOSITY_LEN];
     let mut start = 0u64;
     while start < n {
         let len = chunk.min(n - start);
-        h.clear();
-        h.resize(len as usize, [[0.0; 3]; 2]);
-        if let Some(reader) = gathered_chunks.as_mut() {
-            reader.next_chunk(|at, value| {
-                let add = decode_gathered(value);
-                for (t, a) in h[at].iter_mut().flatten().zip(add.iter().flatten()) {
-                    *t += a;
-                }
-            })?;
+        let h_slots = &mut h_bytes[..len as usize * GATHER_LEN];
+        if gathered {
+            canonical_gathered.read_at(start * GATHER_LEN as u64, h_slots, io)?;
+        } else {
+            h_slots.fill(0);
         }
         let prev = &mut bytes[..len as usize * RADIOSITY_LEN];
         canonical.read_at(start * RADIOSITY_LEN as u64, prev, io)?;
-        for (k, slot) in prev.chunks_exact_mut(RADIOSITY_LEN).enumerate() {
+        for (slot, h_slot) in prev
+            .chunks_exact_mut(RADIOSITY_LEN)
+            .zip(h_slots.chunks_exact(GATHER_LEN))
+        {
             let s = stream.next().ok_or_else(|| OocError::BadData {
                 source_name: source.describe(),
                 what: "it ended before its stated count of surfels".to_string(),
             })??;
+            let h = decode_gathered(h_slot);
             let previous = decode_radiosity(slot);
             let norm = cosine_sum[s.normal_id as usize];
             let area = s.area as f64;
@@ -371,25 +375,19 @@ fn update_with(
                 let m = &info.materials[s.material[side] as usize];
                 for ch in 0..3 {
                     let e = m.emission[ch] as f32 as f64;
-                    let b = e + m.reflectance[ch] * h[k][side][ch] / norm;
+                    let b = e + m.reflectance[ch] * h[side][ch] / norm;
                     result.change += area * (b - previous[side][ch] as f64).abs();
                     result.total += area * b;
                     b_new[side][ch] = b as f32;
                     result.emitted[ch] += m.emission[ch] * area * area_unit;
                     result.absorbed[ch] +=
-                        (1.0 - m.reflectance[ch]) * h[k][side][ch] / norm * area * area_unit;
+                        (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
                 }
             }
             encode_radiosity(&b_new, slot);
-            let mut value = [0u8; RADIOSITY_LEN];
-            value.copy_from_slice(slot);
-            for (scatter, pos) in out_scatters.iter_mut().zip(positions.iter_mut()) {
-                let p = u32::from_le_bytes(pos.expect_record()?);
-                scatter.push(p as u64, &value)?;
-            }
         }
         canonical.write_at(start * RADIOSITY_LEN as u64, prev, io)?;
-        io.read += len * (crate::storage::RECORD_LEN as u64 + 12);
+        io.read += len * crate::storage::RECORD_LEN as u64;
         start += len;
     }
     // The stream's end checks the last shard's checksum.
@@ -400,13 +398,24 @@ fn update_with(
             what: "it holds more surfels than its stated count".to_string(),
         });
     }
-    if let Some(reader) = gathered_chunks {
-        io.written += reader.written;
-        io.read += reader.read;
-    }
-    drop(h);
-    // 3. The new radiosity to each copy, in copy order.
-    for (copy, scatter) in work.copies.iter().zip(out_scatters) {
+    drop((h_bytes, bytes));
+    // The new radiosity to each copy, in copy order, one copy at a time.
+    let buffer = plan.bucket_buffer(n.div_ceil(chunk));
+    for copy in &work.copies {
+        let mut scatter = Scatter::<RADIOSITY_LEN>::new(
+            work.dir.path(),
+            &format!("radiosity-{}", copy.main),
+            n,
+            chunk,
+            buffer,
+        )?;
+        let mut positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
+        let mut radiosity =
+            SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)?;
+        while let Some(p) = positions.next_record()? {
+            scatter.push(u32::from_le_bytes(p) as u64, &radiosity.expect_record()?)?;
+        }
+        io.read += n * (4 + RADIOSITY_LEN as u64);
         let mut reader = scatter.into_chunks()?;
         let mut out = SeqWriter::create(&copy.radiosity, plan.io_bytes)?;
         let mut values: Vec<[u8; RADIOSITY_LEN]> = vec![[0u8; RADIOSITY_LEN]; chunk as usize];

@@ -35,8 +35,6 @@ pub struct AxisCopy {
     pub statics: PathBuf,
     /// Radiosity of the previous iteration, in copy order.
     pub radiosity: PathBuf,
-    /// Light gathered this iteration, in copy order.
-    pub gathered: PathBuf,
     /// Canonical index of each record, in copy order (u32).
     pub ids: PathBuf,
     /// Position in this copy of each canonical surfel, in canonical order (u32).
@@ -65,6 +63,11 @@ pub struct WorkSet {
     pub copies: Vec<AxisCopy>,
     /// Radiosity in canonical order.
     pub canonical_radiosity: PathBuf,
+    /// Light gathered by the directions of the axis being solved, in that copy's order (one
+    /// file serves the three copies in turn).
+    pub gathered: PathBuf,
+    /// Light gathered this iteration by the axes done so far, in canonical order.
+    pub canonical_gathered: PathBuf,
     /// Surfels and distinct voxels.
     pub count: u64,
     pub voxels: u64,
@@ -103,7 +106,6 @@ pub fn build(
             rows: dims[v],
             statics: name("static"),
             radiosity: name("radiosity"),
-            gathered: name("gathered"),
             ids: name("ids"),
             positions: name("positions"),
             histogram: name("histogram"),
@@ -248,15 +250,20 @@ pub fn build(
         io.read += chunks.read;
         // The per-iteration files, at full length.
         RecordFile::create(&copy.radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
-        RecordFile::create(&copy.gathered)?.set_len(count * GATHER_LEN as u64)?;
         copies.push(copy);
     }
     let canonical_radiosity = dir.path().join("radiosity-canonical.bin");
     RecordFile::create(&canonical_radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
+    let gathered = dir.path().join("gathered.bin");
+    RecordFile::create(&gathered)?.set_len(count * GATHER_LEN as u64)?;
+    let canonical_gathered = dir.path().join("gathered-canonical.bin");
+    RecordFile::create(&canonical_gathered)?.set_len(count * GATHER_LEN as u64)?;
     Ok(WorkSet {
         dir,
         copies,
         canonical_radiosity,
+        gathered,
+        canonical_gathered,
         count,
         voxels,
     })
