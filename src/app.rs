@@ -4,6 +4,7 @@
 //! into the real objects, runs the pipeline (read -> voxelize -> solve -> write) and returns an
 //! [`AppError`] that knows whether the user's input was at fault (exit status 2) or not (1).
 
+use crate::distribute::{Comm, Mode, SingleProcess};
 use crate::geometry::directions::DirectionSet;
 use crate::outcore::{solve_out_of_core, InMemorySource, OocError, ShardSetSource, SurfelSource};
 use crate::output::render::{auto_camera, render_png, Camera};
@@ -11,7 +12,8 @@ use crate::output::report::{Effect, OutOfCoreReport, Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results, ResultsWriter};
 use crate::output::{ply, probe, RENDER_FILE};
 use crate::scene::obj::load_obj;
-use crate::solve::{solve, Solution, SolveOptions};
+use crate::solve::jacobi::solve_distributed;
+use crate::solve::{Solution, SolveOptions};
 use crate::voxel::voxelize::{voxelize, GridSpec};
 use crate::voxel::{Surfel, SurfelSet};
 use std::path::{Path, PathBuf};
@@ -51,7 +53,36 @@ pub struct SolveCommand {
 
 /// Reads and voxelizes the scene, solves, writes every output; returns the report.
 pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
+    run_solve_on(cmd, &SingleProcess, Mode::Single)
+}
+
+/// As [`run_solve`], on the processes of `comm` in `mode`; only rank 0 writes outputs.
+pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<Report, AppError> {
     let started = Instant::now();
+    if let Some(launched) = crate::distribute::launcher_world_size() {
+        if launched != comm.size() {
+            return Err(AppError::BadInput(format!(
+                "the MPI launcher started {launched} processes but this one sees {} (rank {}): {}",
+                comm.size(),
+                comm.rank(),
+                if mode == Mode::Single {
+                    "give --distribute directions to share the solve (a build with the `mpi` \
+                     feature), or run without mpirun"
+                } else {
+                    "this voxrad's MPI library does not match the launcher; build it against \
+                     the MPI that provides this mpirun"
+                }
+            )));
+        }
+    }
+    if mode != Mode::Single && (cmd.scene.is_dir() || cmd.memory.is_some()) {
+        return Err(AppError::BadInput(format!(
+            "{}: --distribute {} does not work out of core yet (shard sets, --memory); solve an \
+             OBJ file in memory on each rank",
+            cmd.scene.display(),
+            mode.name()
+        )));
+    }
     if cmd.scene.is_dir() {
         return run_solve_shard_set(cmd, started);
     }
@@ -98,7 +129,9 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
             .map_err(|e| AppError::Failure(e.to_string()))?;
         return Ok(report);
     }
-    let solution = solve(&set, &cmd.solve).map_err(|e| AppError::Failure(e.to_string()))?;
+    let directions = DirectionSet::with_count(cmd.solve.directions);
+    let solution = solve_distributed(&set, &directions, &cmd.solve, comm)
+        .map_err(|e| AppError::Failure(e.to_string()))?;
     let stats = &solution.stats;
     tracing::info!(
         iterations = stats.iterations,
@@ -117,34 +150,40 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         );
     }
 
-    std::fs::create_dir_all(&cmd.out).map_err(|e| {
-        AppError::Failure(format!(
-            "cannot create output directory {}: {e}",
-            cmd.out.display()
-        ))
-    })?;
     let t = Instant::now();
-    write_outputs(&cmd.out, &set, &solution, cmd.image_size)?;
+    if comm.rank() == 0 {
+        std::fs::create_dir_all(&cmd.out).map_err(|e| {
+            AppError::Failure(format!(
+                "cannot create output directory {}: {e}",
+                cmd.out.display()
+            ))
+        })?;
+        write_outputs(&cmd.out, &set, &solution, cmd.image_size)?;
+    }
     let write_seconds = t.elapsed().as_secs_f64();
 
     let resolution = set.grid.dims.iter().copied().max().unwrap_or(0);
     let run = RunInfo {
         scene: cmd.scene.display().to_string(),
-        mode: "single".to_string(),
-        ranks: 1,
+        mode: mode.name().to_string(),
+        ranks: comm.size(),
         resolution,
         tolerance: cmd.solve.tolerance.unwrap_or(0.0),
     };
     let mut report = Report::new(run, &set, stats);
+    report.set_phase("reduce", stats.reduce_seconds);
     report.effects = effects(&set, &solution);
     report.set_phase("read", read_seconds);
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);
     report.set_total(started.elapsed().as_secs_f64());
-    report.refresh_peak_rss();
-    report
-        .write(&cmd.out)
-        .map_err(|e| AppError::Failure(e.to_string()))?;
+    // The largest peak over ranks: what a node must have.
+    report.peak_rss_bytes = comm.max_u64(crate::output::report::peak_rss_bytes());
+    if comm.rank() == 0 {
+        report
+            .write(&cmd.out)
+            .map_err(|e| AppError::Failure(e.to_string()))?;
+    }
     Ok(report)
 }
 

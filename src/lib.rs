@@ -13,6 +13,7 @@
 
 pub mod app;
 pub mod convert;
+pub mod distribute;
 pub mod gen;
 pub mod geometry;
 pub mod outcore;

@@ -61,6 +61,10 @@ enum Command {
         /// solved out of core (default: a quarter of the available memory).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         memory: Option<u64>,
+        /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
+        /// the scene and takes a share of the directions). Needs a build with `--features mpi`.
+        #[arg(long, value_enum)]
+        distribute: Option<Distribute>,
     },
     /// Render a solved result directory to a PNG.
     Render {
@@ -107,6 +111,16 @@ enum Command {
     },
 }
 
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum Distribute {
+    /// Directions dealt out to ranks; every rank holds the whole scene.
+    Directions,
+    /// Lines dealt out to ranks (not built yet).
+    Data,
+    /// Groups of ranks share directions, ranks in a group share data (not built yet).
+    Hybrid,
+}
+
 #[derive(Clone, Copy, clap::ValueEnum)]
 enum SceneKind {
     /// The Cornell box (the same as examples/cornell_box.obj).
@@ -119,6 +133,33 @@ enum SceneKind {
     SealedRooms,
     /// A closed glowing cube with exact answer B = E / (1 - rho) (E = 1, rho = 0.5).
     Furnace,
+}
+
+/// The directions mode under MPI (a build with the `mpi` feature).
+#[cfg(feature = "mpi")]
+fn solve_under_mpi(cmd: &SolveCommand) -> Result<voxrad::output::report::Report, AppError> {
+    use voxrad::distribute::{mpi_comm::MpiComm, Comm, Mode};
+    let comm = MpiComm::init()
+        .ok_or_else(|| AppError::Failure("MPI could not be initialized".to_string()))?;
+    let report = voxrad::app::run_solve_on(cmd, &comm, Mode::Directions)?;
+    RANK.store(comm.rank(), std::sync::atomic::Ordering::Relaxed);
+    Ok(report)
+}
+
+#[cfg(not(feature = "mpi"))]
+fn solve_under_mpi(_cmd: &SolveCommand) -> Result<voxrad::output::report::Report, AppError> {
+    Err(AppError::BadInput(
+        "--distribute needs MPI: this voxrad was built without it; build with `cargo build \
+         --release --features mpi` (needs an MPI library such as libopenmpi-dev, and libclang)"
+            .to_string(),
+    ))
+}
+
+/// This process's MPI rank, once known (0 when not distributed).
+static RANK: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+
+fn is_rank_zero(_report: &voxrad::output::report::Report) -> bool {
+    RANK.load(std::sync::atomic::Ordering::Relaxed) == 0
 }
 
 fn parse_triple(text: &str) -> Result<(usize, usize, usize), String> {
@@ -181,6 +222,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             threads,
             image_size,
             memory,
+            distribute,
         } => {
             let grid = match voxel_size {
                 Some(v) => GridSpec::VoxelSize(v),
@@ -217,7 +259,24 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 image_size,
                 memory,
             };
-            let report = run_solve(&cmd)?;
+            let report = match distribute {
+                None => run_solve(&cmd)?,
+                Some(Distribute::Directions) => solve_under_mpi(&cmd)?,
+                Some(other) => {
+                    return Err(AppError::BadInput(
+                        format!(
+                            "--distribute {other:?} is not built yet; use --distribute directions"
+                        )
+                        .to_lowercase(),
+                    ))
+                }
+            };
+            if report.ranks > 1 && voxrad::distribute::launcher_world_size().is_some() {
+                // Only rank 0 speaks for the run.
+                if !is_rank_zero(&report) {
+                    return Ok(());
+                }
+            }
             eprintln!(
                 "{} voxels, {} directions, {} iterations ({}), {:.1} s; results in {}",
                 report.voxels,

@@ -15,6 +15,7 @@ use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::normalize::cosine_sums;
 use super::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
 use super::{Solution, SolveStats};
+use crate::distribute::{Comm, SingleProcess};
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
@@ -64,6 +65,19 @@ pub fn solve_with(
     directions: &DirectionSet,
     options: &SolveOptions,
 ) -> Result<Solution, SolveError> {
+    solve_distributed(set, directions, options, &SingleProcess)
+}
+
+/// Solves on the processes of `comm`, directions dealt out to ranks (`distribute`); every rank
+/// returns the same radiosity. The iteration loop and every call on `comm` run on the calling
+/// thread (MPI wants its calls from the main thread); the worker threads only run the
+/// directions' dispatch and propagation.
+pub fn solve_distributed(
+    set: &SurfelSet,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    comm: &dyn Comm,
+) -> Result<Solution, SolveError> {
     let threads = if options.threads == 0 {
         rayon::current_num_threads()
     } else {
@@ -76,7 +90,7 @@ pub fn solve_with(
             threads,
             message: e.to_string(),
         })?;
-    Ok(pool.install(|| run(set, directions, options, threads)))
+    Ok(run(set, directions, options, threads, &pool, comm))
 }
 
 fn run(
@@ -84,10 +98,12 @@ fn run(
     directions: &DirectionSet,
     options: &SolveOptions,
     threads: usize,
+    pool: &rayon::ThreadPool,
+    comm: &dyn Comm,
 ) -> Solution {
     let n = set.surfels.len();
     let started = Instant::now();
-    let cosine_sum = cosine_sums(&set.normals, directions);
+    let cosine_sum = pool.install(|| cosine_sums(&set.normals, directions));
     let normalize_seconds = started.elapsed().as_secs_f64();
 
     let coverage = super::coverage::coverages(set);
@@ -105,22 +121,26 @@ fn run(
         })
         .collect();
     // The four lexicographic orders, sorted once.
-    let orders: Vec<Vec<OrderedEntry>> = (0..4)
-        .into_par_iter()
-        .map(|o| {
-            let mut entries: Vec<OrderedEntry> = set
-                .surfels
-                .iter()
-                .enumerate()
-                .map(|(i, s)| OrderedEntry {
-                    voxel: s.voxel,
-                    index: i as u32,
-                })
-                .collect();
-            entries.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
-            entries
-        })
-        .collect();
+    let orders: Vec<Vec<OrderedEntry>> = pool.install(|| {
+        (0..4)
+            .into_par_iter()
+            .map(|o| {
+                let mut entries: Vec<OrderedEntry> = set
+                    .surfels
+                    .iter()
+                    .enumerate()
+                    .map(|(i, s)| OrderedEntry {
+                        voxel: s.voxel,
+                        index: i as u32,
+                    })
+                    .collect();
+                entries.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
+                entries
+            })
+            .collect()
+    });
+    // This rank's directions (all of them on one process).
+    let mine = crate::distribute::dealt(directions.len(), comm.rank(), comm.size());
     let frames: Vec<LineFrame> = directions
         .directions
         .iter()
@@ -155,7 +175,7 @@ fn run(
         .iter()
         .any(|e| e.iter().flatten().any(|&v| v > 0.0));
     // One bar per iteration over its directions: on a large scene a single iteration is long.
-    let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
+    let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
     let solve_started = Instant::now();
 
     for iteration in 1..=options.max_iterations {
@@ -166,25 +186,38 @@ fn run(
         acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         progress.reset();
         progress.set_message(format!("iteration {iteration}"));
-        for (d, frame) in directions.directions.iter().zip(&frames) {
+        for &k in &mine {
+            let (d, frame) = (&directions.directions[k], &frames[k]);
             let t0 = Instant::now();
-            dispatch(
-                &orders[order::order_of(d.vector)],
-                frame,
-                threads,
-                &mut lines,
-            );
-            let t1 = Instant::now();
-            let input = DirectionInput {
-                unit: d.unit,
-                weight: d.solid_angle / std::f64::consts::PI,
-                surfels: &surfels,
-                radiosity: &radiosity,
-            };
-            gather_all_lines(&lines, &input, &mut acc, threads);
+            let t1 = pool.install(|| {
+                dispatch(
+                    &orders[order::order_of(d.vector)],
+                    frame,
+                    threads,
+                    &mut lines,
+                );
+                let t1 = Instant::now();
+                let input = DirectionInput {
+                    unit: d.unit,
+                    weight: d.solid_angle / std::f64::consts::PI,
+                    surfels: &surfels,
+                    radiosity: &radiosity,
+                };
+                gather_all_lines(&lines, &input, &mut acc, threads);
+                t1
+            });
             stats.dispatch_seconds += (t1 - t0).as_secs_f64();
             stats.propagate_seconds += t1.elapsed().as_secs_f64();
             progress.inc(1);
+        }
+        if comm.size() > 1 {
+            let t = Instant::now();
+            let mut flat: Vec<f64> = acc.iter().flatten().flatten().copied().collect();
+            comm.sum_in_place(&mut flat);
+            for (a, v) in acc.iter_mut().flatten().flatten().zip(&flat) {
+                *a = *v;
+            }
+            stats.reduce_seconds += t.elapsed().as_secs_f64();
         }
         stats.updates += (n * directions.len()) as u64;
 

@@ -35,6 +35,8 @@ pub struct SolveStats {
     pub dispatch_seconds: f64,
     pub propagate_seconds: f64,
     pub normalize_seconds: f64,
+    /// Seconds summing the gathered light across ranks (distributed solves).
+    pub reduce_seconds: f64,
     /// Surfel-side updates: surfels x line directions x iterations.
     pub updates: u64,
     /// Emitted and absorbed power per channel (world units: B times area).

@@ -1,0 +1,145 @@
+//! Distributed solves under real `mpirun` (built only with the `mpi` feature; `.ci/run` installs
+//! Open MPI and runs these). Every rank count gives the single-process answer, and launches that
+//! do not fit are refused clearly.
+#![cfg(feature = "mpi")]
+
+use std::path::Path;
+use std::process::{Command, Output};
+use voxrad::geometry::directions::DirectionSet;
+use voxrad::output::results::read_results;
+use voxrad::solve::jacobi::solve_with;
+use voxrad::solve::SolveOptions;
+use voxrad::voxel::voxelize::{voxelize, GridSpec};
+
+/// `mpirun -n ranks voxrad args`: oversubscribed (more ranks than cores), loopback and shared
+/// memory transports only, allowed to run as root (CI containers).
+fn mpirun(ranks: usize, args: &[&str]) -> Output {
+    Command::new("mpirun")
+        .args(["-n", &ranks.to_string(), "--oversubscribe"])
+        .args([
+            "--mca",
+            "btl",
+            "self,vader",
+            "--mca",
+            "btl_vader_single_copy_mechanism",
+            "none",
+        ])
+        .arg(env!("CARGO_BIN_EXE_voxrad"))
+        .args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("NO_COLOR", "1")
+        .output()
+        .expect("run mpirun (is Open MPI installed?)")
+}
+
+fn cornell() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples/cornell_box.obj")
+        .display()
+        .to_string()
+}
+
+#[test]
+fn directions_mode_matches_one_process_for_1_to_4_ranks() {
+    let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(32)).unwrap();
+    let options = SolveOptions {
+        directions: 49,
+        max_iterations: 4,
+        tolerance: None,
+        threads: 1,
+    };
+    let reference = solve_with(&set, &DirectionSet::with_count(49), &options).unwrap();
+    let peak = reference
+        .radiosity
+        .iter()
+        .flatten()
+        .flatten()
+        .fold(0f32, |a, &b| a.max(b));
+    let tmp = tempfile::tempdir().unwrap();
+    for ranks in 1..=4 {
+        let out = tmp.path().join(format!("ranks{ranks}"));
+        let o = mpirun(
+            ranks,
+            &[
+                "solve",
+                &cornell(),
+                "--out",
+                out.to_str().unwrap(),
+                "--resolution",
+                "32",
+                "--directions",
+                "49",
+                "--iterations",
+                "4",
+                "--threads",
+                "1",
+                "--distribute",
+                "directions",
+            ],
+        );
+        assert!(
+            o.status.success(),
+            "{ranks} ranks: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let results = read_results(&out.join("surfels.bin")).unwrap();
+        assert_eq!(results.records.len(), set.surfels.len());
+        let mut worst = 0f32;
+        for (r, b) in results.records.iter().zip(&reference.radiosity) {
+            for (x, y) in r.radiosity.iter().flatten().zip(b.iter().flatten()) {
+                worst = worst.max((x - y).abs() / x.abs().max(y.abs()).max(1e-3 * peak));
+            }
+        }
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+        println!("{ranks} ranks: worst relative difference {worst:.2e}");
+        assert!(worst <= 1e-5, "{ranks} ranks: {worst:e}");
+        assert_eq!(report["ranks"], ranks);
+        assert_eq!(report["mode"], "directions");
+    }
+}
+
+#[test]
+fn launches_that_do_not_fit_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("o");
+    // mpirun with two ranks but no --distribute: each would solve alone and write the same files.
+    let o = mpirun(
+        2,
+        &[
+            "solve",
+            &cornell(),
+            "--out",
+            out.to_str().unwrap(),
+            "--resolution",
+            "16",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("started 2 processes") && err.contains("--distribute"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    // Modes not built yet say so.
+    let o = mpirun(
+        1,
+        &[
+            "solve",
+            &cornell(),
+            "--out",
+            out.to_str().unwrap(),
+            "--distribute",
+            "data",
+        ],
+    );
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
