@@ -6,7 +6,7 @@
 
 use crate::distribute::{Comm, Mode, SingleProcess};
 use crate::geometry::directions::DirectionSet;
-use crate::outcore::{solve_out_of_core, InMemorySource, OocError, ShardSetSource, SurfelSource};
+use crate::outcore::{solve_out_of_core, OocError, ShardSetSource, SurfelSource};
 use crate::output::render::{auto_camera, render_png, Camera};
 use crate::output::report::{Effect, OutOfCoreReport, Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results, ResultsWriter};
@@ -86,6 +86,9 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     if cmd.scene.is_dir() {
         return run_solve_shard_set(cmd, started);
     }
+    if let Some(budget) = cmd.memory {
+        return run_solve_obj_out_of_core(cmd, budget, started);
+    }
     let scene = load_obj(&cmd.scene).map_err(|e| {
         if e.is_bad_input() {
             AppError::BadInput(e.to_string())
@@ -115,20 +118,6 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
         "voxelized"
     );
 
-    if let Some(budget) = cmd.memory {
-        // The solver's arrays stay within the budget; the surfel set made here does not (give
-        // a shard set from `voxrad-shard convert` for scenes larger than memory).
-        let source = InMemorySource::new(&set);
-        let mut report = solve_out_of_core_to(cmd, &source, budget)?;
-        report.set_phase("read", read_seconds);
-        report.set_phase("voxelize", voxelize_seconds);
-        report.set_total(started.elapsed().as_secs_f64());
-        report.refresh_peak_rss();
-        report
-            .write(&cmd.out)
-            .map_err(|e| AppError::Failure(e.to_string()))?;
-        return Ok(report);
-    }
     let directions = DirectionSet::with_count(cmd.solve.directions);
     let solution = solve_distributed(&set, &directions, &cmd.solve, comm)
         .map_err(|e| AppError::Failure(e.to_string()))?;
@@ -203,6 +192,58 @@ fn run_solve_shard_set(cmd: &SolveCommand, started: Instant) -> Result<Report, A
     report
         .write(&cmd.out)
         .map_err(|e| AppError::Failure(e.to_string()))?;
+    Ok(report)
+}
+
+/// `voxrad solve SCENE.obj --memory SIZE`: the scene is converted to a temporary shard set (the
+/// streaming conversion of `voxrad-shard convert`, within the same budget) and solved from it.
+fn run_solve_obj_out_of_core(
+    cmd: &SolveCommand,
+    budget: u64,
+    started: Instant,
+) -> Result<Report, AppError> {
+    std::fs::create_dir_all(&cmd.out).map_err(|e| {
+        AppError::Failure(format!(
+            "cannot create output directory {}: {e}",
+            cmd.out.display()
+        ))
+    })?;
+    let work = tempfile::Builder::new()
+        .prefix(".voxrad-shards-")
+        .tempdir_in(&cmd.out)
+        .map_err(|e| {
+            AppError::Failure(format!(
+                "cannot create a work directory in {}: {e}",
+                cmd.out.display()
+            ))
+        })?;
+    let shards = work.path().join("scene.shards");
+    let convert_options = crate::convert::commands::ConvertOptions {
+        scene: cmd.scene.clone(),
+        out: shards.clone(),
+        spec: cmd.grid,
+        ranks: 1,
+        memory: budget,
+        order: 0,
+        threads: cmd.solve.threads,
+    };
+    let converted = crate::convert::commands::convert(&convert_options).map_err(|e| match e {
+        crate::convert::ConvertError::BadInput(m) => AppError::BadInput(m),
+        crate::convert::ConvertError::Failure(m) => AppError::Failure(m),
+    })?;
+    let convert_seconds = started.elapsed().as_secs_f64();
+    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
+    let mut report = solve_out_of_core_to(cmd, &source, budget)?;
+    report.set_phase("convert", convert_seconds);
+    report.set_total(started.elapsed().as_secs_f64());
+    report.refresh_peak_rss();
+    report
+        .write(&cmd.out)
+        .map_err(|e| AppError::Failure(e.to_string()))?;
+    tracing::info!(
+        surfels = converted.surfels,
+        "solved from a temporary shard set"
+    );
     Ok(report)
 }
 
