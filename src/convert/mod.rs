@@ -9,6 +9,7 @@
 //! - [`shardset`]: writing a shard set (staging directory, equal-count split, manifest, the
 //!   rename into place), verifying one, describing one.
 //! - [`export`]: a solve's `surfels.bin` streamed into PLY or CSV.
+//! - [`pack`]: a shard set as one zstd-compressed file, and back (verified before use).
 //! - [`commands`]: the subcommands as functions of parsed options.
 //!
 //! Errors are [`ConvertError`]: bad input (exit status 2, the message names the file) or a
@@ -16,6 +17,7 @@
 
 pub mod commands;
 pub mod export;
+pub mod pack;
 pub mod pieces;
 pub mod shardset;
 pub mod stream;

@@ -104,6 +104,23 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Pack a shard set into one zstd-compressed file, to ship it to other machines or archive it.
+    Pack {
+        /// The shard set directory.
+        set: PathBuf,
+        /// The pack file to write (replaced only when complete).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Unpack a pack file into a shard set; every file is verified before the set is moved into
+    /// place, so a damaged pack never becomes a shard set.
+    Unpack {
+        /// The pack file.
+        pack: PathBuf,
+        /// The shard set directory to write (new, empty, or a shard set to replace).
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -209,6 +226,26 @@ fn run(cli: Cli) -> Result<(), ConvertError> {
                 e.items,
                 out.display(),
                 e.passes
+            );
+        }
+        Command::Pack { set, out } => {
+            let p = voxrad::convert::pack::pack(&set, &out)?;
+            println!(
+                "{} files ({}) packed into {} ({}, {:.2}x smaller)",
+                p.files,
+                human(p.set_bytes),
+                out.display(),
+                human(p.pack_bytes),
+                p.set_bytes as f64 / p.pack_bytes.max(1) as f64
+            );
+        }
+        Command::Unpack { pack, out } => {
+            let p = voxrad::convert::pack::unpack(&pack, &out)?;
+            println!(
+                "{} files ({}) unpacked and verified into {}",
+                p.files,
+                human(p.set_bytes),
+                out.display()
             );
         }
     }
