@@ -161,7 +161,6 @@ pub fn unpack(pack: &Path, out: &Path) -> Result<Packed, ConvertError> {
     if &end != END_MAGIC {
         return Err(damaged("the end marker is wrong"));
     }
-    drop(read);
     // Reading on to the end of the stream makes zstd check its content checksum.
     let mut rest = Vec::new();
     z.read_to_end(&mut rest)
