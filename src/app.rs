@@ -141,12 +141,7 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
 
     let t = Instant::now();
     if comm.rank() == 0 {
-        std::fs::create_dir_all(&cmd.out).map_err(|e| {
-            AppError::Failure(format!(
-                "cannot create output directory {}: {e}",
-                cmd.out.display()
-            ))
-        })?;
+        create_out_dir(&cmd.out)?;
         write_outputs(&cmd.out, &set, &solution, cmd.image_size)?;
     }
     let write_seconds = t.elapsed().as_secs_f64();
@@ -202,12 +197,7 @@ fn run_solve_obj_out_of_core(
     budget: u64,
     started: Instant,
 ) -> Result<Report, AppError> {
-    std::fs::create_dir_all(&cmd.out).map_err(|e| {
-        AppError::Failure(format!(
-            "cannot create output directory {}: {e}",
-            cmd.out.display()
-        ))
-    })?;
+    create_out_dir(&cmd.out)?;
     let work = tempfile::Builder::new()
         .prefix(".voxrad-shards-")
         .tempdir_in(&cmd.out)
@@ -247,6 +237,15 @@ fn run_solve_obj_out_of_core(
     Ok(report)
 }
 
+fn create_out_dir(out: &Path) -> Result<(), AppError> {
+    std::fs::create_dir_all(out).map_err(|e| {
+        AppError::Failure(format!(
+            "cannot create output directory {}: {e}",
+            out.display()
+        ))
+    })
+}
+
 fn ooc_error(e: OocError) -> AppError {
     if e.is_bad_input() {
         AppError::BadInput(e.to_string())
@@ -262,12 +261,7 @@ fn solve_out_of_core_to(
     source: &dyn SurfelSource,
     budget: u64,
 ) -> Result<Report, AppError> {
-    std::fs::create_dir_all(&cmd.out).map_err(|e| {
-        AppError::Failure(format!(
-            "cannot create output directory {}: {e}",
-            cmd.out.display()
-        ))
-    })?;
+    create_out_dir(&cmd.out)?;
     let directions = DirectionSet::with_count(cmd.solve.directions);
     let solution =
         solve_out_of_core(source, &directions, &cmd.solve, budget, &cmd.out).map_err(ooc_error)?;

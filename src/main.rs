@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use voxrad::app::{
     run_generate, run_probe, run_render, run_solve, AppError, GenerateScene, SolveCommand,
 };
+use voxrad::output::report::Report;
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::GridSpec;
 
@@ -135,31 +136,23 @@ enum SceneKind {
     Furnace,
 }
 
-/// The directions mode under MPI (a build with the `mpi` feature).
+/// The directions mode under MPI (a build with the `mpi` feature): the report and this rank.
 #[cfg(feature = "mpi")]
-fn solve_under_mpi(cmd: &SolveCommand) -> Result<voxrad::output::report::Report, AppError> {
+fn solve_under_mpi(cmd: &SolveCommand) -> Result<(Report, usize), AppError> {
     use voxrad::distribute::{mpi_comm::MpiComm, Comm, Mode};
     let comm = MpiComm::init()
         .ok_or_else(|| AppError::Failure("MPI could not be initialized".to_string()))?;
     let report = voxrad::app::run_solve_on(cmd, &comm, Mode::Directions)?;
-    RANK.store(comm.rank(), std::sync::atomic::Ordering::Relaxed);
-    Ok(report)
+    Ok((report, comm.rank()))
 }
 
 #[cfg(not(feature = "mpi"))]
-fn solve_under_mpi(_cmd: &SolveCommand) -> Result<voxrad::output::report::Report, AppError> {
+fn solve_under_mpi(_cmd: &SolveCommand) -> Result<(Report, usize), AppError> {
     Err(AppError::BadInput(
         "--distribute needs MPI: this voxrad was built without it; build with `cargo build \
          --release --features mpi` (needs an MPI library such as libopenmpi-dev, and libclang)"
             .to_string(),
     ))
-}
-
-/// This process's MPI rank, once known (0 when not distributed).
-static RANK: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-
-fn is_rank_zero(_report: &voxrad::output::report::Report) -> bool {
-    RANK.load(std::sync::atomic::Ordering::Relaxed) == 0
 }
 
 fn parse_triple(text: &str) -> Result<(usize, usize, usize), String> {
@@ -191,22 +184,6 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
             "'{text}': width and height must be whole numbers from 1 to 16384"
         )),
     }
-}
-
-fn init_logging(verbose: u8) {
-    let default = match verbose {
-        0 => "warn,voxrad=info",
-        1 => "info",
-        _ => "debug",
-    };
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_target(false)
-        .init();
 }
 
 fn run(cli: Cli) -> Result<(), AppError> {
@@ -259,8 +236,8 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 image_size,
                 memory,
             };
-            let report = match distribute {
-                None => run_solve(&cmd)?,
+            let (report, rank) = match distribute {
+                None => (run_solve(&cmd)?, 0),
                 Some(Distribute::Directions) => solve_under_mpi(&cmd)?,
                 Some(other) => {
                     return Err(AppError::BadInput(
@@ -271,11 +248,9 @@ fn run(cli: Cli) -> Result<(), AppError> {
                     ))
                 }
             };
-            if report.ranks > 1 && voxrad::distribute::launcher_world_size().is_some() {
+            if rank != 0 {
                 // Only rank 0 speaks for the run.
-                if !is_rank_zero(&report) {
-                    return Ok(());
-                }
+                return Ok(());
             }
             eprintln!(
                 "{} voxels, {} directions, {} iterations ({}), {:.1} s; results in {}",
@@ -329,7 +304,7 @@ fn main() {
             std::process::exit(code);
         }
     };
-    init_logging(cli.verbose);
+    voxrad::progress::init_logging(cli.verbose);
     if let Err(e) = run(cli) {
         eprintln!("error: {e}");
         std::process::exit(e.exit_code());

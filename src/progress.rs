@@ -1,7 +1,8 @@
-//! Progress bars for steps that can take more than a couple of seconds.
+//! What the binaries tell the user while they work: progress bars for steps that can take more
+//! than a couple of seconds, and the log on standard error.
 //!
 //! Bars draw on standard error only when it is a terminal (indicatif hides them otherwise), so
-//! batch logs and tests stay clean.
+//! batch logs and tests stay clean; so do colours in the log.
 
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -14,4 +15,22 @@ pub fn bar(len: u64, message: &str) -> ProgressBar {
     bar.set_style(style);
     bar.set_message(message.to_string());
     bar
+}
+
+/// Sets up the log on standard error: `-v` for info from every crate, `-vv` for debug; by
+/// default warnings, plus voxrad's own info lines. `RUST_LOG` overrides.
+pub fn init_logging(verbose: u8) {
+    let default = match verbose {
+        0 => "warn,voxrad=info",
+        1 => "info",
+        _ => "debug",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .with_target(false)
+        .init();
 }

@@ -180,17 +180,12 @@ fn solves_a_shard_set_16_times_its_memory_limit() {
         .collect();
     got.sort_by_key(|e| e.0);
     assert_eq!(got.len(), expected.len());
-    let peak_b = expected
-        .iter()
-        .flat_map(|e| e.1.iter().flatten())
-        .fold(0f32, |a, &b| a.max(b));
-    let mut worst = 0f32;
     for (a, b) in got.iter().zip(&expected) {
         assert_eq!(a.0, b.0);
-        for (x, y) in a.1.iter().flatten().zip(b.1.iter().flatten()) {
-            worst = worst.max((x - y).abs() / x.abs().max(y.abs()).max(1e-3 * peak_b));
-        }
     }
+    let got: Vec<_> = got.iter().map(|e| e.1).collect();
+    let expected: Vec<_> = expected.iter().map(|e| e.1).collect();
+    let worst = common::worst_relative_difference(&got, &expected);
     println!("worst relative difference to the in-memory solve: {worst:.2e}");
     assert!(worst <= 1e-5, "{worst:e}");
 }

@@ -3,6 +3,8 @@
 //! do not fit are refused clearly.
 #![cfg(feature = "mpi")]
 
+mod common;
+
 use std::path::Path;
 use std::process::{Command, Output};
 use voxrad::geometry::directions::DirectionSet;
@@ -51,12 +53,6 @@ fn directions_mode_matches_one_process_for_1_to_4_ranks() {
         threads: 1,
     };
     let reference = solve_with(&set, &DirectionSet::with_count(49), &options).unwrap();
-    let peak = reference
-        .radiosity
-        .iter()
-        .flatten()
-        .flatten()
-        .fold(0f32, |a, &b| a.max(b));
     let tmp = tempfile::tempdir().unwrap();
     for ranks in 1..=4 {
         let out = tmp.path().join(format!("ranks{ranks}"));
@@ -86,12 +82,8 @@ fn directions_mode_matches_one_process_for_1_to_4_ranks() {
         );
         let results = read_results(&out.join("surfels.bin")).unwrap();
         assert_eq!(results.records.len(), set.surfels.len());
-        let mut worst = 0f32;
-        for (r, b) in results.records.iter().zip(&reference.radiosity) {
-            for (x, y) in r.radiosity.iter().flatten().zip(b.iter().flatten()) {
-                worst = worst.max((x - y).abs() / x.abs().max(y.abs()).max(1e-3 * peak));
-            }
-        }
+        let got: Vec<_> = results.records.iter().map(|r| r.radiosity).collect();
+        let worst = common::worst_relative_difference(&got, &reference.radiosity);
         let report: serde_json::Value =
             serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
         println!("{ranks} ranks: worst relative difference {worst:.2e}");

@@ -4,6 +4,8 @@
 //! relative; the two engines sum the same terms in a different order, so they agree to f32
 //! rounding.
 
+mod common;
+
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::outcore::{solve_out_of_core, InMemorySource};
 use voxrad::scene::Scene;
@@ -40,13 +42,7 @@ fn compare(name: &str, scene: &Scene, resolution: u32, budgets: &[u64], threads:
                 .unwrap_or_else(|e| panic!("{name}, budget {budget}: {e}"));
             let radiosity = solution.radiosity().expect("read radiosity");
             assert_eq!(radiosity.len(), set.surfels.len());
-            let mut worst = 0f64;
-            for (a, b) in radiosity.iter().zip(&reference.radiosity) {
-                for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
-                    let scale = (x.abs().max(y.abs()) as f64).max(1e-3 * peak as f64);
-                    worst = worst.max((x - y).abs() as f64 / scale);
-                }
-            }
+            let worst = common::worst_relative_difference(&radiosity, &reference.radiosity);
             println!(
                 "{name}: budget {budget}, {t} threads: worst relative difference {worst:.2e}, \
                  {} bands ({} columns in blocks), {} bytes read, {} written",

@@ -14,7 +14,7 @@ use super::source::SurfelSource;
 use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
 use crate::geometry::directions::DirectionSet;
-use crate::solve::jacobi::error_estimate;
+use crate::solve::jacobi::Convergence;
 use crate::solve::normalize::cosine_sums;
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
@@ -179,10 +179,9 @@ fn run(
         .collect::<Result<_, _>>()?;
     let mut buffers = BandBuffers::default();
     let mut times = BandTimes::default();
-    let mut previous_change: Option<f64> = None;
     let mut last = first;
     let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
-    let solve_started = Instant::now();
+    let mut convergence = Convergence::new();
     for iteration in 1..=options.max_iterations {
         if !any_light {
             stats.solve.converged = true;
@@ -220,26 +219,15 @@ fn run(
         let t = Instant::now();
         let result = update(source, &work, &plan, &cosine_sum, gathered_any, &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
-        let relative = if result.total > 0.0 {
-            result.change / result.total
-        } else {
-            0.0
-        };
-        let estimate = error_estimate(relative, previous_change);
-        stats.solve.iterations = iteration;
-        stats.solve.last_change = relative;
-        stats.solve.residual = estimate;
-        tracing::info!(
+        let stop = convergence.record(
             iteration,
-            change = format!("{relative:.3e}"),
-            estimated_error = format!("{estimate:.3e}"),
-            seconds = format!("{:.1}", solve_started.elapsed().as_secs_f64()),
-            "iteration done"
+            result.change,
+            result.total,
+            options,
+            &mut stats.solve,
         );
-        previous_change = Some(relative);
         last = result;
-        if options.tolerance.is_some_and(|tol| estimate <= tol) {
-            stats.solve.converged = true;
+        if stop {
             break;
         }
     }

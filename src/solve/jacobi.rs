@@ -170,13 +170,12 @@ fn run(
     let mut radiosity = emission.clone();
     let mut acc = vec![[[0f64; 3]; 2]; n];
     let mut lines = Lines::default();
-    let mut previous_change: Option<f64> = None;
     let any_light = emission
         .iter()
         .any(|e| e.iter().flatten().any(|&v| v > 0.0));
     // One bar per iteration over its directions: on a large scene a single iteration is long.
     let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
-    let solve_started = Instant::now();
+    let mut convergence = Convergence::new();
 
     for iteration in 1..=options.max_iterations {
         if !any_light {
@@ -237,21 +236,7 @@ fn run(
                 }
             }
         }
-        let relative = if total > 0.0 { change / total } else { 0.0 };
-        let estimate = error_estimate(relative, previous_change);
-        stats.iterations = iteration;
-        stats.last_change = relative;
-        stats.residual = estimate;
-        tracing::info!(
-            iteration,
-            change = format!("{relative:.3e}"),
-            estimated_error = format!("{estimate:.3e}"),
-            seconds = format!("{:.1}", solve_started.elapsed().as_secs_f64()),
-            "iteration done"
-        );
-        previous_change = Some(relative);
-        if options.tolerance.is_some_and(|tol| estimate <= tol) {
-            stats.converged = true;
+        if convergence.record(iteration, change, total, options, &mut stats) {
             break;
         }
     }
@@ -264,9 +249,54 @@ fn run(
     Solution { radiosity, stats }
 }
 
+/// The stopping rule's bookkeeping, shared by the in-memory and the out-of-core loops.
+pub(crate) struct Convergence {
+    previous_change: Option<f64>,
+    started: Instant,
+}
+
+impl Convergence {
+    pub(crate) fn new() -> Self {
+        Convergence {
+            previous_change: None,
+            started: Instant::now(),
+        }
+    }
+
+    /// Records iteration `iteration`, whose area-weighted change and total of `B` are `change`
+    /// and `total`, in `stats`; logs it; tells whether the solve should stop.
+    pub(crate) fn record(
+        &mut self,
+        iteration: usize,
+        change: f64,
+        total: f64,
+        options: &SolveOptions,
+        stats: &mut SolveStats,
+    ) -> bool {
+        let relative = if total > 0.0 { change / total } else { 0.0 };
+        let estimate = error_estimate(relative, self.previous_change);
+        stats.iterations = iteration;
+        stats.last_change = relative;
+        stats.residual = estimate;
+        tracing::info!(
+            iteration,
+            change = format!("{relative:.3e}"),
+            estimated_error = format!("{estimate:.3e}"),
+            seconds = format!("{:.1}", self.started.elapsed().as_secs_f64()),
+            "iteration done"
+        );
+        self.previous_change = Some(relative);
+        let stop = options.tolerance.is_some_and(|tol| estimate <= tol);
+        if stop {
+            stats.converged = true;
+        }
+        stop
+    }
+}
+
 /// The relative error left after an iteration whose relative change is `relative`, given the
 /// previous iteration's change (see the module header); infinite until the changes contract.
-pub(crate) fn error_estimate(relative: f64, previous_change: Option<f64>) -> f64 {
+fn error_estimate(relative: f64, previous_change: Option<f64>) -> f64 {
     match previous_change {
         _ if relative == 0.0 => 0.0,
         Some(prev) if prev > 0.0 && relative < prev => {

@@ -28,3 +28,26 @@ pub fn inner_side(s: &Surfel, set: &SurfelSet) -> usize {
 pub fn write_shard_set(set: &SurfelSet, dir: &std::path::Path, shards: usize) {
     voxrad::storage::write_shard_set(set, dir, shards, 0).expect("write shard set");
 }
+
+/// The largest relative difference between two radiosity lists, value by value, relative to
+/// the larger of the two values but at least 1e-3 of the largest radiosity in `reference` (so
+/// that values near zero compare by absolute difference).
+pub fn worst_relative_difference(got: &[[[f32; 3]; 2]], reference: &[[[f32; 3]; 2]]) -> f64 {
+    assert_eq!(got.len(), reference.len(), "different surfel counts");
+    let peak = reference
+        .iter()
+        .flatten()
+        .flatten()
+        .fold(0f32, |a, &b| a.max(b)) as f64;
+    let mut worst = 0f64;
+    for (a, b) in got.iter().zip(reference) {
+        for (&x, &y) in a.iter().flatten().zip(b.iter().flatten()) {
+            let (x, y) = (x as f64, y as f64);
+            let scale = x.abs().max(y.abs()).max(1e-3 * peak);
+            if scale > 0.0 {
+                worst = worst.max((x - y).abs() / scale);
+            }
+        }
+    }
+    worst
+}

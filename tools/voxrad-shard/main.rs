@@ -131,22 +131,6 @@ enum ExportFormat {
     Csv,
 }
 
-fn init_logging(verbose: u8) {
-    let default = match verbose {
-        0 => "warn,voxrad=info",
-        1 => "info",
-        _ => "debug",
-    };
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
-        .with_target(false)
-        .init();
-}
-
 fn run(cli: Cli) -> Result<(), ConvertError> {
     match cli.command {
         Command::Convert {
@@ -261,7 +245,7 @@ fn main() {
             std::process::exit(code);
         }
     };
-    init_logging(cli.verbose);
+    voxrad::progress::init_logging(cli.verbose);
     if let Err(e) = run(cli) {
         eprintln!("error: {e}");
         std::process::exit(e.exit_code());
