@@ -94,6 +94,14 @@ pub fn grid_for(scene: &Scene, spec: GridSpec) -> Result<Grid, VoxelizeError> {
     })
 }
 
+/// The exact vertices of a triangle, rotated to start at the smallest one (so that the same
+/// triangle listed from another vertex, with the same winding, has the same key).
+fn triangle_key(t: &crate::scene::Triangle) -> [[u64; 3]; 3] {
+    let v = t.vertices.map(|p| p.to_array().map(f64::to_bits));
+    let first = (0..3).min_by_key(|&k| v[k]).unwrap_or(0);
+    [v[first], v[(first + 1) % 3], v[(first + 2) % 3]]
+}
+
 /// Interleaves the bits of three non-negative coordinates (below 2^21) into a Morton code.
 pub fn morton(voxel: [i32; 3]) -> u64 {
     fn spread(v: i32) -> u64 {
@@ -177,8 +185,15 @@ pub fn voxelize(scene: &Scene, spec: GridSpec) -> Result<SurfelSet, VoxelizeErro
     let mut normals: Vec<[f32; 3]> = Vec::new();
     let mut group_normal: Vec<u32> = Vec::new();
     let mut planes: Vec<Option<(Plane, u32)>> = Vec::with_capacity(scene.triangles.len());
+    // A triangle listed twice (same vertices, same winding) is one surface modelled twice, as bad
+    // exports often do: voxelizing both would count its area, and so its emitted power, twice.
+    let mut seen: std::collections::HashSet<[[u64; 3]; 3]> = std::collections::HashSet::new();
     for t in &scene.triangles {
         let q = t.vertices.map(to_voxel);
+        if !seen.insert(triangle_key(t)) {
+            planes.push(None);
+            continue;
+        }
         let entry = canonical_plane(&q).map(|plane| {
             let key = plane_key(&plane);
             let next = group_of_key.len() as u32;
