@@ -5,7 +5,7 @@
 //! [`AppError`] that knows whether the user's input was at fault (exit status 2) or not (1).
 
 use crate::output::render::{auto_camera, render_png, Camera};
-use crate::output::report::{Effect, Report, RunInfo};
+use crate::output::report::{Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results};
 use crate::output::{ply, probe, RENDER_FILE};
 use crate::scene::obj::load_obj;
@@ -81,7 +81,10 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         "voxelized"
     );
 
-    let solution = solve(&set, &cmd.solve).map_err(|e| AppError::Failure(e.to_string()))?;
+    // Simulate only what the scene calls for (see `solve::effects`).
+    let analysis = crate::solve::effects::analyse(&set);
+    let shaped = analysis.shape(&cmd.solve);
+    let solution = solve(&set, &shaped).map_err(|e| AppError::Failure(e.to_string()))?;
     let stats = &solution.stats;
     tracing::info!(
         iterations = stats.iterations,
@@ -119,7 +122,7 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         tolerance: cmd.solve.tolerance.unwrap_or(0.0),
     };
     let mut report = Report::new(run, &set, stats);
-    report.effects = effects(&set, &solution);
+    report.effects = analysis.effects(&cmd.solve, stats);
     report.set_phase("read", read_seconds);
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);
@@ -208,43 +211,6 @@ fn write_outputs(
     )
     .map_err(fail)?;
     Ok(())
-}
-
-/// What was simulated and why (the scene analysis is still plain: every solve is the full one).
-fn effects(set: &SurfelSet, solution: &Solution) -> Vec<Effect> {
-    let emitters = set.materials.iter().any(|m| m.is_emitter());
-    let reflective = set
-        .materials
-        .iter()
-        .any(|m| m.reflectance.iter().any(|&r| r > 0.0));
-    vec![
-        Effect::new(
-            "direct light",
-            emitters,
-            if emitters {
-                "the scene has emitting materials (Ke > 0)"
-            } else {
-                "no material emits (no Ke > 0): nothing to light"
-            },
-        ),
-        Effect::new(
-            "interreflection",
-            emitters && reflective,
-            if reflective {
-                "some material reflects (Kd > 0); iterated until the estimated error is below the tolerance"
-            } else {
-                "every reflectance is 0: light does not bounce"
-            },
-        ),
-        Effect::new(
-            "rgb channels",
-            true,
-            &format!(
-                "three channels solved; {} surfels",
-                solution.radiosity.len()
-            ),
-        ),
-    ]
 }
 
 /// Rebuilds a surfel set and solution from a results file, for rendering.

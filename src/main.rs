@@ -202,6 +202,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                     (None, None) => defaults.tolerance,
                 },
                 threads,
+                ..Default::default()
             };
             let cmd = SolveCommand {
                 scene,

@@ -33,6 +33,11 @@ pub struct SolveOptions {
     pub tolerance: Option<f64>,
     /// Worker threads (0: all cores).
     pub threads: usize,
+    /// Solve one channel and copy it to the other two. Honoured only when the scene is grey
+    /// (`effects::is_grey`); a coloured scene is always solved in three channels.
+    pub grey: bool,
+    /// Extrapolate the geometric tail of the iterations (see `accelerate`).
+    pub accelerate: bool,
 }
 
 impl Default for SolveOptions {
@@ -42,6 +47,8 @@ impl Default for SolveOptions {
             max_iterations: 1000,
             tolerance: Some(1e-4),
             threads: 0,
+            grey: false,
+            accelerate: false,
         }
     }
 }
@@ -141,7 +148,15 @@ fn run(
         .map(|s| s.material.map(|m| set.materials[m as usize].reflectance))
         .collect();
 
+    let channels = if options.grey && super::effects::is_grey(set) {
+        1
+    } else {
+        3
+    };
+    let mut extrapolation = super::accelerate::Extrapolation::default();
+    let mut previous = Vec::new();
     let mut stats = SolveStats {
+        channels,
         directions: directions.len(),
         threads,
         normalize_seconds,
@@ -180,6 +195,7 @@ fn run(
                 weight: d.solid_angle / std::f64::consts::PI,
                 surfels: &surfels,
                 radiosity: &radiosity,
+                channels,
             };
             gather_all_lines(&lines, &input, &mut acc, threads);
             stats.dispatch_seconds += (t1 - t0).as_secs_f64();
@@ -189,13 +205,16 @@ fn run(
         stats.updates += (n * directions.len()) as u64;
 
         // B = E + rho H / S, and the change it makes.
+        if options.accelerate {
+            previous.clone_from(&radiosity);
+        }
         let (mut change, mut total) = (0.0f64, 0.0f64);
         for k in 0..n {
             let s = &set.surfels[k];
             let norm = cosine_sum[s.normal_id as usize];
             let area = s.area as f64;
             for side in 0..2 {
-                for ch in 0..3 {
+                for ch in 0..channels {
                     let b = emission[k][side][ch] as f64
                         + reflectance[k][side][ch] * acc[k][side][ch] / norm;
                     change += area * (b - radiosity[k][side][ch] as f64).abs();
@@ -211,7 +230,9 @@ fn run(
                 let q = relative / prev;
                 relative * q / (1.0 - q)
             }
-            _ => f64::INFINITY,
+            _ => extrapolation
+                .error_estimate(relative)
+                .unwrap_or(f64::INFINITY),
         };
         stats.iterations = iteration;
         stats.last_change = relative;
@@ -227,6 +248,22 @@ fn run(
         if options.tolerance.is_some_and(|tol| estimate <= tol) {
             stats.converged = true;
             break;
+        }
+        if options.accelerate {
+            if let Some(factor) = extrapolation.observe(change, relative) {
+                super::accelerate::extrapolate(&mut radiosity, &previous, &emission, factor);
+                // The jump is not an iteration's change: the stopping rule starts again.
+                previous_change = None;
+            }
+        }
+    }
+    stats.extrapolations = extrapolation.count;
+    if channels == 1 {
+        for (b, a) in radiosity.iter_mut().zip(acc.iter_mut()) {
+            for side in 0..2 {
+                b[side] = [b[side][0]; 3];
+                a[side] = [a[side][0]; 3];
+            }
         }
     }
     progress.finish_and_clear();
