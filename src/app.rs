@@ -332,3 +332,54 @@ pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), Ap
         }
     }
 }
+
+/// `voxrad study SCENE --out DIR [--quick]`: SCENE is a built-in name (`furnace`, `cornell`) or
+/// an .obj file. Writes `study.csv`, `study.md` and `study.png` and returns the study.
+pub fn run_study(
+    scene: &str,
+    out: &Path,
+    quick: bool,
+    threads: usize,
+) -> Result<crate::study::Study, AppError> {
+    use crate::study::{Plan, StudyScene};
+    let studied = match StudyScene::builtin(scene) {
+        Some(s) => s,
+        None => {
+            let path = Path::new(scene);
+            if !path.exists() {
+                return Err(AppError::BadInput(format!(
+                    "{scene}: neither a built-in scene (furnace, cornell) nor an existing .obj file"
+                )));
+            }
+            let loaded = load_obj(path).map_err(|e| {
+                if e.is_bad_input() {
+                    AppError::BadInput(e.to_string())
+                } else {
+                    AppError::Failure(e.to_string())
+                }
+            })?;
+            StudyScene {
+                name: scene.to_string(),
+                scene: loaded,
+                analytic: None,
+            }
+        }
+    };
+    let mut plan = if quick { Plan::quick() } else { Plan::full() };
+    plan.threads = threads;
+    let study = crate::study::run(&studied, &plan, |r| {
+        tracing::info!(
+            knob = r.knob,
+            resolution = r.settings.resolution,
+            directions = r.directions_used,
+            tolerance = r.settings.tolerance,
+            iterations = r.iterations,
+            seconds = format!("{:.2}", r.seconds),
+            mean_error = format!("{:.2e}", r.mean_error),
+            "study run"
+        );
+    })
+    .map_err(|e| AppError::BadInput(format!("{scene}: {e}")))?;
+    crate::study::write(&study, out).map_err(AppError::Failure)?;
+    Ok(study)
+}

@@ -5,7 +5,7 @@
 //! `voxel` (tunnel-free voxelization into surfels) -> `geometry` (integer directions, discrete
 //! lines, lexicographic orders) -> `solve` (dispatch into lines, propagate, Jacobi iterations) ->
 //! `output` (report, per-voxel results, PLY, picture, probes). `gen` makes test and example scenes.
-//! `storage` keeps surfels out of core: sorted shard files, bounded memory-map windows, k-way
+//! `study` measures what accuracy costs in time. `storage` keeps surfels out of core: sorted shard files, bounded memory-map windows, k-way
 //! merges and an external sort under a memory budget (not yet used by the solver).
 
 pub mod app;
@@ -16,4 +16,5 @@ pub mod progress;
 pub mod scene;
 pub mod solve;
 pub mod storage;
+pub mod study;
 pub mod voxel;

@@ -4,7 +4,8 @@
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use voxrad::app::{
-    run_generate, run_probe, run_render, run_solve, AppError, GenerateScene, SolveCommand,
+    run_generate, run_probe, run_render, run_solve, run_study, AppError, GenerateScene,
+    SolveCommand,
 };
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::GridSpec;
@@ -88,6 +89,21 @@ enum Command {
         /// Seed of the generator (same seed, same scene).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+    },
+    /// What accuracy costs in time: sweeps directions, tolerance and resolution, measures each
+    /// run's error and time; writes study.csv, study.md and study.png.
+    Study {
+        /// A built-in scene (`furnace`, `cornell`) or an OBJ file.
+        scene: String,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// A small, fast sweep (for tests and a first look).
+        #[arg(long)]
+        quick: bool,
+        /// Worker threads (default: all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
     },
     /// Radiosity at given surface points: reads x,y,z,nx,ny,nz rows, prints x,y,z,nx,ny,nz,B_r,B_g,B_b.
     Probe {
@@ -234,6 +250,21 @@ fn run(cli: Cli) -> Result<(), AppError> {
             size,
         } => run_render(&dir, &out, camera.as_deref(), size),
         Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
+        Command::Study {
+            scene,
+            out,
+            quick,
+            threads,
+        } => {
+            let study = run_study(&scene, &out, quick, threads)?;
+            eprintln!(
+                "{} runs; reference: {}; study.csv, study.md, study.png in {}",
+                study.runs.len(),
+                study.reference,
+                out.display()
+            );
+            Ok(())
+        }
         Command::Generate {
             scene,
             out,
