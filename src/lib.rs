@@ -13,6 +13,7 @@ pub mod gen;
 pub mod geometry;
 pub mod output;
 pub mod progress;
+pub mod quality;
 pub mod scene;
 pub mod solve;
 pub mod storage;

@@ -7,6 +7,7 @@ use voxrad::app::{
     run_generate, run_probe, run_render, run_solve, run_study, AppError, GenerateScene,
     SolveCommand,
 };
+use voxrad::quality::Quality;
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::GridSpec;
 
@@ -36,15 +37,20 @@ enum Command {
         /// Output directory: report.json, surfels.bin, surfels.ply, render.png.
         #[arg(long)]
         out: PathBuf,
-        /// Voxels along the longest side of the scene.
-        #[arg(long, default_value_t = 128, conflicts_with = "voxel_size")]
-        resolution: u32,
+        /// Quality preset: resolution, directions, tolerance and tail extrapolation chosen
+        /// together from the accuracy/time study (see the README); explicit options override it.
+        #[arg(long, value_enum, default_value = "default")]
+        quality: QualityArg,
+        /// Voxels along the longest side of the scene (default: from --quality).
+        #[arg(long, conflicts_with = "voxel_size")]
+        resolution: Option<u32>,
         /// Voxel edge length in scene units (instead of --resolution).
         #[arg(long)]
         voxel_size: Option<f64>,
-        /// Approximate number of line directions (each covers s and -s).
-        #[arg(long, default_value_t = 1000)]
-        directions: usize,
+        /// Approximate number of line directions, each covering s and -s (default: from
+        /// --quality).
+        #[arg(long)]
+        directions: Option<usize>,
         /// Largest number of iterations; given without --tolerance, exactly this many are run.
         #[arg(long)]
         iterations: Option<usize>,
@@ -119,6 +125,16 @@ enum Command {
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
+enum QualityArg {
+    /// A first look in seconds (resolution 32, 109 directions, tolerance 1e-2).
+    Draft,
+    /// Balanced (resolution 48, 589 directions, tolerance 1e-4).
+    Default,
+    /// Slow and accurate (resolution 64, 1201 directions, tolerance 1e-5).
+    High,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
 enum SceneKind {
     /// The Cornell box (the same as examples/cornell_box.obj).
     Cornell,
@@ -184,6 +200,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
         Command::Solve {
             scene,
             out,
+            quality,
             resolution,
             voxel_size,
             directions,
@@ -192,9 +209,16 @@ fn run(cli: Cli) -> Result<(), AppError> {
             threads,
             image_size,
         } => {
+            let preset = match quality {
+                QualityArg::Draft => Quality::Draft,
+                QualityArg::Default => Quality::Default,
+                QualityArg::High => Quality::High,
+            }
+            .preset();
+            let directions = directions.unwrap_or(preset.directions);
             let grid = match voxel_size {
                 Some(v) => GridSpec::VoxelSize(v),
-                None => GridSpec::Resolution(resolution),
+                None => GridSpec::Resolution(resolution.unwrap_or(preset.resolution)),
             };
             if let Some(t) = tolerance {
                 if !(t.is_finite() && t > 0.0) {
@@ -215,9 +239,12 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 tolerance: match (tolerance, iterations) {
                     (Some(t), _) => Some(t),
                     (None, Some(_)) => None,
-                    (None, None) => defaults.tolerance,
+                    (None, None) => Some(preset.tolerance),
                 },
                 threads,
+                // Extrapolation only under the tolerance rule: `--iterations K` alone asks for K
+                // plain Jacobi sweeps.
+                accelerate: preset.accelerate && (tolerance.is_some() || iterations.is_none()),
                 ..Default::default()
             };
             let cmd = SolveCommand {

@@ -193,3 +193,53 @@ fn extrapolation_at_reflectance_0_999() {
     assert!(highest <= 1.0 + 1e-5, "overshoot to {highest} x E/(1-rho)");
     assert!(lowest >= 1.0);
 }
+
+#[test]
+fn report_lists_the_effects_the_scene_calls_for() {
+    use voxrad::app::{run_solve, SolveCommand};
+    let dir = tempfile::tempdir().unwrap();
+    let report_for = |scene: &Scene, name: &str| {
+        let obj = dir.path().join(format!("{name}.obj"));
+        voxrad::gen::write_obj(scene, &obj).unwrap();
+        let cmd = SolveCommand {
+            scene: obj,
+            out: dir.path().join(name),
+            grid: GridSpec::Resolution(12),
+            solve: SolveOptions {
+                directions: 13,
+                threads: 2,
+                accelerate: true,
+                ..Default::default()
+            },
+            image_size: (32, 24),
+        };
+        run_solve(&cmd).unwrap()
+    };
+    let simulated = |r: &voxrad::output::Report, name: &str| {
+        r.effects
+            .iter()
+            .find(|e| e.name == name)
+            .unwrap_or_else(|| panic!("no effect {name} in {:?}", r.effects))
+            .simulated
+    };
+    // Grey furnace: one channel, bounces, extrapolated; its answer is still E / (1 - rho).
+    let grey = report_for(&common::furnace(1.0, 0.9), "grey");
+    assert!(simulated(&grey, "direct light"));
+    assert!(simulated(&grey, "interreflection"));
+    assert!(!simulated(&grey, "colour"));
+    assert!(simulated(&grey, "tail extrapolation"));
+    assert!(grey.energy.balance.abs() < 1e-3, "{:?}", grey.energy);
+    // A coloured room: three channels.
+    let coloured = report_for(&lamp_room([0.7, 0.2, 0.1]), "coloured");
+    assert!(simulated(&coloured, "colour"));
+    // Nothing emits: nothing solved.
+    let dark = report_for(&common::furnace(0.0, 0.9), "dark");
+    assert!(!simulated(&dark, "direct light"));
+    assert!(!simulated(&dark, "interreflection"));
+    assert_eq!(dark.iterations, 0);
+    // Black walls: direct light in one pass.
+    let black = report_for(&common::furnace(1.0, 0.0), "black");
+    assert!(simulated(&black, "direct light"));
+    assert!(!simulated(&black, "interreflection"));
+    assert_eq!(black.iterations, 1);
+}

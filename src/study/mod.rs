@@ -80,6 +80,8 @@ pub struct Plan {
     pub resolutions: Vec<u32>,
     /// The reference run, for scenes without an analytic answer.
     pub reference: Settings,
+    /// Also run the quality presets of `voxrad solve --quality` (knob `preset`).
+    pub presets: bool,
     /// Probe points.
     pub probes: usize,
     pub threads: usize,
@@ -105,6 +107,7 @@ impl Plan {
                 tolerance: 1e-6,
                 accelerate: true,
             },
+            presets: true,
             probes: 300,
             threads: 0,
         }
@@ -128,6 +131,7 @@ impl Plan {
                 tolerance: 1e-6,
                 accelerate: true,
             },
+            presets: false,
             probes: 100,
             threads: 0,
         }
@@ -138,7 +142,7 @@ impl Plan {
 #[derive(Clone, Debug)]
 pub struct Run {
     /// Which knob this run sweeps: `directions`, `tolerance`, `tolerance+extrapolation` or
-    /// `resolution`.
+    /// `resolution`; or the quality preset it runs (`draft`, `default`, `high`).
     pub knob: &'static str,
     pub settings: Settings,
     /// Line directions actually used (the cube set nearest the request).
@@ -308,6 +312,20 @@ pub fn run(
     }
     for &r in &plan.resolutions {
         settings.push(("resolution", Settings { resolution: r, ..b }));
+    }
+    if plan.presets {
+        for q in crate::quality::Quality::ALL {
+            let p = q.preset();
+            settings.push((
+                q.name(),
+                Settings {
+                    resolution: p.resolution,
+                    directions: p.directions,
+                    tolerance: p.tolerance,
+                    accelerate: p.accelerate,
+                },
+            ));
+        }
     }
     let mut runs = Vec::new();
     for (knob, s) in settings {

@@ -19,7 +19,7 @@ const KNOBS: [(&str, RGBColor); 4] = [
 
 /// The colours in words, for the Markdown.
 pub const LEGEND: &str = "directions blue, tolerance green, tolerance with tail extrapolation \
-                          orange, resolution red";
+                          orange, resolution red; the quality presets are grey squares";
 
 /// Errors below this are drawn at it (an exact extrapolation can reach 1e-16).
 const ERROR_FLOOR: f64 = 1e-7;
@@ -117,6 +117,14 @@ fn draw(root: &Area, runs: &[Run]) -> Result<(), Box<dyn std::error::Error>> {
         for p in points {
             root.draw(&Circle::new(p, 4, colour.filled()))?;
         }
+    }
+    // Quality presets: grey squares.
+    for r in runs.iter().filter(|r| !KNOBS.iter().any(|k| k.0 == r.knob)) {
+        let (px, py) = (x(r.seconds), y(shown_error(r)));
+        root.draw(&Rectangle::new(
+            [(px - 5, py - 5), (px + 5, py + 5)],
+            RGBColor(110, 110, 110).filled(),
+        ))?;
     }
     // The Pareto front: a staircase through its runs in time order.
     let mut front: Vec<&Run> = runs.iter().filter(|r| r.pareto).collect();
