@@ -30,7 +30,7 @@
 const NOISE_FLOOR: f64 = 1e-6;
 
 /// Two successive ratios of change norms must agree to this relative difference.
-const RATIO_AGREEMENT: f64 = 2e-3;
+const RATIO_AGREEMENT: f64 = 2e-2;
 
 /// Decides when to extrapolate, from the per-iteration change norms alone.
 #[derive(Clone, Debug, Default)]
