@@ -44,7 +44,7 @@ impl Quality {
                 accelerate: true,
             },
             Quality::Default => Preset {
-                resolution: 48,
+                resolution: 32,
                 directions: 589,
                 tolerance: 1e-4,
                 accelerate: true,
