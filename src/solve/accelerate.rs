@@ -39,7 +39,7 @@ pub struct Extrapolation {
     changes: Vec<f64>,
     /// How many extrapolations were made.
     pub count: usize,
-    /// The contraction `q` of the last extrapolation.
+    /// The larger of the two ratios that allowed the last extrapolation.
     last_ratio: Option<f64>,
 }
 
@@ -71,12 +71,14 @@ impl Extrapolation {
         let q = q1.min(q2);
         self.changes.clear();
         self.count += 1;
-        self.last_ratio = Some(q);
+        // The error estimate after the jump takes the larger ratio: it must not stop early.
+        self.last_ratio = Some(q1.max(q2));
         Some(q / (1.0 - q))
     }
 
     /// The relative error left after an iteration whose relative change is `relative`, from the
-    /// contraction measured at the last extrapolation: `relative q / (1 - q)`. For the stopping
+    /// contraction measured at the last extrapolation (the larger ratio, to err on the side of
+    /// iterating): `relative q / (1 - q)`. For the stopping
     /// rule right after a jump, when the change history has started again (and, once the changes
     /// reach the f32 noise, no longer shrink from one iteration to the next).
     pub fn error_estimate(&self, relative: f64) -> Option<f64> {
