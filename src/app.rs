@@ -4,9 +4,11 @@
 //! into the real objects, runs the pipeline (read -> voxelize -> solve -> write) and returns an
 //! [`AppError`] that knows whether the user's input was at fault (exit status 2) or not (1).
 
+use crate::geometry::directions::DirectionSet;
+use crate::outcore::{solve_out_of_core, InMemorySource, OocError, ShardSetSource, SurfelSource};
 use crate::output::render::{auto_camera, render_png, Camera};
-use crate::output::report::{Report, RunInfo};
-use crate::output::results::{read_results, write_results, Results};
+use crate::output::report::{Effect, OutOfCoreReport, Report, RunInfo};
+use crate::output::results::{read_results, write_results, Results, ResultsWriter};
 use crate::output::{ply, probe, RENDER_FILE};
 use crate::scene::obj::load_obj;
 use crate::solve::{solve, Solution, SolveOptions};
@@ -43,16 +45,15 @@ pub struct SolveCommand {
     pub grid: GridSpec,
     pub solve: SolveOptions,
     pub image_size: (u32, u32),
+    /// `--memory`: solve out of core within this many bytes.
+    pub memory: Option<u64>,
 }
 
 /// Reads and voxelizes the scene, solves, writes every output; returns the report.
 pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
     let started = Instant::now();
     if cmd.scene.is_dir() {
-        return Err(AppError::BadInput(format!(
-            "{}: shard-set directories are not supported by this build yet; give an .obj file",
-            cmd.scene.display()
-        )));
+        return run_solve_shard_set(cmd, started);
     }
     let scene = load_obj(&cmd.scene).map_err(|e| {
         if e.is_bad_input() {
@@ -68,7 +69,9 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         "scene read"
     );
 
-    check_memory(&scene, cmd)?;
+    if cmd.memory.is_none() {
+        check_memory(&scene, cmd)?;
+    }
     let t = Instant::now();
     let set = voxelize(&scene, cmd.grid)
         .map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
@@ -81,6 +84,20 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
         "voxelized"
     );
 
+    if let Some(budget) = cmd.memory {
+        // The solver's arrays stay within the budget; the surfel set made here does not (give
+        // a shard set from `voxrad-shard convert` for scenes larger than memory).
+        let source = InMemorySource::new(&set);
+        let mut report = solve_out_of_core_to(cmd, &source, budget)?;
+        report.set_phase("read", read_seconds);
+        report.set_phase("voxelize", voxelize_seconds);
+        report.set_total(started.elapsed().as_secs_f64());
+        report.refresh_peak_rss();
+        report
+            .write(&cmd.out)
+            .map_err(|e| AppError::Failure(e.to_string()))?;
+        return Ok(report);
+    }
     // Simulate only what the scene calls for (see `solve::effects`).
     let analysis = crate::solve::effects::analyse(&set);
     let shaped = analysis.shape(&cmd.solve);
@@ -131,6 +148,131 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
     report
         .write(&cmd.out)
         .map_err(|e| AppError::Failure(e.to_string()))?;
+    Ok(report)
+}
+
+/// `voxrad solve SHARDSET`: out of core, within `--memory` (default: a quarter of the memory
+/// available now).
+fn run_solve_shard_set(cmd: &SolveCommand, started: Instant) -> Result<Report, AppError> {
+    let source = ShardSetSource::open(&cmd.scene).map_err(ooc_error)?;
+    let budget = match cmd.memory {
+        Some(b) => b,
+        None => available_memory_bytes().map_or(1 << 30, |a| (a / 4).max(64 << 20)),
+    };
+    let read_seconds = started.elapsed().as_secs_f64();
+    let mut report = solve_out_of_core_to(cmd, &source, budget)?;
+    report.set_phase("read", read_seconds);
+    report.set_total(started.elapsed().as_secs_f64());
+    report.refresh_peak_rss();
+    report
+        .write(&cmd.out)
+        .map_err(|e| AppError::Failure(e.to_string()))?;
+    Ok(report)
+}
+
+fn ooc_error(e: OocError) -> AppError {
+    if e.is_bad_input() {
+        AppError::BadInput(e.to_string())
+    } else {
+        AppError::Failure(e.to_string())
+    }
+}
+
+/// Solves `source` out of core and writes the results file (and, when the results fit the
+/// budget, the PLY and the picture); returns the report, not yet written.
+fn solve_out_of_core_to(
+    cmd: &SolveCommand,
+    source: &dyn SurfelSource,
+    budget: u64,
+) -> Result<Report, AppError> {
+    std::fs::create_dir_all(&cmd.out).map_err(|e| {
+        AppError::Failure(format!(
+            "cannot create output directory {}: {e}",
+            cmd.out.display()
+        ))
+    })?;
+    let directions = DirectionSet::with_count(cmd.solve.directions);
+    let solution =
+        solve_out_of_core(source, &directions, &cmd.solve, budget, &cmd.out).map_err(ooc_error)?;
+    let stats = &solution.stats;
+    tracing::info!(
+        iterations = stats.solve.iterations,
+        converged = stats.solve.converged,
+        residual = stats.solve.residual,
+        bytes_read = stats.bytes_read,
+        bytes_written = stats.bytes_written,
+        "solved out of core"
+    );
+    let t = Instant::now();
+    let info = source.info();
+    let results_path = cmd.out.join(crate::output::RESULTS_FILE);
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count).map_err(fail)?;
+    solution
+        .for_each(source, |s, b| {
+            writer
+                .push(&crate::output::results::Record::from_surfel(s, *b))
+                .map_err(|e| OocError::BadData {
+                    source_name: results_path.display().to_string(),
+                    what: e.to_string(),
+                })
+        })
+        .map_err(ooc_error)?;
+    writer.finish().map_err(fail)?;
+    // The picture and the PLY need every surfel in memory: only when that fits the budget.
+    let in_memory_bytes = info.count * 400;
+    if in_memory_bytes <= budget {
+        let results = read_results(&results_path).map_err(|e| AppError::Failure(e.to_string()))?;
+        let (set, solution) = from_results(&results);
+        drop(results);
+        write_previews(&cmd.out, &set, &solution, cmd.image_size)?;
+    } else {
+        tracing::warn!(
+            "{} surfels: the PLY and the picture are not written within --memory {}; use \
+             `voxrad-shard export` and `voxrad render` with more memory",
+            info.count,
+            crate::outcore::budget::format_bytes(budget)
+        );
+    }
+    let write_seconds = t.elapsed().as_secs_f64();
+    let resolution = info.grid.dims.iter().copied().max().unwrap_or(0);
+    let run = RunInfo {
+        scene: cmd.scene.display().to_string(),
+        mode: "single".to_string(),
+        ranks: 1,
+        resolution,
+        tolerance: cmd.solve.tolerance.unwrap_or(0.0),
+    };
+    let mut report = Report::from_counts(
+        run,
+        stats.voxels,
+        stats.surfels,
+        info.grid.voxel_size,
+        &stats.solve,
+    );
+    report.set_phase("setup", stats.setup_seconds);
+    report.set_phase("band_read", stats.read_seconds);
+    report.set_phase("band_write", stats.write_seconds);
+    report.set_phase("update", stats.update_seconds);
+    report.set_phase("write", write_seconds);
+    let updates = (stats.surfels * stats.solve.directions as u64 * stats.solve.iterations as u64)
+        .max(1) as f64;
+    report.out_of_core = Some(OutOfCoreReport {
+        memory_budget_bytes: budget,
+        bytes_read: stats.bytes_read,
+        bytes_written: stats.bytes_written,
+        bytes_read_per_voxel_direction: stats.bytes_read as f64 / updates,
+        bytes_written_per_voxel_direction: stats.bytes_written as f64 / updates,
+        bands: stats.bands,
+    });
+    report.effects = vec![Effect::new(
+        "out of core",
+        true,
+        &format!(
+            "surfels kept in files; everything that grows with the scene held within {}",
+            crate::outcore::budget::format_bytes(budget)
+        ),
+    )];
     Ok(report)
 }
 
@@ -199,6 +341,17 @@ fn write_outputs(
 ) -> Result<(), AppError> {
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     write_results(&out.join(crate::output::RESULTS_FILE), set, solution).map_err(fail)?;
+    write_previews(out, set, solution, size)
+}
+
+/// The PLY and the picture.
+fn write_previews(
+    out: &Path,
+    set: &SurfelSet,
+    solution: &Solution,
+    size: (u32, u32),
+) -> Result<(), AppError> {
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     ply::write_ply(&out.join(crate::output::PLY_FILE), set, solution).map_err(fail)?;
     let camera = auto_camera(set, solution);
     render_png(

@@ -5,12 +5,18 @@
 //! `voxel` (tunnel-free voxelization into surfels) -> `geometry` (integer directions, discrete
 //! lines, lexicographic orders) -> `solve` (dispatch into lines, propagate, Jacobi iterations) ->
 //! `output` (report, per-voxel results, PLY, picture, probes). `gen` makes test and example scenes.
-//! `study` measures what accuracy costs in time. `storage` keeps surfels out of core: sorted shard files, bounded memory-map windows, k-way
-//! merges and an external sort under a memory budget (not yet used by the solver).
+//! `storage` keeps surfels out of core: sorted shard files, bounded memory-map windows, k-way
+//! merges and an external sort under a memory budget. `outcore` solves from a shard set with
+//! every array that grows with the scene in files, under a `--memory` budget. `convert` is the
+//! library of the `voxrad-shard` tool: scenes into shard sets out of core, sets verified,
+//! re-split, results exported. `study` measures what accuracy costs in time; `quality` holds
+//! the presets chosen from it.
 
 pub mod app;
+pub mod convert;
 pub mod gen;
 pub mod geometry;
+pub mod outcore;
 pub mod output;
 pub mod progress;
 pub mod quality;

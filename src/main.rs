@@ -32,7 +32,8 @@ enum Command {
     // option instead of failing as an "unexpected argument '-1'".
     #[command(allow_negative_numbers = true)]
     Solve {
-        /// The scene: an OBJ file (Kd = reflectance, Ke = emitted radiosity).
+        /// The scene: an OBJ file (Kd = reflectance, Ke = emitted radiosity), or a shard-set
+        /// directory made by `voxrad-shard convert` (solved out of core).
         scene: PathBuf,
         /// Output directory: report.json, surfels.bin, surfels.ply, render.png.
         #[arg(long)]
@@ -63,6 +64,10 @@ enum Command {
         /// Preview image size, WIDTHxHEIGHT.
         #[arg(long, default_value = "800x600", value_parser = parse_size)]
         image_size: (u32, u32),
+        /// Solve out of core, holding at most this much (e.g. 512MiB, 4G); a shard set is always
+        /// solved out of core (default: a quarter of the available memory).
+        #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
+        memory: Option<u64>,
     },
     /// Render a solved result directory to a PNG.
     Render {
@@ -208,6 +213,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             tolerance,
             threads,
             image_size,
+            memory,
         } => {
             let preset = match quality {
                 QualityArg::Draft => Quality::Draft,
@@ -253,6 +259,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 grid,
                 solve,
                 image_size,
+                memory,
             };
             let report = run_solve(&cmd)?;
             eprintln!(

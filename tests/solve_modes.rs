@@ -212,6 +212,7 @@ fn report_lists_the_effects_the_scene_calls_for() {
                 ..Default::default()
             },
             image_size: (32, 24),
+            memory: None,
         };
         run_solve(&cmd).unwrap()
     };

@@ -44,12 +44,16 @@ pub struct LineFrame {
     pub main: usize,
     pub u: usize,
     pub v: usize,
-    /// Number of line columns along `j`.
+    /// Number of line rows along `i` and columns along `j`.
+    pub ni: u64,
     pub nj: u64,
     /// Number of lines: `ni * nj`.
     pub line_count: u64,
     /// Per layer of the main axis: `(off_u - min_u) * nj + (off_v - min_v)`.
     layer_offset: Vec<u64>,
+    /// Per layer of the main axis: `(off_u - min_u, off_v - min_v)`, so that a voxel's line is
+    /// `i = voxel[u] + shift.0`, `j = voxel[v] + shift.1`.
+    layer_shift: Vec<(u64, u64)>,
 }
 
 impl LineFrame {
@@ -64,19 +68,29 @@ impl LineFrame {
         let (min_v, max_v) = min_max(&off_v);
         let ni = dims[u] as u64 + (max_u - min_u) as u64;
         let nj = dims[v] as u64 + (max_v - min_v) as u64;
-        let layer_offset = off_u
+        let layer_shift: Vec<(u64, u64)> = off_u
             .iter()
             .zip(&off_v)
-            .map(|(&ou, &ov)| (ou - min_u) as u64 * nj + (ov - min_v) as u64)
+            .map(|(&ou, &ov)| ((ou - min_u) as u64, (ov - min_v) as u64))
             .collect();
+        let layer_offset = layer_shift.iter().map(|&(su, sv)| su * nj + sv).collect();
         LineFrame {
             main,
             u,
             v,
+            ni,
             nj,
             line_count: ni * nj,
             layer_offset,
+            layer_shift,
         }
+    }
+
+    /// `(i, j)` shifts of layer `layer` of the main axis: a voxel of that layer lies on line
+    /// `(voxel[u] + shift.0, voxel[v] + shift.1)`, numbered `i * nj + j`.
+    #[inline]
+    pub fn layer_shift(&self, layer: usize) -> (u64, u64) {
+        self.layer_shift[layer]
     }
 
     /// Dense line index of a voxel inside the grid.

@@ -14,9 +14,11 @@
 //! PNG preview look alike. Written atomically (see [`super::atomic`]).
 
 use super::render::ToneMap;
+use super::results::Record;
 use super::{atomic, check_pair, OutputError};
 use crate::solve::Solution;
-use crate::voxel::{SurfelSet, BACK, FRONT};
+use crate::voxel::{Grid, SurfelSet, BACK, FRONT};
+use std::io::Write;
 use std::path::Path;
 
 /// Bytes per vertex record.
@@ -40,46 +42,68 @@ pub fn write_ply_with(
     tone: &ToneMap,
 ) -> Result<u64, OutputError> {
     check_pair(path, set, solution)?;
-    let pairs = || set.surfels.iter().zip(&solution.radiosity);
+    let records = || {
+        set.surfels
+            .iter()
+            .zip(&solution.radiosity)
+            .map(|(s, b)| Record::from_surfel(s, *b))
+    };
     // The header needs the count before the first vertex; counting is cheap next to writing.
-    let count: u64 = pairs()
-        .map(|(s, b)| {
-            [FRONT, BACK]
-                .iter()
-                .filter(|&&k| side_present(s.area, &b[k]))
-                .count() as u64
-        })
-        .sum();
+    let count: u64 = records().map(|r| vertices_of(&r)).sum();
     atomic::write_atomically(path, |w| {
-        write!(
-            w,
-            "ply\nformat binary_little_endian 1.0\n\
-             comment voxrad surfel sides; colour is tone-mapped radiosity (sRGB)\n\
-             element vertex {count}\n\
-             property float x\nproperty float y\nproperty float z\n\
-             property float nx\nproperty float ny\nproperty float nz\n\
-             property uchar red\nproperty uchar green\nproperty uchar blue\n\
-             end_header\n"
-        )?;
-        let mut rec = [0u8; VERTEX_LEN];
-        for (s, b) in pairs() {
-            let p = set.grid.to_world(s.position());
-            for side in [FRONT, BACK] {
-                if !side_present(s.area, &b[side]) {
-                    continue;
-                }
-                let n = s.side_normal(side);
-                let floats = [p.x, p.y, p.z, n.x, n.y, n.z].map(|v| v as f32);
-                for (i, f) in floats.iter().enumerate() {
-                    rec[4 * i..4 * i + 4].copy_from_slice(&f.to_le_bytes());
-                }
-                rec[24..27].copy_from_slice(&tone.map(b[side]));
-                w.write_all(&rec)?;
-            }
+        write_header(w, count)?;
+        for r in records() {
+            write_vertices(w, &set.grid, &r, tone)?;
         }
         Ok(())
     })?;
     Ok(count)
+}
+
+/// Number of vertices a record contributes: one per side with surface or light.
+pub fn vertices_of(r: &Record) -> u64 {
+    [FRONT, BACK]
+        .iter()
+        .filter(|&&k| side_present(r.area, &r.radiosity[k]))
+        .count() as u64
+}
+
+/// The PLY header for `count` vertices.
+pub fn write_header(w: &mut dyn Write, count: u64) -> std::io::Result<()> {
+    write!(
+        w,
+        "ply\nformat binary_little_endian 1.0\n\
+         comment voxrad surfel sides; colour is tone-mapped radiosity (sRGB)\n\
+         element vertex {count}\n\
+         property float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\n\
+         end_header\n"
+    )
+}
+
+/// The vertices of one record (see [`vertices_of`]), in the layout of the module header.
+pub fn write_vertices(
+    w: &mut dyn Write,
+    grid: &Grid,
+    r: &Record,
+    tone: &ToneMap,
+) -> std::io::Result<()> {
+    let mut rec = [0u8; VERTEX_LEN];
+    let p = grid.to_world(r.position());
+    for side in [FRONT, BACK] {
+        if !side_present(r.area, &r.radiosity[side]) {
+            continue;
+        }
+        let n = r.side_normal(side);
+        let floats = [p.x, p.y, p.z, n.x, n.y, n.z].map(|v| v as f32);
+        for (i, f) in floats.iter().enumerate() {
+            rec[4 * i..4 * i + 4].copy_from_slice(&f.to_le_bytes());
+        }
+        rec[24..27].copy_from_slice(&tone.map(r.radiosity[side]));
+        w.write_all(&rec)?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -110,6 +110,23 @@ pub struct Report {
     pub exchanged_fraction: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imbalance: Option<f64>,
+    /// Present when the solve ran out of core (a shard set, or `--memory`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub out_of_core: Option<OutOfCoreReport>,
+}
+
+/// What an out-of-core solve held and moved.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OutOfCoreReport {
+    pub memory_budget_bytes: u64,
+    /// Bytes read from and written to the shard set and the work files, over the whole solve.
+    pub bytes_read: u64,
+    pub bytes_written: u64,
+    /// The same per surfel and direction of every iteration.
+    pub bytes_read_per_voxel_direction: f64,
+    pub bytes_written_per_voxel_direction: f64,
+    /// Bands the directions were cut into, over all iterations.
+    pub bands: u64,
 }
 
 impl Report {
@@ -119,7 +136,23 @@ impl Report {
     /// `peak_rss_bytes` is measured now; call [`Report::refresh_peak_rss`] again just before
     /// writing to include later phases.
     pub fn new(run: RunInfo, set: &SurfelSet, stats: &SolveStats) -> Self {
-        let voxels = set.voxel_count() as u64;
+        Self::from_counts(
+            run,
+            set.voxel_count() as u64,
+            set.surfels.len() as u64,
+            set.grid.voxel_size,
+            stats,
+        )
+    }
+
+    /// As [`Report::new`], from the counts of a scene not held in memory.
+    pub fn from_counts(
+        run: RunInfo,
+        voxels: u64,
+        surfels: u64,
+        voxel_size: f64,
+        stats: &SolveStats,
+    ) -> Self {
         let mut seconds = BTreeMap::new();
         seconds.insert("normalize".to_string(), stats.normalize_seconds);
         seconds.insert("dispatch".to_string(), stats.dispatch_seconds);
@@ -140,9 +173,9 @@ impl Report {
             ranks: run.ranks,
             threads: stats.threads,
             resolution: run.resolution,
-            voxel_size: set.grid.voxel_size,
+            voxel_size,
             voxels,
-            surfels: set.surfels.len() as u64,
+            surfels,
             directions: stats.directions,
             iterations: stats.iterations,
             converged: stats.converged,
@@ -155,6 +188,7 @@ impl Report {
             energy: Energy::new(stats.emitted_power, stats.absorbed_power),
             exchanged_fraction: None,
             imbalance: None,
+            out_of_core: None,
         }
     }
 
@@ -218,7 +252,15 @@ pub enum ReportReadError {
 }
 
 /// Peak resident set size of this process so far, in bytes (0 if the system will not say).
+///
+/// On Linux this is `VmHWM` of `/proc/self/status`: the high-water mark of this program's own
+/// memory. `getrusage` is the fallback; on Linux its figure also counts what the parent had
+/// resident when it forked this process (the kernel carries the high-water mark across `exec`),
+/// so a small program started by a big one would report the big one's size.
 pub fn peak_rss_bytes() -> u64 {
+    if let Some(bytes) = status_high_water_mark() {
+        return bytes;
+    }
     // SAFETY: `getrusage` only writes into the zero-initialised struct we pass it.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     let rc = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut usage) };
@@ -232,6 +274,14 @@ pub fn peak_rss_bytes() -> u64 {
     } else {
         maxrss * 1024
     }
+}
+
+/// `VmHWM` from `/proc/self/status`, in bytes.
+fn status_high_water_mark() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = text.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
 }
 
 #[cfg(test)]

@@ -311,114 +311,215 @@ impl ResultsError {
 
 /// Reads and verifies a whole results file (see the module header for the checks and order).
 pub fn read_results(path: &Path) -> Result<Results, ResultsError> {
-    let io = |source| ResultsError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let bad_length = |what: String| ResultsError::BadLength {
-        path: path.to_path_buf(),
-        what,
-    };
-    let mut file = File::open(path).map_err(io)?;
-    let len = file.metadata().map_err(io)?.len();
+    let reader = ResultsReader::open(path)?;
+    // The count is checked against the real file length by `open`, so the collection is bounded
+    // by the file size; the last item of the iterator is the checksum's verdict.
+    let records = reader.records(1 << 20)?.collect::<Result<Vec<_>, _>>()?;
+    Ok(Results {
+        grid: reader.grid,
+        records,
+    })
+}
 
-    // Read as much of the header as exists, so a short file still gets its magic checked first.
-    let mut header = [0u8; HEADER_LEN as usize];
-    let got = read_up_to(&mut file, &mut header).map_err(io)?;
-    if got < MAGIC.len() || header[..8] != MAGIC {
-        return Err(ResultsError::BadMagic {
-            path: path.to_path_buf(),
-            found: header[..got.min(8)].to_vec(),
-            expected: MAGIC.to_vec(),
-        });
-    }
-    if got < 12 {
-        return Err(bad_length(format!(
-            "{len} bytes, shorter than the {HEADER_LEN}-byte header"
-        )));
-    }
-    let u32_at = |b: &[u8], i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
-    let bytes8 = |b: &[u8], i: usize| {
-        let mut w = [0u8; 8];
-        w.copy_from_slice(&b[i..i + 8]);
-        w
-    };
-    let u64_at = |b: &[u8], i: usize| u64::from_le_bytes(bytes8(b, i));
-    let f64_at = |b: &[u8], i: usize| f64::from_le_bytes(bytes8(b, i));
-    let version = u32_at(&header, 8);
-    if version != VERSION {
-        return Err(ResultsError::UnsupportedVersion {
-            path: path.to_path_buf(),
-            found: version,
-            expected: VERSION,
-        });
-    }
-    if got < HEADER_LEN as usize {
-        return Err(bad_length(format!(
-            "{len} bytes, shorter than the {HEADER_LEN}-byte header"
-        )));
-    }
-    let record_len = u32_at(&header, 12);
-    if record_len as u64 != RECORD_LEN {
-        return Err(ResultsError::BadHeader {
-            path: path.to_path_buf(),
-            what: format!("record length {record_len}, expected {RECORD_LEN}"),
-        });
-    }
-    let count = u64_at(&header, 16);
-    let expected = count
-        .checked_mul(RECORD_LEN)
-        .and_then(|r| r.checked_add(HEADER_LEN + FOOTER_LEN));
-    if expected != Some(len) {
-        return Err(bad_length(format!(
-            "the header announces {count} records ({} bytes in all) but the file has {len} bytes",
-            expected.map_or_else(|| "an impossible number of".to_string(), |e| e.to_string())
-        )));
-    }
-    let body_len = len - FOOTER_LEN;
-    file.seek(SeekFrom::Start(body_len)).map_err(io)?;
-    let mut footer = [0u8; FOOTER_LEN as usize];
-    file.read_exact(&mut footer).map_err(io)?;
-    let footer_count = u64_at(&footer, 0);
-    let stored = u32_at(&footer, 8);
-    if footer[12..] != END_MAGIC {
-        return Err(bad_length(
-            "the footer's end marker is missing (the file was not finished)".to_string(),
-        ));
-    }
-    if footer_count != count {
-        return Err(bad_length(format!(
-            "the header announces {count} records but the footer {footer_count}"
-        )));
-    }
+/// A results file whose header, length and footer have been checked, read as a stream: for
+/// files too large to hold. The checksum is checked by [`ResultsReader::check_checksum`] (a pass
+/// over the file) and again at the end of every [`ResultsReader::records`] pass, so a caller that
+/// must not act on unverified data checks first, then streams.
+#[derive(Clone, Debug)]
+pub struct ResultsReader {
+    path: PathBuf,
+    grid: Grid,
+    count: u64,
+    stored: u32,
+    header: [u8; HEADER_LEN as usize],
+}
 
-    let grid = Grid {
-        origin: [0, 1, 2].map(|i| f64_at(&header, 24 + 8 * i)),
-        voxel_size: f64_at(&header, 48),
-        dims: [0, 1, 2].map(|i| u32_at(&header, 56 + 4 * i)),
-    };
-    let mut hasher = crc32fast::Hasher::new();
-    hasher.update(&header);
-    file.seek(SeekFrom::Start(HEADER_LEN)).map_err(io)?;
-    let mut reader = BufReader::with_capacity(1 << 20, file);
-    // The count is checked against the real file length above, so this allocation is bounded
-    // by the file size.
-    let mut records = Vec::with_capacity(count as usize);
-    let mut buf = [0u8; RECORD_LEN as usize];
-    for _ in 0..count {
-        reader.read_exact(&mut buf).map_err(io)?;
-        hasher.update(&buf);
-        records.push(Record::decode(&buf));
-    }
-    let computed = hasher.finalize();
-    if computed != stored {
-        return Err(ResultsError::ChecksumMismatch {
+impl ResultsReader {
+    /// Opens `path` and checks, in order, magic, version, record length, file length against the
+    /// header's count, and the footer.
+    pub fn open(path: &Path) -> Result<Self, ResultsError> {
+        let io = |source| ResultsError::Io {
             path: path.to_path_buf(),
+            source,
+        };
+        let bad_length = |what: String| ResultsError::BadLength {
+            path: path.to_path_buf(),
+            what,
+        };
+        let mut file = File::open(path).map_err(io)?;
+        let len = file.metadata().map_err(io)?.len();
+
+        // Read as much of the header as exists, so a short file still gets its magic checked
+        // first.
+        let mut header = [0u8; HEADER_LEN as usize];
+        let got = read_up_to(&mut file, &mut header).map_err(io)?;
+        if got < MAGIC.len() || header[..8] != MAGIC {
+            return Err(ResultsError::BadMagic {
+                path: path.to_path_buf(),
+                found: header[..got.min(8)].to_vec(),
+                expected: MAGIC.to_vec(),
+            });
+        }
+        if got < 12 {
+            return Err(bad_length(format!(
+                "{len} bytes, shorter than the {HEADER_LEN}-byte header"
+            )));
+        }
+        let u32_at = |b: &[u8], i: usize| u32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let bytes8 = |b: &[u8], i: usize| {
+            let mut w = [0u8; 8];
+            w.copy_from_slice(&b[i..i + 8]);
+            w
+        };
+        let u64_at = |b: &[u8], i: usize| u64::from_le_bytes(bytes8(b, i));
+        let f64_at = |b: &[u8], i: usize| f64::from_le_bytes(bytes8(b, i));
+        let version = u32_at(&header, 8);
+        if version != VERSION {
+            return Err(ResultsError::UnsupportedVersion {
+                path: path.to_path_buf(),
+                found: version,
+                expected: VERSION,
+            });
+        }
+        if got < HEADER_LEN as usize {
+            return Err(bad_length(format!(
+                "{len} bytes, shorter than the {HEADER_LEN}-byte header"
+            )));
+        }
+        let record_len = u32_at(&header, 12);
+        if record_len as u64 != RECORD_LEN {
+            return Err(ResultsError::BadHeader {
+                path: path.to_path_buf(),
+                what: format!("record length {record_len}, expected {RECORD_LEN}"),
+            });
+        }
+        let count = u64_at(&header, 16);
+        let expected = count
+            .checked_mul(RECORD_LEN)
+            .and_then(|r| r.checked_add(HEADER_LEN + FOOTER_LEN));
+        if expected != Some(len) {
+            return Err(bad_length(format!(
+                "the header announces {count} records ({} bytes in all) but the file has {len} \
+                 bytes",
+                expected.map_or_else(|| "an impossible number of".to_string(), |e| e.to_string())
+            )));
+        }
+        let body_len = len - FOOTER_LEN;
+        file.seek(SeekFrom::Start(body_len)).map_err(io)?;
+        let mut footer = [0u8; FOOTER_LEN as usize];
+        file.read_exact(&mut footer).map_err(io)?;
+        let footer_count = u64_at(&footer, 0);
+        let stored = u32_at(&footer, 8);
+        if footer[12..] != END_MAGIC {
+            return Err(bad_length(
+                "the footer's end marker is missing (the file was not finished)".to_string(),
+            ));
+        }
+        if footer_count != count {
+            return Err(bad_length(format!(
+                "the header announces {count} records but the footer {footer_count}"
+            )));
+        }
+        let grid = Grid {
+            origin: [0, 1, 2].map(|i| f64_at(&header, 24 + 8 * i)),
+            voxel_size: f64_at(&header, 48),
+            dims: [0, 1, 2].map(|i| u32_at(&header, 56 + 4 * i)),
+        };
+        Ok(ResultsReader {
+            path: path.to_path_buf(),
+            grid,
+            count,
             stored,
-            computed,
-        });
+            header,
+        })
     }
-    Ok(Results { grid, records })
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+
+    /// Number of records.
+    pub fn count(&self) -> u64 {
+        self.count
+    }
+
+    /// The records in file order through a buffer of `buffer_bytes`. After the last record,
+    /// yields a [`ResultsError::ChecksumMismatch`] if the bytes read do not match the footer.
+    pub fn records(&self, buffer_bytes: usize) -> Result<ResultsRecords, ResultsError> {
+        let io = |source| ResultsError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        let mut file = File::open(&self.path).map_err(io)?;
+        file.seek(SeekFrom::Start(HEADER_LEN)).map_err(io)?;
+        let mut hasher = crc32fast::Hasher::new();
+        hasher.update(&self.header);
+        Ok(ResultsRecords {
+            reader: self.clone(),
+            file: BufReader::with_capacity(buffer_bytes.max(RECORD_LEN as usize), file),
+            hasher,
+            left: self.count,
+            done: false,
+        })
+    }
+
+    /// Reads the whole file once and compares its checksum with the footer's.
+    pub fn check_checksum(&self) -> Result<(), ResultsError> {
+        for r in self.records(1 << 20)? {
+            r?;
+        }
+        Ok(())
+    }
+}
+
+/// Iterator over a results file's records (see [`ResultsReader::records`]).
+pub struct ResultsRecords {
+    reader: ResultsReader,
+    file: BufReader<File>,
+    hasher: crc32fast::Hasher,
+    left: u64,
+    done: bool,
+}
+
+impl Iterator for ResultsRecords {
+    type Item = Result<Record, ResultsError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        if self.done {
+            return None;
+        }
+        if self.left == 0 {
+            self.done = true;
+            let computed = self.hasher.clone().finalize();
+            return (computed != self.reader.stored).then(|| {
+                Err(ResultsError::ChecksumMismatch {
+                    path: self.reader.path.clone(),
+                    stored: self.reader.stored,
+                    computed,
+                })
+            });
+        }
+        let mut buf = [0u8; RECORD_LEN as usize];
+        if let Err(source) = self.file.read_exact(&mut buf) {
+            self.done = true;
+            return Some(Err(ResultsError::Io {
+                path: self.reader.path.clone(),
+                source,
+            }));
+        }
+        self.hasher.update(&buf);
+        self.left -= 1;
+        Some(Ok(Record::decode(&buf)))
+    }
+
+    fn size_hint(&self) -> (usize, Option<usize>) {
+        let left = self.left as usize;
+        (left, Some(left + 1))
+    }
 }
 
 /// Fills `buf` as far as the reader allows; returns how many bytes were read. (A short read is
@@ -436,28 +537,38 @@ pub(crate) fn read_up_to(r: &mut impl Read, buf: &mut [u8]) -> std::io::Result<u
     Ok(got)
 }
 
+/// The first line of a CSV export.
+pub const CSV_HEADER: &str = "x,y,z,nx,ny,nz,B_r,B_g,B_b";
+
+/// Writes the CSV rows of one record (one per present side, see [`write_csv`]); returns how many.
+pub fn write_csv_record(w: &mut dyn Write, grid: &Grid, r: &Record) -> std::io::Result<u64> {
+    let p = grid.to_world(r.position());
+    let mut rows = 0;
+    for side in [FRONT, BACK] {
+        if !r.side_is_present(side) {
+            continue;
+        }
+        let n = r.side_normal(side);
+        let b = r.radiosity[side];
+        writeln!(
+            w,
+            "{},{},{},{},{},{},{},{},{}",
+            p.x, p.y, p.z, n.x as f32, n.y as f32, n.z as f32, b[0], b[1], b[2]
+        )?;
+        rows += 1;
+    }
+    Ok(rows)
+}
+
 /// Writes one CSV row per present surfel side (area > 0 or any radiosity): world position, the
 /// side's unit normal and its radiosity, `x,y,z,nx,ny,nz,B_r,B_g,B_b`, after a header line.
-/// Meant for small scenes; returns the number of rows.
+/// Meant for small scenes (`voxrad-shard export` streams large ones); returns the number of rows.
 pub fn write_csv(path: &Path, results: &Results) -> Result<u64, OutputError> {
     let mut rows = 0u64;
     atomic::write_atomically(path, |w| {
-        writeln!(w, "x,y,z,nx,ny,nz,B_r,B_g,B_b")?;
+        writeln!(w, "{CSV_HEADER}")?;
         for r in &results.records {
-            let p = results.world_position(r);
-            for side in [FRONT, BACK] {
-                if !r.side_is_present(side) {
-                    continue;
-                }
-                let n = r.side_normal(side);
-                let b = r.radiosity[side];
-                writeln!(
-                    w,
-                    "{},{},{},{},{},{},{},{},{}",
-                    p.x, p.y, p.z, n.x as f32, n.y as f32, n.z as f32, b[0], b[1], b[2]
-                )?;
-                rows += 1;
-            }
+            rows += write_csv_record(w, &results.grid, r)?;
         }
         Ok(())
     })?;

@@ -15,7 +15,7 @@
 //! depends on such voxels blocking.
 
 use crate::voxel::voxelize::{clip_to_unit_cube, polygon_area_centroid};
-use crate::voxel::SurfelSet;
+use crate::voxel::{Surfel, SurfelSet};
 use glam::DVec3;
 
 /// Smallest slice area (voxel-size squared) for which a coverage is computed at all.
@@ -41,41 +41,38 @@ pub fn slice_area(normal: DVec3, point: DVec3) -> f64 {
 /// Coverage of every surfel of `set` (see the module header).
 pub fn coverages(set: &SurfelSet) -> Vec<f32> {
     let s = &set.surfels;
-    (0..s.len())
-        .map(|k| {
-            // Alone in its voxel, or sharing it only with its own plane (a sheet modelled twice,
-            // back to back): surfels of one voxel are adjacent in the set.
-            let same_voxel = |j: usize| s[j].voxel == s[k].voxel;
-            let mut first = k;
-            while first > 0 && same_voxel(first - 1) {
-                first -= 1;
-            }
-            let mut last = k;
-            while last + 1 < s.len() && same_voxel(last + 1) {
-                last += 1;
-            }
-            if (first..=last).any(|j| s[j].group != s[k].group) {
-                return 1.0;
-            }
-            let normal = DVec3::new(
-                s[k].normal[0] as f64,
-                s[k].normal[1] as f64,
-                s[k].normal[2] as f64,
-            );
-            let point = DVec3::new(
-                s[k].point[0] as f64,
-                s[k].point[1] as f64,
-                s[k].point[2] as f64,
-            );
-            let slice = slice_area(normal, point);
-            let area = s[k].area as f64;
-            if slice < MIN_SLICE || area >= slice * (1.0 - 1e-3) {
-                1.0
-            } else {
-                (area / slice) as f32
-            }
-        })
-        .collect()
+    let mut out = Vec::with_capacity(s.len());
+    // Surfels of one voxel are adjacent in the set.
+    let mut first = 0;
+    while first < s.len() {
+        let mut end = first + 1;
+        while end < s.len() && s[end].voxel == s[first].voxel {
+            end += 1;
+        }
+        let mates = &s[first..end];
+        out.extend((0..mates.len()).map(|k| coverage_in_voxel(mates, k)));
+        first = end;
+    }
+    out
+}
+
+/// Coverage of `mates[k]`, where `mates` are all the surfels of one voxel.
+pub fn coverage_in_voxel(mates: &[Surfel], k: usize) -> f32 {
+    let s = &mates[k];
+    // Alone in its voxel, or sharing it only with its own plane (a sheet modelled twice, back to
+    // back).
+    if mates.iter().any(|m| m.group != s.group) {
+        return 1.0;
+    }
+    let normal = DVec3::new(s.normal[0] as f64, s.normal[1] as f64, s.normal[2] as f64);
+    let point = DVec3::new(s.point[0] as f64, s.point[1] as f64, s.point[2] as f64);
+    let slice = slice_area(normal, point);
+    let area = s.area as f64;
+    if slice < MIN_SLICE || area >= slice * (1.0 - 1e-3) {
+        1.0
+    } else {
+        (area / slice) as f32
+    }
 }
 
 #[cfg(test)]

@@ -39,9 +39,34 @@ impl Lines {
     }
 }
 
+/// A dense numbering of the lines a dispatch fills: all lines of a direction ([`LineFrame`]) or
+/// a band of them (the out-of-core solver's).
+pub trait LineNumbering: Sync {
+    /// Number of lines; every index is below it.
+    fn line_count(&self) -> usize;
+    /// Dense index of the line through `voxel`.
+    fn line_index(&self, voxel: [i32; 3]) -> u64;
+}
+
+impl LineNumbering for LineFrame {
+    fn line_count(&self) -> usize {
+        self.line_count as usize
+    }
+
+    #[inline]
+    fn line_index(&self, voxel: [i32; 3]) -> u64 {
+        LineFrame::line_index(self, voxel)
+    }
+}
+
 /// Fills `lines` for `frame` from `ordered` using `threads` contiguous parts.
-pub fn dispatch(ordered: &[OrderedEntry], frame: &LineFrame, threads: usize, lines: &mut Lines) {
-    let line_count = frame.line_count as usize;
+pub fn dispatch<F: LineNumbering>(
+    ordered: &[OrderedEntry],
+    frame: &F,
+    threads: usize,
+    lines: &mut Lines,
+) {
+    let line_count = frame.line_count();
     let parts = threads.max(1);
     let part_len = ordered.len().div_ceil(parts).max(1);
     lines.counters.resize_with(parts, Vec::new);

@@ -224,15 +224,11 @@ fn run(
             }
         }
         let relative = if total > 0.0 { change / total } else { 0.0 };
-        let estimate = match previous_change {
-            _ if relative == 0.0 => 0.0,
-            Some(prev) if prev > 0.0 && relative < prev => {
-                let q = relative / prev;
-                relative * q / (1.0 - q)
-            }
-            _ => extrapolation
-                .error_estimate(relative)
-                .unwrap_or(f64::INFINITY),
+        // Right after an extrapolation the change history starts again: until it contracts, the
+        // contraction measured before the jump estimates the error (see `accelerate`).
+        let estimate = match error_estimate(relative, previous_change) {
+            e if e.is_finite() => e,
+            e => extrapolation.error_estimate(relative).unwrap_or(e),
         };
         stats.iterations = iteration;
         stats.last_change = relative;
@@ -275,9 +271,22 @@ fn run(
     Solution { radiosity, stats }
 }
 
+/// The relative error left after an iteration whose relative change is `relative`, given the
+/// previous iteration's change (see the module header); infinite until the changes contract.
+pub(crate) fn error_estimate(relative: f64, previous_change: Option<f64>) -> f64 {
+    match previous_change {
+        _ if relative == 0.0 => 0.0,
+        Some(prev) if prev > 0.0 && relative < prev => {
+            let q = relative / prev;
+            relative * q / (1.0 - q)
+        }
+        _ => f64::INFINITY,
+    }
+}
+
 /// Runs `gather_line` over all lines, spread over `threads` in contiguous line ranges of about
 /// equal surfel counts.
-fn gather_all_lines(
+pub(crate) fn gather_all_lines(
     lines: &Lines,
     input: &DirectionInput,
     acc: &mut [[[f64; 3]; 2]],

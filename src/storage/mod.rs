@@ -18,8 +18,9 @@
 //!   budget's split and its counters.
 //! - [`manifest`]: the shard set's JSON manifest.
 //! - [`error`]: [`StorageError`], which names the file and says what to do.
+//! - [`write_set`]: a surfel set in memory written as a shard set.
 //!
-//! Not yet wired into the solver or the CLI.
+//! Used by the out-of-core solver (`outcore`) and the shard tool (`convert`, `voxrad-shard`).
 
 pub mod error;
 pub mod external_sort;
@@ -28,6 +29,7 @@ pub mod merge;
 pub mod record;
 pub mod shard;
 pub mod window;
+pub mod write_set;
 
 pub use error::StorageError;
 pub use external_sort::{ExternalSort, SortPlan, SortStats, SortedRecords};
@@ -36,3 +38,4 @@ pub use merge::KWayMerge;
 pub use record::RECORD_LEN;
 pub use shard::{verify, ShardInfo, ShardReader, ShardRecords, ShardWriter, WriteOptions};
 pub use window::{WindowedFile, WindowedRecords};
+pub use write_set::write_shard_set;

@@ -20,6 +20,12 @@
 //! to back), each facing gets its own surfel with its own piece: merging them would put the surface
 //! point where neither piece is, and rays would be misjudged at the seam.
 //!
+//! Numbering: plane groups and their normals are numbered in triangle order; the flipped normals
+//! of back-facing surfels and the unlit copies of emitting materials are fixed before any surfel
+//! is made ([`Tables`]), and the pieces of a surfel are merged in a fixed order (their key ends in
+//! the triangle index). So the surfels are a function of the scene alone, and the out-of-core
+//! conversion (`convert::stream`), which meets them in another order, makes exactly the same ones.
+//!
 //! Not done here: triangles of a finely tessellated curved surface are not merged, so a voxel may
 //! hold several surfels of nearly parallel planes; they behave correctly (they do not light each
 //! other) but cost memory.
@@ -116,24 +122,42 @@ pub fn morton(voxel: [i32; 3]) -> u64 {
 }
 
 /// One triangle's share of one voxel.
-#[derive(Clone, Copy, Debug)]
-struct Piece {
-    voxel: [i32; 3],
-    group: u32,
-    side: u8,
-    material: u32,
-    area: f64,
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Piece {
+    pub(crate) voxel: [i32; 3],
+    pub(crate) group: u32,
+    pub(crate) side: u8,
+    pub(crate) material: u32,
+    /// Index of the triangle in the scene: the last part of the merge key, so that the pieces of
+    /// one surfel are always combined in the same order and its floating-point sums come out
+    /// bit for bit the same whatever sorted them (in memory here, on disk in `convert`).
+    pub(crate) triangle: u32,
+    pub(crate) area: f64,
     /// Area-weighted centroid sum (voxel units, relative to the voxel corner).
-    centroid_sum: DVec3,
+    pub(crate) centroid_sum: DVec3,
     /// Mean of the clipped polygon's vertices, for zero-area contacts.
-    contact: DVec3,
+    pub(crate) contact: DVec3,
     /// Bounding box of the clipped polygon.
-    lo: DVec3,
-    hi: DVec3,
+    pub(crate) lo: DVec3,
+    pub(crate) hi: DVec3,
+}
+
+impl Piece {
+    /// Within one voxel, the order pieces are merged in: by plane group, facing, material, then
+    /// triangle. Unique per piece (a triangle has at most one piece per voxel).
+    pub(crate) fn merge_key(&self) -> (u32, u8, u32, u32) {
+        (self.group, self.side, self.material, self.triangle)
+    }
+
+    /// Whether `other` belongs to the same surfel: same voxel, plane group and facing.
+    pub(crate) fn same_surfel(&self, other: &Piece) -> bool {
+        self.voxel == other.voxel && self.group == other.group && self.side == other.side
+    }
 }
 
 /// A triangle's plane in voxel units, in canonical orientation.
-struct Plane {
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Plane {
     normal: DVec3,
     offset: f64,
     side: u8,
@@ -173,123 +197,206 @@ fn plane_key(p: &Plane) -> [i64; 4] {
     ]
 }
 
+/// The scene's triangles sorted into plane groups, with the normal table of the groups. Grows
+/// with the triangles, not the surfels: the part of the voxelization every path holds whole.
+pub(crate) struct PlaneGroups {
+    pub(crate) grid: Grid,
+    /// Per triangle: its plane and group, `None` for a degenerate triangle.
+    planes: Vec<Option<(Plane, u32)>>,
+    /// Per group: the id of its (front-facing) normal in `normals`.
+    group_normal: Vec<u32>,
+    /// One entry per distinct group normal, in order of first appearance.
+    normals: Vec<[f32; 3]>,
+}
+
+impl PlaneGroups {
+    /// Groups the triangles of `scene` on `grid`, assigning group and normal ids in triangle
+    /// order so that they are reproducible.
+    pub(crate) fn new(scene: &Scene, grid: Grid) -> Self {
+        let mut group_of_key: HashMap<[i64; 4], u32> = HashMap::new();
+        let mut normal_of_key: HashMap<[i64; 3], u32> = HashMap::new();
+        let mut normals: Vec<[f32; 3]> = Vec::new();
+        let mut group_normal: Vec<u32> = Vec::new();
+        let mut planes = Vec::with_capacity(scene.triangles.len());
+        // A triangle listed twice (same vertices, same winding) is one surface modelled twice,
+        // as bad exports often do: voxelizing both would count its area, and so its emitted
+        // power, twice.
+        let mut seen: std::collections::HashSet<[[u64; 3]; 3]> = std::collections::HashSet::new();
+        for t in &scene.triangles {
+            if !seen.insert(triangle_key(t)) {
+                planes.push(None);
+                continue;
+            }
+            let q = t.vertices.map(|v| grid.to_voxel_units(v));
+            let entry = canonical_plane(&q).map(|plane| {
+                let key = plane_key(&plane);
+                let next = group_of_key.len() as u32;
+                let group = *group_of_key.entry(key).or_insert(next);
+                if group == next {
+                    let nkey = [key[0], key[1], key[2]];
+                    let next_normal = normals.len() as u32;
+                    let id = *normal_of_key.entry(nkey).or_insert(next_normal);
+                    if id == next_normal {
+                        normals.push(plane.normal.as_vec3().to_array());
+                    }
+                    group_normal.push(id);
+                }
+                (plane, group)
+            });
+            planes.push(entry);
+        }
+        PlaneGroups {
+            grid,
+            planes,
+            group_normal,
+            normals,
+        }
+    }
+
+    /// Number of distinct group normals (the flags [`Tables::new`] takes are indexed by them).
+    pub(crate) fn normal_count(&self) -> usize {
+        self.normals.len()
+    }
+
+    /// The group normal id of a piece (before any flip for its facing).
+    pub(crate) fn normal_of(&self, piece: &Piece) -> u32 {
+        self.group_normal[piece.group as usize]
+    }
+
+    /// Feeds the pieces of triangle `index` of `scene` to `emit`, stopping at its first error.
+    pub(crate) fn triangle_pieces<E>(
+        &self,
+        scene: &Scene,
+        index: usize,
+        emit: &mut impl FnMut(Piece) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let Some((plane, group)) = &self.planes[index] else {
+            return Ok(());
+        };
+        let t = &scene.triangles[index];
+        let q = t.vertices.map(|v| self.grid.to_voxel_units(v));
+        let info = PieceInfo {
+            group: *group,
+            material: t.material,
+            triangle: index as u32,
+        };
+        triangle_pieces(&q, plane, info, self.grid.dims, emit)
+    }
+}
+
+/// The tables surfels index beyond the plane groups: normals for back-facing surfels and the
+/// unlit back sides of emitters.
+///
+/// Both are fixed before any surfel is made, from facts a single pass over the pieces (or the
+/// scene alone) establishes, never from the order surfels are met: the flipped normal of group
+/// normal `k` exists when some piece of a group with normal `k` faces back, and the flipped
+/// normals are appended in increasing `k`; every emitting material of the scene gets an unlit
+/// copy, appended in material order. So a path that meets surfels in another order (the
+/// out-of-core conversion meets them in shard order) numbers them exactly as this one does.
+#[derive(Clone, Debug)]
+pub(crate) struct Tables {
+    group_normal: Vec<u32>,
+    pub(crate) normals: Vec<[f32; 3]>,
+    /// Per group normal: the id of its flipped copy, if some piece faces back.
+    flipped: Vec<Option<u32>>,
+    pub(crate) materials: Vec<Material>,
+    /// Per scene material: the id of its unlit copy (emitters only).
+    unlit: Vec<Option<u32>>,
+}
+
+impl Tables {
+    /// `back_facing[k]`: whether some piece of a group with normal `k` faces back.
+    pub(crate) fn new(scene: &Scene, groups: &PlaneGroups, back_facing: &[bool]) -> Self {
+        let mut normals = groups.normals.clone();
+        let flipped = (0..groups.normals.len())
+            .map(|k| {
+                back_facing.get(k).copied().unwrap_or(false).then(|| {
+                    let n = groups.normals[k];
+                    normals.push([-n[0], -n[1], -n[2]]);
+                    (normals.len() - 1) as u32
+                })
+            })
+            .collect();
+        let mut materials = scene.materials.clone();
+        let unlit = scene
+            .materials
+            .iter()
+            .map(|m| {
+                m.is_emitter().then(|| {
+                    materials.push(Material::new(
+                        &format!("{} (unlit side)", m.name),
+                        m.reflectance,
+                        [0.0; 3],
+                    ));
+                    (materials.len() - 1) as u32
+                })
+            })
+            .collect();
+        Tables {
+            group_normal: groups.group_normal.clone(),
+            normals,
+            flipped,
+            materials,
+            unlit,
+        }
+    }
+}
+
 /// Voxelizes `scene` (which must have passed `Scene::validate`) on the grid `spec` selects.
 pub fn voxelize(scene: &Scene, spec: GridSpec) -> Result<SurfelSet, VoxelizeError> {
     let grid = grid_for(scene, spec)?;
-    let origin = DVec3::from(grid.origin);
-    let to_voxel = |v: DVec3| (v - origin) / grid.voxel_size;
-
-    // Plane groups and the normal table, assigned in triangle order so ids are reproducible.
-    let mut group_of_key: HashMap<[i64; 4], u32> = HashMap::new();
-    let mut normal_of_key: HashMap<[i64; 3], u32> = HashMap::new();
-    let mut normals: Vec<[f32; 3]> = Vec::new();
-    let mut group_normal: Vec<u32> = Vec::new();
-    let mut planes: Vec<Option<(Plane, u32)>> = Vec::with_capacity(scene.triangles.len());
-    // A triangle listed twice (same vertices, same winding) is one surface modelled twice, as bad
-    // exports often do: voxelizing both would count its area, and so its emitted power, twice.
-    let mut seen: std::collections::HashSet<[[u64; 3]; 3]> = std::collections::HashSet::new();
-    for t in &scene.triangles {
-        let q = t.vertices.map(to_voxel);
-        if !seen.insert(triangle_key(t)) {
-            planes.push(None);
-            continue;
-        }
-        let entry = canonical_plane(&q).map(|plane| {
-            let key = plane_key(&plane);
-            let next = group_of_key.len() as u32;
-            let group = *group_of_key.entry(key).or_insert(next);
-            if group == next {
-                let nkey = [key[0], key[1], key[2]];
-                let next_normal = normals.len() as u32;
-                let id = *normal_of_key.entry(nkey).or_insert(next_normal);
-                if id == next_normal {
-                    normals.push(plane.normal.as_vec3().to_array());
-                }
-                group_normal.push(id);
-            }
-            (plane, group)
-        });
-        planes.push(entry);
-    }
+    let groups = PlaneGroups::new(scene, grid);
 
     let progress = crate::progress::bar(scene.triangles.len() as u64, "voxelize");
-    let mut pieces: Vec<Piece> = scene
-        .triangles
-        .par_iter()
-        .zip(planes.par_iter())
-        .flat_map_iter(|(t, plane)| {
+    let mut pieces: Vec<Piece> = (0..scene.triangles.len())
+        .into_par_iter()
+        .flat_map_iter(|index| {
             let mut out = Vec::new();
-            if let Some((plane, group)) = plane {
-                let q = t.vertices.map(to_voxel);
-                triangle_pieces(&q, plane, *group, t.material, grid.dims, &mut out);
-            }
+            let _ = groups.triangle_pieces(scene, index, &mut |p| {
+                out.push(p);
+                Ok::<(), std::convert::Infallible>(())
+            });
             progress.inc(1);
             out
         })
         .collect();
     progress.finish_and_clear();
 
+    let mut back_facing = vec![false; groups.normal_count()];
+    for p in &pieces {
+        if p.side as usize == BACK {
+            back_facing[groups.normal_of(p) as usize] = true;
+        }
+    }
+    let tables = Tables::new(scene, &groups, &back_facing);
+
     // Surfels are stored in Morton (Z-curve) order of their voxels: discrete lines run in every
     // direction, and along a Z-curve voxels that are close in space are mostly close in memory,
     // which keeps the solver's per-line gathers in cache far better than a row-major order.
-    pieces.par_sort_unstable_by_key(|p| (morton(p.voxel), p.group, p.side, p.material));
+    pieces.par_sort_unstable_by_key(|p| (morton(p.voxel), p.merge_key()));
 
-    let mut materials = scene.materials.clone();
-    let mut unlit_copy: HashMap<u32, u32> = HashMap::new();
-    let mut flipped: HashMap<u32, u32> = HashMap::new();
-    let mut surfels = Vec::new();
-    let mut start = 0;
-    while start < pieces.len() {
-        let mut end = start + 1;
-        while end < pieces.len()
-            && pieces[end].voxel == pieces[start].voxel
-            && pieces[end].group == pieces[start].group
-        {
-            end += 1;
-        }
-        // Triangles of one plane facing opposite ways (two solids pressed together, or a sheet
-        // modelled twice back to back) become two surfels, each with its own piece and point, so
-        // that a ray can tell which piece it crosses. Pieces are sorted by side within the run.
-        let run = &pieces[start..end];
-        let split = run
-            .iter()
-            .position(|p| p.side != run[0].side)
-            .unwrap_or(run.len());
-        for part in [&run[..split], &run[split..]] {
-            if !part.is_empty() {
-                surfels.push(merge_run(
-                    part,
-                    &group_normal,
-                    &mut normals,
-                    &mut flipped,
-                    &mut materials,
-                    &mut unlit_copy,
-                ));
-            }
-        }
-        start = end;
-    }
+    // Triangles of one plane facing opposite ways (two solids pressed together, or a sheet
+    // modelled twice back to back) become two surfels, each with its own piece and point, so that
+    // a ray can tell which piece it crosses: runs end where the facing changes.
+    let surfels: Vec<Surfel> = pieces
+        .chunk_by(|a, b| a.same_surfel(b))
+        .map(|run| merge_run(run, &tables))
+        .collect();
     if surfels.len() > u32::MAX as usize {
         return Err(VoxelizeError::TooManySurfels(surfels.len()));
     }
     Ok(SurfelSet {
         grid,
         surfels,
-        normals,
-        materials,
+        normals: tables.normals,
+        materials: tables.materials,
     })
 }
 
-/// Merges the pieces of one (voxel, group, facing) into a surfel whose front is the side its
-/// triangles face; the back takes the front's reflectance without its emission.
-fn merge_run(
-    run: &[Piece],
-    group_normal: &[u32],
-    normals: &mut Vec<[f32; 3]>,
-    flipped: &mut HashMap<u32, u32>,
-    materials: &mut Vec<Material>,
-    unlit_copy: &mut HashMap<u32, u32>,
-) -> Surfel {
+/// Merges the pieces of one (voxel, group, facing), sorted by [`Piece::merge_key`], into a
+/// surfel whose front is the side its triangles face; the back takes the front's reflectance
+/// without its emission. A function of the pieces alone.
+pub(crate) fn merge_run(run: &[Piece], tables: &Tables) -> Surfel {
     let area: f64 = run.iter().map(|p| p.area).sum();
     let mut point = if area > 1e-12 {
         run.iter().map(|p| p.centroid_sum).sum::<DVec3>() / area
@@ -328,33 +435,22 @@ fn merge_run(
         }
     }
     let front = best.map_or(run[0].material, |b| b.0);
-    let back = if materials[front as usize].is_emitter() {
-        *unlit_copy.entry(front).or_insert_with(|| {
-            let source = &materials[front as usize];
-            let copy = Material::new(
-                &format!("{} (unlit side)", source.name),
-                source.reflectance,
-                [0.0; 3],
-            );
-            materials.push(copy);
-            (materials.len() - 1) as u32
-        })
-    } else {
-        front
-    };
+    let back = tables
+        .unlit
+        .get(front as usize)
+        .copied()
+        .flatten()
+        .unwrap_or(front);
     let group = run[0].group;
-    let mut normal_id = group_normal[group as usize];
+    let mut normal_id = tables.group_normal[group as usize];
     if run[0].side as usize == BACK {
-        normal_id = *flipped.entry(normal_id).or_insert_with(|| {
-            let n = normals[normal_id as usize];
-            normals.push([-n[0], -n[1], -n[2]]);
-            (normals.len() - 1) as u32
-        });
+        // Always present: `Tables::new` was told about every back-facing piece.
+        normal_id = tables.flipped[normal_id as usize].unwrap_or(normal_id);
     }
     Surfel {
         voxel: run[0].voxel,
         point: point.as_vec3().to_array(),
-        normal: normals[normal_id as usize],
+        normal: tables.normals[normal_id as usize],
         normal_id,
         group,
         area: area as f32,
@@ -372,15 +468,22 @@ fn merge_run(
     }
 }
 
-/// Appends the pieces of one triangle (vertices in voxel units) to `out`.
-fn triangle_pieces(
-    q: &[DVec3; 3],
-    plane: &Plane,
+/// What a triangle's pieces share.
+struct PieceInfo {
     group: u32,
     material: u32,
+    triangle: u32,
+}
+
+/// Feeds the pieces of one triangle (vertices in voxel units) to `emit`, one voxel at a time, so
+/// that a caller can bound what it holds even for a triangle that covers millions of voxels.
+fn triangle_pieces<E>(
+    q: &[DVec3; 3],
+    plane: &Plane,
+    info: PieceInfo,
     dims: [u32; 3],
-    out: &mut Vec<Piece>,
-) {
+    emit: &mut impl FnMut(Piece) -> Result<(), E>,
+) -> Result<(), E> {
     let lo = q[0].min(q[1]).min(q[2]).floor();
     let hi = q[0].max(q[1]).max(q[2]).floor();
     let clamp = |x: f64, k: usize| x.clamp(0.0, dims[k] as f64 - 1.0) as i64;
@@ -424,20 +527,22 @@ fn triangle_pieces(
                 let contact = polygon.iter().sum::<DVec3>() / polygon.len() as f64;
                 let lo = polygon.iter().fold(DVec3::ONE, |a, p| a.min(*p));
                 let hi = polygon.iter().fold(DVec3::ZERO, |a, p| a.max(*p));
-                out.push(Piece {
+                emit(Piece {
                     voxel: voxel.map(|c| c as i32),
-                    group,
+                    group: info.group,
                     side: plane.side,
-                    material,
+                    material: info.material,
+                    triangle: info.triangle,
                     area,
                     centroid_sum,
                     contact,
                     lo,
                     hi,
-                });
+                })?;
             }
         }
     }
+    Ok(())
 }
 
 /// Sutherland-Hodgman clipping of a convex polygon to the closed cube `[0, 1]^3`. Points on the

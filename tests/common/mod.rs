@@ -22,3 +22,9 @@ pub fn inner_side(s: &Surfel, set: &SurfelSet) -> usize {
         1
     }
 }
+
+/// Writes `set` as a shard set of `shards` files in order 0 (what `voxrad-shard convert` makes
+/// of the same scene, made here from the in-memory voxelization).
+pub fn write_shard_set(set: &SurfelSet, dir: &std::path::Path, shards: usize) {
+    voxrad::storage::write_shard_set(set, dir, shards, 0).expect("write shard set");
+}

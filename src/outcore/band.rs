@@ -1,0 +1,425 @@
+//! One direction, band by band (see the `outcore` module header): cutting the direction's line
+//! columns into bands that fit the budget, reading a band's ranges of its axis copy, running the
+//! in-memory dispatch and propagation on it, and adding the gathered light to the copy's file.
+
+use super::budget::MemoryPlan;
+use super::files::{
+    decode_gathered, decode_radiosity, decode_static, encode_gathered, Gathered, IoCounters,
+    Radiosity, RecordFile, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
+};
+use super::workset::AxisCopy;
+use super::OocError;
+use crate::geometry::directions::Direction;
+use crate::geometry::lines::LineFrame;
+use crate::solve::dispatch::{dispatch, LineNumbering, Lines, OrderedEntry};
+use crate::solve::jacobi::gather_all_lines;
+use crate::solve::propagate::{DirectionInput, PropSurfel};
+use std::time::Instant;
+
+/// The open files of one axis copy, and the shared file of gathered light.
+pub struct CopyFiles {
+    pub statics: RecordFile,
+    pub radiosity: RecordFile,
+    pub gathered: RecordFile,
+}
+
+impl CopyFiles {
+    pub fn open(copy: &AxisCopy, gathered: &std::path::Path) -> Result<Self, OocError> {
+        Ok(CopyFiles {
+            statics: RecordFile::open(&copy.statics)?,
+            radiosity: RecordFile::open(&copy.radiosity)?,
+            gathered: RecordFile::open(gathered)?,
+        })
+    }
+}
+
+/// The arrays of one band, reused from band to band.
+#[derive(Default)]
+pub struct BandBuffers {
+    props: Vec<PropSurfel>,
+    radiosity: Vec<Radiosity>,
+    gathered: Vec<Gathered>,
+    entries: Vec<OrderedEntry>,
+    lines: Lines,
+    ranges: Vec<(u64, u64)>,
+    bytes: Vec<u8>,
+    cursor: Vec<u64>,
+    next_row: Vec<usize>,
+    columns: Vec<u64>,
+}
+
+/// Time spent per phase of the directions, summed.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BandTimes {
+    pub read: f64,
+    pub dispatch: f64,
+    pub propagate: f64,
+    pub write: f64,
+    pub bands: u64,
+    /// Columns too big for one band, solved in blocks.
+    pub tiled_columns: u64,
+}
+
+/// A block of lines: rows `i0..i0 + rows` of columns `j0..j0 + width`, numbered
+/// `(i - i0) * width + j - j0`.
+#[derive(Clone, Copy, Debug)]
+struct Block {
+    i0: u64,
+    rows: u64,
+    j0: u64,
+    width: u64,
+}
+
+struct BandNumbering<'a> {
+    frame: &'a LineFrame,
+    block: Block,
+}
+
+impl LineNumbering for BandNumbering<'_> {
+    fn line_count(&self) -> usize {
+        (self.block.rows * self.block.width) as usize
+    }
+
+    #[inline]
+    fn line_index(&self, voxel: [i32; 3]) -> u64 {
+        let (su, sv) = self.frame.layer_shift(voxel[self.frame.main] as usize);
+        let b = &self.block;
+        (voxel[self.frame.u] as u64 + su - b.i0) * b.width
+            + (voxel[self.frame.v] as u64 + sv - b.j0)
+    }
+}
+
+/// Everything one direction pass needs.
+pub struct DirectionPass<'a> {
+    pub copy: &'a AxisCopy,
+    pub files: &'a CopyFiles,
+    /// The copy's row histogram.
+    pub histogram: &'a [u32],
+    pub dims: [u32; 3],
+    pub plan: &'a MemoryPlan,
+    pub threads: usize,
+    /// First direction of this copy in this iteration: the gathered file is overwritten, not
+    /// added to.
+    pub first: bool,
+}
+
+impl DirectionPass<'_> {
+    /// Solves direction `d` over the whole copy.
+    pub fn run(
+        &self,
+        d: &Direction,
+        buffers: &mut BandBuffers,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
+        let copy = self.copy;
+        let frame = LineFrame::new(d.vector, self.dims);
+        debug_assert_eq!((frame.main, frame.u, frame.v), (copy.main, copy.u, copy.v));
+        // Lines run through the layers in increasing order: point the search that way.
+        let unit = if d.vector[copy.main] < 0 {
+            -d.unit
+        } else {
+            d.unit
+        };
+        let weight = d.solid_angle / std::f64::consts::PI;
+        // Surfels per line column j.
+        let columns = &mut buffers.columns;
+        columns.clear();
+        columns.resize(frame.nj as usize, 0);
+        for z in 0..copy.layers {
+            let sv = frame.layer_shift(z).1 as usize;
+            let row_counts = &self.histogram[z * copy.rows..(z + 1) * copy.rows];
+            for (v, &h) in row_counts.iter().enumerate() {
+                columns[v + sv] += h as u64;
+            }
+        }
+        buffers.cursor.clear();
+        buffers
+            .cursor
+            .extend_from_slice(&copy.layer_start[..copy.layers]);
+        buffers.next_row.clear();
+        buffers.next_row.resize(copy.layers, 0);
+        let max_width = (self.plan.band_lines / frame.ni.max(1)).max(1);
+        let mut j0 = 0u64;
+        while j0 < frame.nj {
+            // Widen the band while it fits.
+            let mut width = 0u64;
+            let mut surfels = 0u64;
+            while j0 + width < frame.nj && width < max_width {
+                let c = buffers.columns[(j0 + width) as usize];
+                if width > 0 && surfels + c > self.plan.band_surfels {
+                    break;
+                }
+                surfels += c;
+                width += 1;
+            }
+            let block = Block {
+                i0: 0,
+                rows: frame.ni,
+                j0,
+                width,
+            };
+            if surfels == 0 {
+                self.take_rows(&frame, j0 + width, buffers, false);
+            } else if surfels <= self.plan.band_surfels && frame.ni * width <= self.plan.band_lines
+            {
+                self.take_rows(&frame, j0 + width, buffers, true);
+                self.process(&frame, unit, weight, block, surfels, buffers, io, times)?;
+            } else {
+                // One column too big for a band (a floor seen along its own plane): cut it
+                // along i as well.
+                let column = Column {
+                    vector: d.vector,
+                    j0,
+                    surfels,
+                };
+                self.tiled_column(&frame, unit, weight, column, buffers, io, times)?;
+            }
+            j0 += width;
+        }
+        Ok(())
+    }
+
+    /// Advances the per-layer row cursors past the rows of columns below `j1`, and (if
+    /// `keep`) records the ranges of copy records they hold in `buffers.ranges`.
+    fn take_rows(&self, frame: &LineFrame, j1: u64, buffers: &mut BandBuffers, keep: bool) {
+        let copy = self.copy;
+        buffers.ranges.clear();
+        for z in 0..copy.layers {
+            let sv = frame.layer_shift(z).1;
+            let end = (j1.saturating_sub(sv) as usize).min(copy.rows);
+            let row = buffers.next_row[z];
+            if end > row {
+                let base = z * copy.rows;
+                let count: u64 = self.histogram[base + row..base + end]
+                    .iter()
+                    .map(|&h| h as u64)
+                    .sum();
+                if keep && count > 0 {
+                    buffers.ranges.push((buffers.cursor[z], count));
+                }
+                buffers.cursor[z] += count;
+                buffers.next_row[z] = end;
+            }
+        }
+    }
+
+    /// The voxel coordinate along `u` of copy record `index`.
+    fn u_of(&self, index: u64, io: &mut IoCounters) -> Result<i64, OocError> {
+        let mut w = [0u8; 4];
+        let offset = index * STATIC_LEN as u64 + 4 * self.copy.u as u64;
+        self.files.statics.read_at(offset, &mut w, io)?;
+        Ok(i32::from_le_bytes(w) as i64)
+    }
+
+    /// Solves a column `j0` holding `surfels`, in blocks of rows `i` that fit the budget. In each
+    /// layer the column is one row of the copy, sorted by `u`, so a block's part of it is a
+    /// contiguous range found by binary search.
+    #[allow(clippy::too_many_arguments)]
+    fn tiled_column(
+        &self,
+        frame: &LineFrame,
+        unit: glam::DVec3,
+        weight: f64,
+        column: Column,
+        buffers: &mut BandBuffers,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
+        let Column {
+            vector,
+            j0,
+            surfels,
+        } = column;
+        // This column's range of the copy in each layer: [from, to).
+        let mut spans: Vec<(usize, u64, u64)> = Vec::new();
+        let cursor_before: Vec<u64> = buffers.cursor.clone();
+        self.take_rows(frame, j0 + 1, buffers, false);
+        for (z, (&before, &after)) in cursor_before.iter().zip(&buffers.cursor).enumerate() {
+            if after > before {
+                spans.push((z, before, after));
+            }
+        }
+        drop(cursor_before);
+        times.tiled_columns += 1;
+        let capacity = self.plan.band_surfels;
+        let mut remaining = surfels;
+        let mut i0 = 0u64;
+        let mut ends = vec![0u64; spans.len()];
+        while i0 < frame.ni && remaining > 0 {
+            let left = frame.ni - i0;
+            let guess = (left as f64 * capacity as f64 * 0.9 / remaining as f64) as u64;
+            let mut rows = guess.clamp(1, left).min(self.plan.band_lines.max(1));
+            let count = loop {
+                let mut count = 0;
+                for (k, &(z, from, to)) in spans.iter().enumerate() {
+                    let limit = (i0 + rows) as i64 - frame.layer_shift(z).0 as i64;
+                    // First record of [from, to) with u >= limit.
+                    let (mut lo, mut hi) = (from, to);
+                    while lo < hi {
+                        let mid = lo + (hi - lo) / 2;
+                        if self.u_of(mid, io)? < limit {
+                            lo = mid + 1;
+                        } else {
+                            hi = mid;
+                        }
+                    }
+                    ends[k] = lo;
+                    count += lo - from;
+                }
+                if count <= capacity || rows == 1 {
+                    break count;
+                }
+                rows = (rows / 2).max(1);
+            };
+            if count > capacity {
+                return Err(OocError::BudgetTooSmall {
+                    budget: self.plan.budget,
+                    needed: (self.plan.budget - self.plan.working)
+                        + count * super::budget::BAND_BYTES_PER_SURFEL * 4 / 3,
+                    what: format!("one line of direction {vector:?} holding {count} surfels"),
+                });
+            }
+            buffers.ranges.clear();
+            for (k, span) in spans.iter_mut().enumerate() {
+                if ends[k] > span.1 {
+                    buffers.ranges.push((span.1, ends[k] - span.1));
+                }
+                span.1 = ends[k];
+            }
+            if count > 0 {
+                let block = Block {
+                    i0,
+                    rows,
+                    j0,
+                    width: 1,
+                };
+                self.process(frame, unit, weight, block, count, buffers, io, times)?;
+            }
+            remaining -= count;
+            i0 += rows;
+        }
+        Ok(())
+    }
+
+    /// Reads the records of `buffers.ranges` (`surfels` of them), solves their lines, which all
+    /// lie in `block`, and adds the light gathered to the copy's file.
+    #[allow(clippy::too_many_arguments)]
+    fn process(
+        &self,
+        frame: &LineFrame,
+        unit: glam::DVec3,
+        weight: f64,
+        block: Block,
+        surfels: u64,
+        buffers: &mut BandBuffers,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
+        let t0 = Instant::now();
+        let n = surfels as usize;
+        buffers.props.clear();
+        buffers.props.reserve_exact(n);
+        buffers.radiosity.clear();
+        buffers.radiosity.reserve_exact(n);
+        buffers.gathered.clear();
+        buffers.gathered.reserve_exact(n);
+        buffers.entries.clear();
+        buffers.entries.reserve_exact(n);
+        let piece = (self.plan.io_bytes / STATIC_LEN).max(1) as u64;
+        buffers.bytes.resize(piece as usize * STATIC_LEN, 0);
+        for &(start, count) in &buffers.ranges {
+            let mut at = 0;
+            while at < count {
+                let k = piece.min(count - at);
+                let first = start + at;
+                let bytes = &mut buffers.bytes[..k as usize * STATIC_LEN];
+                self.files
+                    .statics
+                    .read_at(first * STATIC_LEN as u64, bytes, io)?;
+                for rec in bytes.chunks_exact(STATIC_LEN) {
+                    let r = decode_static(rec);
+                    buffers.entries.push(OrderedEntry {
+                        voxel: r.prop.voxel,
+                        index: buffers.props.len() as u32,
+                    });
+                    buffers.props.push(r.prop);
+                }
+                let bytes = &mut buffers.bytes[..k as usize * RADIOSITY_LEN];
+                self.files
+                    .radiosity
+                    .read_at(first * RADIOSITY_LEN as u64, bytes, io)?;
+                buffers
+                    .radiosity
+                    .extend(bytes.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
+                if self.first {
+                    buffers
+                        .gathered
+                        .extend(std::iter::repeat_n([[0.0; 3]; 2], k as usize));
+                } else {
+                    let bytes = &mut buffers.bytes[..k as usize * GATHER_LEN];
+                    self.files
+                        .gathered
+                        .read_at(first * GATHER_LEN as u64, bytes, io)?;
+                    buffers
+                        .gathered
+                        .extend(bytes.chunks_exact(GATHER_LEN).map(decode_gathered));
+                }
+                at += k;
+            }
+        }
+        debug_assert_eq!(buffers.props.len(), n);
+        let t1 = Instant::now();
+        let numbering = BandNumbering { frame, block };
+        dispatch(
+            &buffers.entries,
+            &numbering,
+            self.threads,
+            &mut buffers.lines,
+        );
+        let t2 = Instant::now();
+        let input = DirectionInput {
+            unit,
+            weight,
+            surfels: &buffers.props,
+            radiosity: &buffers.radiosity,
+            // All three channels (one-channel grey solves are an in-memory option so far).
+            channels: 3,
+        };
+        gather_all_lines(&buffers.lines, &input, &mut buffers.gathered, self.threads);
+        let t3 = Instant::now();
+        let mut done = 0usize;
+        for &(start, count) in &buffers.ranges {
+            let mut at = 0;
+            while at < count {
+                let k = piece.min(count - at);
+                let bytes = &mut buffers.bytes[..k as usize * GATHER_LEN];
+                for (slot, h) in bytes
+                    .chunks_exact_mut(GATHER_LEN)
+                    .zip(&buffers.gathered[done..done + k as usize])
+                {
+                    encode_gathered(h, slot);
+                }
+                self.files
+                    .gathered
+                    .write_at((start + at) * GATHER_LEN as u64, bytes, io)?;
+                done += k as usize;
+                at += k;
+            }
+        }
+        times.read += (t1 - t0).as_secs_f64();
+        times.dispatch += (t2 - t1).as_secs_f64();
+        times.propagate += (t3 - t2).as_secs_f64();
+        times.write += t3.elapsed().as_secs_f64();
+        times.bands += 1;
+        Ok(())
+    }
+}
+
+/// A column of lines too big for one band.
+#[derive(Clone, Copy, Debug)]
+struct Column {
+    vector: [i64; 3],
+    j0: u64,
+    surfels: u64,
+}

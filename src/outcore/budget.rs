@@ -1,0 +1,154 @@
+//! The memory budget: parsing `--memory`, and how the solver splits it (see the `outcore`
+//! module header for what is counted).
+
+use super::files::{Gathered, Radiosity};
+use super::OocError;
+use crate::solve::dispatch::OrderedEntry;
+use crate::solve::propagate::PropSurfel;
+
+/// Parses a byte size: a number with an optional binary unit (`K`, `M`, `G`, `T`, with or
+/// without `iB`/`B`; all powers of 1024), e.g. `64MiB`, `1G`, `4096`.
+pub fn parse_bytes(text: &str) -> Result<u64, String> {
+    let t = text.trim();
+    let split = t
+        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let value: f64 = number
+        .parse()
+        .map_err(|_| format!("'{text}' is not a size: expected a number and a unit like 64MiB"))?;
+    let scale: u64 = match unit.trim().to_ascii_lowercase().as_str() {
+        "" | "b" => 1,
+        "k" | "kb" | "kib" => 1 << 10,
+        "m" | "mb" | "mib" => 1 << 20,
+        "g" | "gb" | "gib" => 1 << 30,
+        "t" | "tb" | "tib" => 1 << 40,
+        other => {
+            return Err(format!(
+                "'{text}': unknown unit '{other}'; use K, M, G or T (powers of 1024)"
+            ))
+        }
+    };
+    let bytes = value * scale as f64;
+    if !bytes.is_finite() || bytes < 1.0 || bytes > u64::MAX as f64 {
+        return Err(format!("'{text}' is not a usable size"));
+    }
+    Ok(bytes as u64)
+}
+
+/// A byte count for messages (`64.0 MiB`).
+pub fn format_bytes(bytes: u64) -> String {
+    let units = ["B", "KiB", "MiB", "GiB", "TiB"];
+    let mut value = bytes as f64;
+    let mut unit = 0;
+    while value >= 1024.0 && unit + 1 < units.len() {
+        value /= 1024.0;
+        unit += 1;
+    }
+    if unit == 0 {
+        format!("{bytes} B")
+    } else {
+        format!("{value:.1} {}", units[unit])
+    }
+}
+
+/// Bytes a band holds per surfel: its propagation record, radiosity, gathered light, ordered
+/// entry, list slot and canonical index, plus the per-line scratch of propagation (about one
+/// more record per surfel of the longest line being processed, bounded by this margin).
+pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
+    + std::mem::size_of::<Radiosity>()
+    + std::mem::size_of::<Gathered>()
+    + std::mem::size_of::<OrderedEntry>()
+    + 4
+    + 4
+    + 48) as u64;
+
+/// Bytes a sort bucket holds per record: key, canonical index and the encoded record.
+pub const SORT_BYTES_PER_RECORD: u64 = 88;
+
+/// Bytes a permutation chunk holds per surfel: gathered light, previous and new radiosity.
+pub const CHUNK_BYTES_PER_SURFEL: u64 =
+    (std::mem::size_of::<Gathered>() + 2 * std::mem::size_of::<Radiosity>()) as u64;
+
+/// How a budget is split.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryPlan {
+    pub budget: u64,
+    /// Each sequential stream's buffer (and the shard-set window).
+    pub io_bytes: usize,
+    /// What is left once the fixed parts (histogram, per-layer arrays, I/O buffers) are taken.
+    pub working: u64,
+    /// Largest band, in surfels.
+    pub band_surfels: u64,
+    /// Largest band, in lines (its line counters).
+    pub band_lines: u64,
+    /// Largest sort bucket, in records.
+    pub sort_records: u64,
+    /// Permutation chunk, in surfels.
+    pub chunk_surfels: u64,
+}
+
+impl MemoryPlan {
+    /// Splits `budget` for a grid of `dims` solved with `threads` threads.
+    pub fn new(budget: u64, dims: [u32; 3], threads: usize) -> Result<Self, OocError> {
+        let io_bytes = (budget / 64).clamp(4 << 10, 1 << 20) as usize;
+        let d = dims.map(u64::from);
+        // The row histogram of one copy (layers x rows), per-layer cursors and the per-column
+        // histogram of a direction.
+        let histogram = (0..3).map(|m| d[m] * d[(m + 2) % 3] * 4).max().unwrap_or(0);
+        let per_layer = 48 * (d[0] + d[1] + d[2]);
+        let fixed = histogram + per_layer + 8 * io_bytes as u64;
+        let minimum_working = 64 << 10;
+        if budget < fixed + minimum_working {
+            return Err(OocError::BudgetTooSmall {
+                budget,
+                needed: fixed + minimum_working,
+                what: format!(
+                    "the grid of {}x{}x{} voxels (its row histogram and buffers)",
+                    d[0], d[1], d[2]
+                ),
+            });
+        }
+        let working = budget - fixed;
+        let counters = 4 * (threads as u64 + 2);
+        Ok(MemoryPlan {
+            budget,
+            io_bytes,
+            working,
+            band_surfels: working * 3 / 4 / BAND_BYTES_PER_SURFEL,
+            band_lines: working / 4 / counters,
+            sort_records: working / 2 / SORT_BYTES_PER_RECORD,
+            chunk_surfels: working / 2 / CHUNK_BYTES_PER_SURFEL,
+        })
+    }
+
+    /// Write buffer of each of `count` bucket files sharing half the working memory.
+    pub fn bucket_buffer(&self, count: u64) -> usize {
+        ((self.working / 2 / count.max(1)) as usize).clamp(256, self.io_bytes)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sizes_parse_in_binary_units() {
+        assert_eq!(parse_bytes("4096"), Ok(4096));
+        assert_eq!(parse_bytes("64MiB"), Ok(64 << 20));
+        assert_eq!(parse_bytes("1G"), Ok(1 << 30));
+        assert_eq!(parse_bytes("1.5 KiB"), Ok(1536));
+        assert!(parse_bytes("lots").is_err());
+        assert!(parse_bytes("12 parsecs").is_err());
+        assert!(parse_bytes("0").is_err());
+        assert_eq!(format_bytes(64 << 20), "64.0 MiB");
+    }
+
+    #[test]
+    fn a_tiny_budget_is_refused_with_what_it_needs() {
+        let e = MemoryPlan::new(1 << 10, [100, 100, 100], 2).unwrap_err();
+        assert!(e.to_string().contains("too small"), "{e}");
+        let plan = MemoryPlan::new(64 << 20, [100, 100, 100], 2).unwrap();
+        assert!(plan.band_surfels > 100_000);
+    }
+}

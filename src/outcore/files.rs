@@ -1,0 +1,274 @@
+//! The solver's private work files: fixed-size records read and written sequentially (buffered)
+//! or at positions (`pread`/`pwrite`), and the byte layouts of what they hold.
+//!
+//! Work files live in a temporary directory of one solve and are never read by another program,
+//! so they carry no header or checksum (the shard set they are made from is checked as it is
+//! read). Band reads copy exactly the records a band needs into the band's own arrays; a memory
+//! map would save no copy here, so positioned reads keep the address space flat instead.
+//!
+//! ```text
+//! static record (72 bytes), one per surfel, in a copy's order
+//!   0 voxel    i32 x 3     8 ... see crate::voxel::Surfel
+//!  12 point    f32 x 3
+//!  24 normal   f32 x 3
+//!  36 extent   f32 x 6
+//!  60 group    u32
+//!  64 coverage f32         see solve::coverage
+//!  68 id       u32         index of the surfel in the canonical (shard set) order
+//! radiosity (24 bytes): f32 x 6, side-major (front RGB, back RGB)
+//! gathered light (48 bytes): f64 x 6, side-major
+//! ```
+
+use super::OocError;
+use crate::solve::propagate::PropSurfel;
+use std::fs::{File, OpenOptions};
+use std::io::{BufReader, BufWriter, Read, Write};
+use std::os::unix::fs::FileExt;
+use std::path::{Path, PathBuf};
+
+pub const STATIC_LEN: usize = 72;
+pub const RADIOSITY_LEN: usize = 24;
+pub const GATHER_LEN: usize = 48;
+
+pub type Radiosity = [[f32; 3]; 2];
+pub type Gathered = [[f64; 3]; 2];
+
+/// A surfel as the bands need it, with its canonical index.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StaticRecord {
+    pub prop: PropSurfel,
+    pub id: u32,
+}
+
+fn put(out: &mut [u8], at: &mut usize, word: [u8; 4]) {
+    out[*at..*at + 4].copy_from_slice(&word);
+    *at += 4;
+}
+
+pub fn encode_static(r: &StaticRecord, out: &mut [u8; STATIC_LEN]) {
+    let p = &r.prop;
+    let mut at = 0;
+    for v in p.voxel {
+        put(out, &mut at, v.to_le_bytes());
+    }
+    for v in p
+        .point
+        .iter()
+        .chain(&p.normal)
+        .chain(p.extent.iter().flatten())
+    {
+        put(out, &mut at, v.to_le_bytes());
+    }
+    put(out, &mut at, p.group.to_le_bytes());
+    put(out, &mut at, p.coverage.to_le_bytes());
+    put(out, &mut at, r.id.to_le_bytes());
+    debug_assert_eq!(at, STATIC_LEN);
+}
+
+#[inline]
+fn word(bytes: &[u8], k: usize) -> [u8; 4] {
+    [
+        bytes[4 * k],
+        bytes[4 * k + 1],
+        bytes[4 * k + 2],
+        bytes[4 * k + 3],
+    ]
+}
+
+pub fn decode_static(bytes: &[u8]) -> StaticRecord {
+    let f = |k: usize| f32::from_le_bytes(word(bytes, k));
+    let i = |k: usize| i32::from_le_bytes(word(bytes, k));
+    let u = |k: usize| u32::from_le_bytes(word(bytes, k));
+    StaticRecord {
+        prop: PropSurfel {
+            voxel: [i(0), i(1), i(2)],
+            point: [f(3), f(4), f(5)],
+            normal: [f(6), f(7), f(8)],
+            extent: [[f(9), f(10), f(11)], [f(12), f(13), f(14)]],
+            group: u(15),
+            coverage: f(16),
+        },
+        id: u(17),
+    }
+}
+
+pub fn encode_radiosity(b: &Radiosity, out: &mut [u8]) {
+    for (k, v) in b.iter().flatten().enumerate() {
+        out[4 * k..4 * k + 4].copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+pub fn decode_radiosity(bytes: &[u8]) -> Radiosity {
+    let f = |k: usize| f32::from_le_bytes(word(bytes, k));
+    [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
+}
+
+pub fn encode_gathered(h: &Gathered, out: &mut [u8]) {
+    for (k, v) in h.iter().flatten().enumerate() {
+        out[8 * k..8 * k + 8].copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+pub fn decode_gathered(bytes: &[u8]) -> Gathered {
+    let f = |k: usize| {
+        let mut w = [0u8; 8];
+        w.copy_from_slice(&bytes[8 * k..8 * k + 8]);
+        f64::from_le_bytes(w)
+    };
+    [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
+}
+
+/// Bytes moved through work files, for the report.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct IoCounters {
+    pub read: u64,
+    pub written: u64,
+}
+
+/// A work file opened for positioned reads and writes.
+pub struct RecordFile {
+    path: PathBuf,
+    file: File,
+}
+
+impl RecordFile {
+    pub fn create(path: &Path) -> Result<Self, OocError> {
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(path)
+            .map_err(|e| OocError::io(path, "create", e))?;
+        Ok(RecordFile {
+            path: path.to_path_buf(),
+            file,
+        })
+    }
+
+    pub fn open(path: &Path) -> Result<Self, OocError> {
+        let file = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(path)
+            .map_err(|e| OocError::io(path, "open", e))?;
+        Ok(RecordFile {
+            path: path.to_path_buf(),
+            file,
+        })
+    }
+
+    pub fn read_at(
+        &self,
+        offset: u64,
+        buf: &mut [u8],
+        io: &mut IoCounters,
+    ) -> Result<(), OocError> {
+        self.file
+            .read_exact_at(buf, offset)
+            .map_err(|e| OocError::io(&self.path, "read", e))?;
+        io.read += buf.len() as u64;
+        Ok(())
+    }
+
+    pub fn write_at(&self, offset: u64, buf: &[u8], io: &mut IoCounters) -> Result<(), OocError> {
+        self.file
+            .write_all_at(buf, offset)
+            .map_err(|e| OocError::io(&self.path, "write", e))?;
+        io.written += buf.len() as u64;
+        Ok(())
+    }
+}
+
+/// Sequential, buffered writing of a work file.
+pub struct SeqWriter {
+    path: PathBuf,
+    out: BufWriter<File>,
+    written: u64,
+}
+
+impl SeqWriter {
+    pub fn create(path: &Path, buffer_bytes: usize) -> Result<Self, OocError> {
+        let file = File::create(path).map_err(|e| OocError::io(path, "create", e))?;
+        Ok(SeqWriter {
+            path: path.to_path_buf(),
+            out: BufWriter::with_capacity(buffer_bytes.max(64), file),
+            written: 0,
+        })
+    }
+
+    pub fn write(&mut self, bytes: &[u8]) -> Result<(), OocError> {
+        self.written += bytes.len() as u64;
+        self.out
+            .write_all(bytes)
+            .map_err(|e| OocError::io(&self.path, "write", e))
+    }
+
+    /// Flushes and closes; returns the bytes written.
+    pub fn finish(mut self) -> Result<u64, OocError> {
+        self.out
+            .flush()
+            .map_err(|e| OocError::io(&self.path, "write", e))?;
+        Ok(self.written)
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+/// Sequential, buffered reading of a work file of `LEN`-byte records.
+pub struct SeqReader<const LEN: usize> {
+    path: PathBuf,
+    input: BufReader<File>,
+    left: u64,
+}
+
+impl<const LEN: usize> SeqReader<LEN> {
+    /// Opens `path` holding `count` records, reading from record `first` on.
+    pub fn open(path: &Path, buffer_bytes: usize) -> Result<Self, OocError> {
+        let file = File::open(path).map_err(|e| OocError::io(path, "open", e))?;
+        let len = file
+            .metadata()
+            .map_err(|e| OocError::io(path, "read", e))?
+            .len();
+        Ok(SeqReader {
+            path: path.to_path_buf(),
+            input: BufReader::with_capacity(buffer_bytes.max(LEN), file),
+            left: len / LEN as u64,
+        })
+    }
+
+    /// The next record, or `None` at the end.
+    pub fn next_record(&mut self) -> Result<Option<[u8; LEN]>, OocError> {
+        if self.left == 0 {
+            return Ok(None);
+        }
+        let mut buf = [0u8; LEN];
+        self.input
+            .read_exact(&mut buf)
+            .map_err(|e| OocError::io(&self.path, "read", e))?;
+        self.left -= 1;
+        Ok(Some(buf))
+    }
+
+    /// The next record, which must exist.
+    pub fn expect_record(&mut self) -> Result<[u8; LEN], OocError> {
+        self.next_record()?.ok_or_else(|| {
+            OocError::io(
+                &self.path,
+                "read",
+                std::io::Error::new(std::io::ErrorKind::UnexpectedEof, "work file ended early"),
+            )
+        })
+    }
+}
+
+impl RecordFile {
+    /// Sets the file's length (new bytes read as zero).
+    pub fn set_len(&self, len: u64) -> Result<(), OocError> {
+        self.file
+            .set_len(len)
+            .map_err(|e| OocError::io(&self.path, "resize", e))
+    }
+}

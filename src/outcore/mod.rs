@@ -1,0 +1,90 @@
+//! The out-of-core solver: the same radiosity as `solve::jacobi`, with every array that grows
+//! with the scene kept in files and a memory budget on everything held.
+//!
+//! **Layout.** The surfels come in the canonical order of their source (a shard set, see
+//! [`source`]). Before iterating, [`workset`] writes three *axis copies* of them: copy `m` is
+//! sorted by `(x_m, x_v, x_u)`, the direction's main axis `m` first (`u, v` the two others, as in
+//! `geometry::lines`). Every direction whose main axis is `m` has all its lines running through
+//! the layers of `x_m` in increasing order, one voxel per layer, so reading copy `m` layer by
+//! layer lists every line's surfels in order along the line.
+//!
+//! **A direction** ([`band`]) is solved band by band: a band is a range of line columns
+//! `j0 <= j < j1` (all `i`), cut so that its surfels fit the budget. In layer `x_m = z`, the
+//! lines of a band hold the rows `x_v` in `[j0 - shift(z), j1 - shift(z))`, one contiguous range
+//! of copy `m`; the band is these ranges read layer after layer, so the bands of one direction
+//! read every record exactly once, and the per-line frontier is never larger than a band's
+//! lines. Inside a band the in-memory engine runs unchanged (`solve::dispatch` into lists,
+//! `solve::propagate` along them, on the worker threads), and the light gathered is added to the
+//! copy's gather file at the same ranges.
+//!
+//! **An iteration** ([`solver`]) walks the directions grouped by main axis, then brings the
+//! three gather files back to canonical order ([`scatter`]), computes `B = E + rho H / S(n)`
+//! there, and sends the new radiosity back to the three copies.
+//!
+//! **Memory** ([`budget`]): the row histogram of one copy, the per-layer cursors, then one of
+//! (a band's arrays and line counters | a sort bucket | a permutation chunk) at a time, and
+//! fixed-size I/O buffers. Not counted: code, stacks and the allocator's own overhead, a few
+//! MiB; see the tests for the allowance measured under an address-space limit.
+
+pub mod band;
+pub mod budget;
+pub mod files;
+pub mod scatter;
+pub mod solver;
+pub mod source;
+pub mod workset;
+
+pub use budget::{parse_bytes, MemoryPlan};
+pub use solver::{solve_out_of_core, OocSolution, OocStats};
+pub use source::{InMemorySource, ShardSetSource, SurfelSource};
+
+use crate::storage::StorageError;
+use std::path::{Path, PathBuf};
+
+/// Why an out-of-core solve failed.
+#[derive(Debug, thiserror::Error)]
+pub enum OocError {
+    #[error(transparent)]
+    Storage(#[from] StorageError),
+    #[error("cannot {action} {}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        action: &'static str,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error(
+        "a memory budget of {} is too small: {what} needs about {}; give --memory {} or more",
+        budget::format_bytes(*budget),
+        budget::format_bytes(*needed),
+        budget::format_bytes(*needed + *budget / 2)
+    )]
+    BudgetTooSmall {
+        budget: u64,
+        needed: u64,
+        what: String,
+    },
+    #[error("{source_name} cannot be solved: {what}")]
+    BadData { source_name: String, what: String },
+    #[error("could not start {threads} worker threads: {message}")]
+    Threads { threads: usize, message: String },
+}
+
+impl OocError {
+    pub(crate) fn io(path: &Path, action: &'static str, source: std::io::Error) -> Self {
+        OocError::Io {
+            path: path.to_path_buf(),
+            action,
+            source,
+        }
+    }
+
+    /// Whether the user can fix it by changing the input or options (exit status 2).
+    pub fn is_bad_input(&self) -> bool {
+        match self {
+            OocError::Storage(e) => !matches!(e, StorageError::Io { .. }),
+            OocError::BudgetTooSmall { .. } | OocError::BadData { .. } => true,
+            OocError::Io { .. } | OocError::Threads { .. } => false,
+        }
+    }
+}

@@ -1,0 +1,431 @@
+//! The out-of-core iteration loop: directions grouped by main axis, each solved band by band
+//! ([`super::band`]); then the light gathered in the three copies is brought to canonical order,
+//! `B = E + rho H / S(n)` is computed there with the stopping rule of `solve::jacobi`, and the
+//! new radiosity is sent back to the copies ([`super::scatter`]).
+
+use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
+use super::budget::MemoryPlan;
+use super::files::{
+    decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, Gathered, IoCounters,
+    Radiosity, RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN,
+};
+use super::scatter::Scatter;
+use super::source::SurfelSource;
+use super::workset::{self, AxisCopy, WorkSet};
+use super::OocError;
+use crate::geometry::directions::DirectionSet;
+use crate::solve::jacobi::error_estimate;
+use crate::solve::normalize::cosine_sums;
+use crate::solve::{SolveOptions, SolveStats};
+use crate::voxel::Surfel;
+use std::path::Path;
+use std::time::Instant;
+
+/// What an out-of-core solve did, beyond the in-memory solver's statistics.
+#[derive(Clone, Debug, Default)]
+pub struct OocStats {
+    pub solve: SolveStats,
+    pub voxels: u64,
+    pub surfels: u64,
+    pub budget_bytes: u64,
+    /// Bytes read from and written to the shard set and work files.
+    pub bytes_read: u64,
+    pub bytes_written: u64,
+    /// Seconds making the axis copies, reading bands, writing gathered light, and bringing
+    /// results between orders at the end of each iteration.
+    pub setup_seconds: f64,
+    pub read_seconds: f64,
+    pub write_seconds: f64,
+    pub update_seconds: f64,
+    /// Bands solved (over all directions and iterations), and the columns among them too big
+    /// for one band, solved in blocks.
+    pub bands: u64,
+    pub tiled_columns: u64,
+}
+
+/// The result: statistics and the work set whose canonical radiosity file holds the answer.
+pub struct OocSolution {
+    pub stats: OocStats,
+    work: WorkSet,
+    io_bytes: usize,
+}
+
+impl OocSolution {
+    /// Calls `f(surfel, radiosity)` for every surfel of `source` in canonical order.
+    pub fn for_each<F>(&self, source: &dyn SurfelSource, mut f: F) -> Result<(), OocError>
+    where
+        F: FnMut(&Surfel, &Radiosity) -> Result<(), OocError>,
+    {
+        let mut radiosity =
+            SeqReader::<RADIOSITY_LEN>::open(&self.work.canonical_radiosity, self.io_bytes)?;
+        for s in source.stream(self.io_bytes as u64)? {
+            let s = s?;
+            let b = decode_radiosity(&radiosity.expect_record()?);
+            f(&s, &b)?;
+        }
+        Ok(())
+    }
+
+    /// The radiosity of every surfel, in canonical order (for tests and small scenes).
+    pub fn radiosity(&self) -> Result<Vec<Radiosity>, OocError> {
+        let mut reader =
+            SeqReader::<RADIOSITY_LEN>::open(&self.work.canonical_radiosity, self.io_bytes)?;
+        let mut out = Vec::with_capacity(self.work.count as usize);
+        while let Some(r) = reader.next_record()? {
+            out.push(decode_radiosity(&r));
+        }
+        Ok(out)
+    }
+}
+
+/// Solves `source` out of core with work files in a temporary directory under `work_parent`.
+pub fn solve_out_of_core(
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    budget_bytes: u64,
+    work_parent: &Path,
+) -> Result<OocSolution, OocError> {
+    let threads = if options.threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        options.threads
+    };
+    one_malloc_arena();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| OocError::Threads {
+            threads,
+            message: e.to_string(),
+        })?;
+    pool.install(|| {
+        run(
+            source,
+            directions,
+            options,
+            budget_bytes,
+            work_parent,
+            threads,
+        )
+    })
+}
+
+/// Makes glibc's malloc serve every thread from one arena. By default each thread may get its
+/// own arena, which reserves 64 MiB of address space: under an address-space limit below that,
+/// creating it fails, and glibc retries (an `mmap` that fails) on many later allocations. Under
+/// a 48 MiB limit that made a solve ten times slower, mostly in the kernel. The solver's hot
+/// loops do not allocate, so one arena costs nothing measurable.
+fn one_malloc_arena() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: `mallopt` only changes allocator settings; M_ARENA_MAX takes any positive count.
+    unsafe {
+        libc::mallopt(libc::M_ARENA_MAX, 1);
+    }
+}
+
+fn run(
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    budget_bytes: u64,
+    work_parent: &Path,
+    threads: usize,
+) -> Result<OocSolution, OocError> {
+    let info = source.info();
+    let plan = MemoryPlan::new(budget_bytes, info.grid.dims, threads)?;
+    tracing::info!(
+        budget = super::budget::format_bytes(budget_bytes),
+        band_surfels = plan.band_surfels,
+        sort_records = plan.sort_records,
+        chunk_surfels = plan.chunk_surfels,
+        "out-of-core plan"
+    );
+    let mut io = IoCounters::default();
+    let started = Instant::now();
+    let work = workset::build(source, &plan, work_parent, &mut io)?;
+    let mut stats = OocStats {
+        voxels: work.voxels,
+        surfels: work.count,
+        budget_bytes,
+        setup_seconds: started.elapsed().as_secs_f64(),
+        ..Default::default()
+    };
+    let t = Instant::now();
+    let cosine_sum = cosine_sums(&info.normals, directions);
+    stats.solve.normalize_seconds = t.elapsed().as_secs_f64();
+    stats.solve.directions = directions.len();
+    stats.solve.threads = threads;
+
+    // B = E to start with; tells whether anything emits.
+    let t = Instant::now();
+    let first = update(source, &work, &plan, &cosine_sum, false, &mut io)?;
+    let mut fold_seconds = 0.0;
+    stats.update_seconds += t.elapsed().as_secs_f64();
+    let any_light = first.emitted.iter().any(|&e| e > 0.0);
+
+    // Directions by main axis, in set order within an axis.
+    let by_axis: Vec<Vec<usize>> = (0..3)
+        .map(|m| {
+            (0..directions.len())
+                .filter(|&k| crate::geometry::lines::axes(directions.directions[k].vector).0 == m)
+                .collect()
+        })
+        .collect();
+    let files: Vec<CopyFiles> = work
+        .copies
+        .iter()
+        .map(|c| CopyFiles::open(c, &work.gathered))
+        .collect::<Result<_, _>>()?;
+    let mut buffers = BandBuffers::default();
+    let mut times = BandTimes::default();
+    let mut previous_change: Option<f64> = None;
+    let mut last = first;
+    let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
+    let solve_started = Instant::now();
+    for iteration in 1..=options.max_iterations {
+        if !any_light {
+            stats.solve.converged = true;
+            break;
+        }
+        progress.reset();
+        progress.set_message(format!("iteration {iteration}"));
+        let mut gathered_any = false;
+        for (m, (copy, copy_files)) in work.copies.iter().zip(&files).enumerate() {
+            if by_axis[m].is_empty() {
+                continue;
+            }
+            let histogram = copy.load_histogram(&plan)?;
+            for (k, &d) in by_axis[m].iter().enumerate() {
+                let pass = DirectionPass {
+                    copy,
+                    files: copy_files,
+                    histogram: &histogram,
+                    dims: info.grid.dims,
+                    plan: &plan,
+                    threads,
+                    first: k == 0,
+                };
+                pass.run(&directions.directions[d], &mut buffers, &mut io, &mut times)?;
+                progress.inc(1);
+            }
+            drop(histogram);
+            // This axis's light joins the canonical sum before the next axis reuses the file.
+            let t = Instant::now();
+            fold_gathered(copy, &work, &plan, !gathered_any, &mut io)?;
+            fold_seconds += t.elapsed().as_secs_f64();
+            gathered_any = true;
+        }
+        stats.solve.updates += work.count * directions.len() as u64;
+        let t = Instant::now();
+        let result = update(source, &work, &plan, &cosine_sum, gathered_any, &mut io)?;
+        stats.update_seconds += t.elapsed().as_secs_f64();
+        let relative = if result.total > 0.0 {
+            result.change / result.total
+        } else {
+            0.0
+        };
+        let estimate = error_estimate(relative, previous_change);
+        stats.solve.iterations = iteration;
+        stats.solve.last_change = relative;
+        stats.solve.residual = estimate;
+        tracing::info!(
+            iteration,
+            change = format!("{relative:.3e}"),
+            estimated_error = format!("{estimate:.3e}"),
+            seconds = format!("{:.1}", solve_started.elapsed().as_secs_f64()),
+            "iteration done"
+        );
+        previous_change = Some(relative);
+        last = result;
+        if options.tolerance.is_some_and(|tol| estimate <= tol) {
+            stats.solve.converged = true;
+            break;
+        }
+    }
+    progress.finish_and_clear();
+    if options.tolerance.is_none() {
+        stats.solve.converged =
+            stats.solve.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
+    }
+    stats.solve.emitted_power = last.emitted;
+    stats.solve.absorbed_power = last.absorbed;
+    stats.solve.dispatch_seconds = times.dispatch;
+    stats.solve.propagate_seconds = times.propagate;
+    stats.read_seconds = times.read;
+    stats.write_seconds = times.write;
+    stats.update_seconds += fold_seconds;
+    stats.bands = times.bands;
+    stats.tiled_columns = times.tiled_columns;
+    stats.bytes_read = io.read;
+    stats.bytes_written = io.written;
+    Ok(OocSolution {
+        stats,
+        work,
+        io_bytes: plan.io_bytes,
+    })
+}
+
+/// What one update of the radiosity found.
+#[derive(Clone, Copy, Debug, Default)]
+struct Update {
+    change: f64,
+    total: f64,
+    emitted: [f64; 3],
+    absorbed: [f64; 3],
+}
+
+/// Adds the light gathered in `copy`'s order (the shared gathered file) to the canonical sum,
+/// or starts the sum with it (`first`).
+fn fold_gathered(
+    copy: &AxisCopy,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    first: bool,
+    io: &mut IoCounters,
+) -> Result<(), OocError> {
+    let n = work.count;
+    let chunk = plan.chunk_surfels.min(n).max(1);
+    let buffer = plan.bucket_buffer(n.div_ceil(chunk));
+    let mut scatter = Scatter::<GATHER_LEN>::new(work.dir.path(), "gathered", n, chunk, buffer)?;
+    let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
+    let mut values = SeqReader::<GATHER_LEN>::open(&work.gathered, plan.io_bytes)?;
+    while let Some(id) = ids.next_record()? {
+        let value = values.expect_record()?;
+        scatter.push(u32::from_le_bytes(id) as u64, &value)?;
+    }
+    io.read += n * (4 + GATHER_LEN as u64);
+    let mut chunks = scatter.into_chunks()?;
+    let canonical = RecordFile::open(&work.canonical_gathered)?;
+    let mut sum: Vec<Gathered> = Vec::new();
+    let mut bytes = vec![0u8; chunk as usize * GATHER_LEN];
+    loop {
+        sum.clear();
+        sum.resize(chunk as usize, [[0.0; 3]; 2]);
+        let Some((start, len)) = chunks.next_chunk(|at, value| sum[at] = decode_gathered(value))?
+        else {
+            break;
+        };
+        let slots = &mut bytes[..len as usize * GATHER_LEN];
+        if !first {
+            canonical.read_at(start * GATHER_LEN as u64, slots, io)?;
+            for (h, slot) in sum.iter_mut().zip(slots.chunks_exact(GATHER_LEN)) {
+                let before = decode_gathered(slot);
+                for (t, b) in h.iter_mut().flatten().zip(before.iter().flatten()) {
+                    // The earlier axes' sum first, then this axis: a fixed order.
+                    *t += *b;
+                }
+            }
+        }
+        for (h, slot) in sum.iter().zip(slots.chunks_exact_mut(GATHER_LEN)) {
+            encode_gathered(h, slot);
+        }
+        canonical.write_at(start * GATHER_LEN as u64, slots, io)?;
+    }
+    io.written += chunks.written;
+    io.read += chunks.read;
+    Ok(())
+}
+
+/// `B = E + rho H / S(n)` in canonical order, `H` the canonical sum of gathered light (none
+/// gathered yet: `H = 0`); then the new `B` is sent to every copy, one copy at a time.
+fn update(
+    source: &dyn SurfelSource,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    cosine_sum: &[f64],
+    gathered: bool,
+    io: &mut IoCounters,
+) -> Result<Update, OocError> {
+    let info = source.info();
+    let n = work.count;
+    let chunk = plan.chunk_surfels.min(n).max(1);
+    let canonical = RecordFile::open(&work.canonical_radiosity)?;
+    let canonical_gathered = RecordFile::open(&work.canonical_gathered)?;
+    let mut stream = source.stream(plan.io_bytes as u64)?;
+    let area_unit = info.grid.voxel_size * info.grid.voxel_size;
+    let mut result = Update::default();
+    let mut h_bytes = vec![0u8; chunk as usize * GATHER_LEN];
+    let mut bytes = vec![0u8; chunk as usize * RADIOSITY_LEN];
+    let mut start = 0u64;
+    while start < n {
+        let len = chunk.min(n - start);
+        let h_slots = &mut h_bytes[..len as usize * GATHER_LEN];
+        if gathered {
+            canonical_gathered.read_at(start * GATHER_LEN as u64, h_slots, io)?;
+        } else {
+            h_slots.fill(0);
+        }
+        let prev = &mut bytes[..len as usize * RADIOSITY_LEN];
+        canonical.read_at(start * RADIOSITY_LEN as u64, prev, io)?;
+        for (slot, h_slot) in prev
+            .chunks_exact_mut(RADIOSITY_LEN)
+            .zip(h_slots.chunks_exact(GATHER_LEN))
+        {
+            let s = stream.next().ok_or_else(|| OocError::BadData {
+                source_name: source.describe(),
+                what: "it ended before its stated count of surfels".to_string(),
+            })??;
+            let h = decode_gathered(h_slot);
+            let previous = decode_radiosity(slot);
+            let norm = cosine_sum[s.normal_id as usize];
+            let area = s.area as f64;
+            let mut b_new: Radiosity = [[0.0; 3]; 2];
+            for side in 0..2 {
+                let m = &info.materials[s.material[side] as usize];
+                for ch in 0..3 {
+                    let e = m.emission[ch] as f32 as f64;
+                    let b = e + m.reflectance[ch] * h[side][ch] / norm;
+                    result.change += area * (b - previous[side][ch] as f64).abs();
+                    result.total += area * b;
+                    b_new[side][ch] = b as f32;
+                    result.emitted[ch] += m.emission[ch] * area * area_unit;
+                    result.absorbed[ch] +=
+                        (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
+                }
+            }
+            encode_radiosity(&b_new, slot);
+        }
+        canonical.write_at(start * RADIOSITY_LEN as u64, prev, io)?;
+        io.read += len * crate::storage::RECORD_LEN as u64;
+        start += len;
+    }
+    // The stream's end checks the last shard's checksum.
+    if let Some(item) = stream.next() {
+        item?;
+        return Err(OocError::BadData {
+            source_name: source.describe(),
+            what: "it holds more surfels than its stated count".to_string(),
+        });
+    }
+    drop((h_bytes, bytes));
+    // The new radiosity to each copy, in copy order, one copy at a time.
+    let buffer = plan.bucket_buffer(n.div_ceil(chunk));
+    for copy in &work.copies {
+        let mut scatter = Scatter::<RADIOSITY_LEN>::new(
+            work.dir.path(),
+            &format!("radiosity-{}", copy.main),
+            n,
+            chunk,
+            buffer,
+        )?;
+        let mut positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
+        let mut radiosity =
+            SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)?;
+        while let Some(p) = positions.next_record()? {
+            scatter.push(u32::from_le_bytes(p) as u64, &radiosity.expect_record()?)?;
+        }
+        io.read += n * (4 + RADIOSITY_LEN as u64);
+        let mut reader = scatter.into_chunks()?;
+        let mut out = SeqWriter::create(&copy.radiosity, plan.io_bytes)?;
+        let mut values: Vec<[u8; RADIOSITY_LEN]> = vec![[0u8; RADIOSITY_LEN]; chunk as usize];
+        while let Some((_, len)) = reader.next_chunk(|at, value| values[at] = *value)? {
+            for v in &values[..len as usize] {
+                out.write(v)?;
+            }
+        }
+        io.written += out.finish()? + reader.written;
+        io.read += reader.read;
+    }
+    Ok(result)
+}

@@ -1,0 +1,159 @@
+//! Where the out-of-core solver's surfels come from: a shard set on disk (the normal case) or a
+//! surfel set already in memory (for tests and for the OBJ path under a budget), read as one
+//! stream in the *canonical order*, the order the solver's results come out in.
+//!
+//! The canonical order keeps the surfels of one voxel together (both a shard set's lexicographic
+//! order and the voxelizer's Morton order do), which is what [`VoxelGroups`] relies on to give
+//! each surfel its voxel-mates (for its coverage) without an index.
+
+use super::OocError;
+use crate::scene::Material;
+use crate::storage::{Manifest, ShardReader, WindowedRecords};
+use crate::voxel::{Grid, Surfel, SurfelSet};
+use std::path::{Path, PathBuf};
+
+/// What every consumer of a source needs besides the surfels.
+#[derive(Clone, Debug)]
+pub struct SourceInfo {
+    pub grid: Grid,
+    pub normals: Vec<[f32; 3]>,
+    pub materials: Vec<Material>,
+    /// Number of surfels.
+    pub count: u64,
+}
+
+pub type SurfelStream<'a> = Box<dyn Iterator<Item = Result<Surfel, OocError>> + 'a>;
+
+/// A source of surfels in canonical order that can be read any number of times.
+pub trait SurfelSource: Sync {
+    fn info(&self) -> &SourceInfo;
+    /// A fresh pass over all surfels. A shard set checks each shard's checksum at its end, so a
+    /// consumer must not trust what it read if the stream ends with an error.
+    fn stream(&self, window_bytes: u64) -> Result<SurfelStream<'_>, OocError>;
+    /// What to call the source in messages.
+    fn describe(&self) -> String;
+}
+
+/// A surfel set held in memory.
+pub struct InMemorySource<'a> {
+    set: &'a SurfelSet,
+    info: SourceInfo,
+}
+
+impl<'a> InMemorySource<'a> {
+    pub fn new(set: &'a SurfelSet) -> Self {
+        InMemorySource {
+            set,
+            info: SourceInfo {
+                grid: set.grid,
+                normals: set.normals.clone(),
+                materials: set.materials.clone(),
+                count: set.surfels.len() as u64,
+            },
+        }
+    }
+}
+
+impl SurfelSource for InMemorySource<'_> {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn stream(&self, _window_bytes: u64) -> Result<SurfelStream<'_>, OocError> {
+        Ok(Box::new(self.set.surfels.iter().map(|s| Ok(*s))))
+    }
+
+    fn describe(&self) -> String {
+        "the voxelized scene".to_string()
+    }
+}
+
+/// A shard set directory: its shards, in manifest order, are the canonical order.
+pub struct ShardSetSource {
+    dir: PathBuf,
+    readers: Vec<ShardReader>,
+    info: SourceInfo,
+}
+
+impl ShardSetSource {
+    /// Opens the shard set `dir`: reads and validates the manifest, and checks every shard's
+    /// header, length and footer against it (checksums are checked as the shards are streamed).
+    pub fn open(dir: &Path) -> Result<Self, OocError> {
+        let manifest = Manifest::read_dir(dir)?;
+        let readers = manifest.check_shards(dir)?;
+        let count = manifest.records();
+        Ok(ShardSetSource {
+            dir: dir.to_path_buf(),
+            readers,
+            info: SourceInfo {
+                grid: manifest.grid,
+                normals: manifest.normals.clone(),
+                materials: manifest.materials(),
+                count,
+            },
+        })
+    }
+}
+
+impl SurfelSource for ShardSetSource {
+    fn info(&self) -> &SourceInfo {
+        &self.info
+    }
+
+    fn stream(&self, window_bytes: u64) -> Result<SurfelStream<'_>, OocError> {
+        let mut parts = Vec::with_capacity(self.readers.len());
+        for reader in &self.readers {
+            parts.push(WindowedRecords::new(reader, window_bytes)?);
+        }
+        Ok(Box::new(
+            parts
+                .into_iter()
+                .flatten()
+                .map(|r| r.map_err(OocError::from)),
+        ))
+    }
+
+    fn describe(&self) -> String {
+        format!("the shard set {}", self.dir.display())
+    }
+}
+
+/// Reads a stream voxel by voxel: each call to [`VoxelGroups::next_group`] fills `group` with
+/// the surfels of the next voxel.
+pub struct VoxelGroups<'a> {
+    stream: SurfelStream<'a>,
+    pending: Option<Surfel>,
+    done: bool,
+}
+
+impl<'a> VoxelGroups<'a> {
+    pub fn new(stream: SurfelStream<'a>) -> Self {
+        VoxelGroups {
+            stream,
+            pending: None,
+            done: false,
+        }
+    }
+
+    /// Fills `group` with the next voxel's surfels; false at the end of the stream.
+    pub fn next_group(&mut self, group: &mut Vec<Surfel>) -> Result<bool, OocError> {
+        group.clear();
+        if let Some(s) = self.pending.take() {
+            group.push(s);
+        }
+        while !self.done {
+            match self.stream.next() {
+                None => self.done = true,
+                Some(Err(e)) => return Err(e),
+                Some(Ok(s)) => {
+                    if group.first().is_some_and(|g| g.voxel != s.voxel) {
+                        self.pending = Some(s);
+                        return Ok(true);
+                    }
+                    group.push(s);
+                }
+            }
+        }
+        Ok(!group.is_empty())
+    }
+}

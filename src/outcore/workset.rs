@@ -1,0 +1,285 @@
+//! The solver's working copies of the surfels: three copies sorted by axis (see the `outcore`
+//! module header), each with its row histogram, its canonical indices, and where each canonical
+//! surfel sits in it.
+//!
+//! A copy is made by a distribution sort that never holds more than one bucket: a first pass
+//! over the source counts the surfels of every row `(x_m, x_v)` (the histogram the bands are cut
+//! from later); consecutive rows are grouped into buckets that fit the budget; a second pass
+//! appends each surfel, with its coverage (from its voxel-mates, adjacent in the source), to its
+//! bucket's file; then each bucket is sorted in memory and appended to the copy. Buckets are
+//! ranges of rows, so the copy comes out sorted by `(x_m, x_v, x_u, canonical index)`.
+
+use super::budget::MemoryPlan;
+use super::files::{
+    encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, GATHER_LEN,
+    RADIOSITY_LEN, STATIC_LEN,
+};
+use super::scatter::Scatter;
+use super::source::{SurfelSource, VoxelGroups};
+use super::OocError;
+use crate::solve::coverage::coverage_in_voxel;
+use crate::solve::propagate::PropSurfel;
+use std::path::{Path, PathBuf};
+use tempfile::TempDir;
+
+/// One axis copy.
+pub struct AxisCopy {
+    /// Main axis and the two others (`u = main + 1`, `v = main + 2`, modulo 3).
+    pub main: usize,
+    pub u: usize,
+    pub v: usize,
+    /// Layers (voxels along the main axis) and rows per layer (voxels along `v`).
+    pub layers: usize,
+    pub rows: usize,
+    /// Static records, in copy order.
+    pub statics: PathBuf,
+    /// Radiosity of the previous iteration, in copy order.
+    pub radiosity: PathBuf,
+    /// Canonical index of each record, in copy order (u32).
+    pub ids: PathBuf,
+    /// Position in this copy of each canonical surfel, in canonical order (u32).
+    pub positions: PathBuf,
+    /// Surfels per row, `layers x rows` u32 values, layer-major.
+    pub histogram: PathBuf,
+    /// Index of the first record of each layer, and the total.
+    pub layer_start: Vec<u64>,
+}
+
+impl AxisCopy {
+    /// Loads the row histogram (held while this copy's directions are solved).
+    pub fn load_histogram(&self, plan: &MemoryPlan) -> Result<Vec<u32>, OocError> {
+        let mut reader = SeqReader::<4>::open(&self.histogram, plan.io_bytes)?;
+        let mut h = Vec::with_capacity(self.layers * self.rows);
+        while let Some(w) = reader.next_record()? {
+            h.push(u32::from_le_bytes(w));
+        }
+        Ok(h)
+    }
+}
+
+/// The working copies of one solve, in a temporary directory removed when dropped.
+pub struct WorkSet {
+    pub dir: TempDir,
+    pub copies: Vec<AxisCopy>,
+    /// Radiosity in canonical order.
+    pub canonical_radiosity: PathBuf,
+    /// Light gathered by the directions of the axis being solved, in that copy's order (one
+    /// file serves the three copies in turn).
+    pub gathered: PathBuf,
+    /// Light gathered this iteration by the axes done so far, in canonical order.
+    pub canonical_gathered: PathBuf,
+    /// Surfels and distinct voxels.
+    pub count: u64,
+    pub voxels: u64,
+}
+
+/// Key of a voxel in copy order: `(x_m, x_v, x_u)` packed (each below 2^21).
+#[inline]
+fn row_of(copy: &AxisCopy, voxel: [i32; 3]) -> u64 {
+    voxel[copy.main] as u64 * copy.rows as u64 + voxel[copy.v] as u64
+}
+
+/// Builds the three copies of `source` in a new temporary directory under `parent`.
+pub fn build(
+    source: &dyn SurfelSource,
+    plan: &MemoryPlan,
+    parent: &Path,
+    io: &mut IoCounters,
+) -> Result<WorkSet, OocError> {
+    let dir = tempfile::Builder::new()
+        .prefix(".voxrad-work-")
+        .tempdir_in(parent)
+        .map_err(|e| OocError::io(parent, "create a work directory in", e))?;
+    let info = source.info();
+    let dims = info.grid.dims.map(|d| d as usize);
+    let count = info.count;
+    let mut copies = Vec::with_capacity(3);
+    let mut voxels = 0;
+    for main in 0..3 {
+        let (u, v) = ((main + 1) % 3, (main + 2) % 3);
+        let name = |what: &str| dir.path().join(format!("{what}-{main}.bin"));
+        let mut copy = AxisCopy {
+            main,
+            u,
+            v,
+            layers: dims[main],
+            rows: dims[v],
+            statics: name("static"),
+            radiosity: name("radiosity"),
+            ids: name("ids"),
+            positions: name("positions"),
+            histogram: name("histogram"),
+            layer_start: Vec::new(),
+        };
+        // Pass 1: the row histogram (and, once, the voxel count).
+        let mut histogram = vec![0u32; copy.layers * copy.rows];
+        let mut seen = 0u64;
+        let mut last_voxel = None;
+        for s in source.stream(plan.io_bytes as u64)? {
+            let s = s?;
+            check_voxel(source, &s.voxel, info.grid.dims)?;
+            histogram[row_of(&copy, s.voxel) as usize] += 1;
+            if main == 0 && last_voxel != Some(s.voxel) {
+                voxels += 1;
+                last_voxel = Some(s.voxel);
+            }
+            seen += 1;
+        }
+        io.read += seen * crate::storage::RECORD_LEN as u64;
+        let mut out = SeqWriter::create(&copy.histogram, plan.io_bytes)?;
+        for h in &histogram {
+            out.write(&h.to_le_bytes())?;
+        }
+        io.written += out.finish()?;
+        let mut start = 0u64;
+        copy.layer_start.push(0);
+        for layer in histogram.chunks(copy.rows.max(1)).take(copy.layers) {
+            start += layer.iter().map(|&h| h as u64).sum::<u64>();
+            copy.layer_start.push(start);
+        }
+        // Buckets: runs of consecutive rows that fit the budget.
+        let mut bucket_rows = vec![0u64];
+        let mut bucket_sizes = vec![0u64];
+        let mut filled = 0u64;
+        for (row, &h) in histogram.iter().enumerate() {
+            let h = h as u64;
+            if h > plan.sort_records {
+                return Err(OocError::BudgetTooSmall {
+                    budget: plan.budget,
+                    needed: plan.budget - plan.working
+                        + 2 * h * super::budget::SORT_BYTES_PER_RECORD,
+                    what: format!("sorting a row of {h} surfels along axis {u}"),
+                });
+            }
+            if filled + h > plan.sort_records {
+                bucket_rows.push(row as u64);
+                bucket_sizes.push(0);
+                filled = 0;
+            }
+            filled += h;
+            *bucket_sizes.last_mut().expect("one bucket at least") += h;
+        }
+        drop(histogram);
+        // Pass 2: distribute into bucket files.
+        let buffer = plan.bucket_buffer(bucket_rows.len() as u64);
+        let mut buckets = Vec::with_capacity(bucket_rows.len());
+        for b in 0..bucket_rows.len() {
+            buckets.push(SeqWriter::create(
+                &dir.path().join(format!("bucket-{main}-{b}.tmp")),
+                buffer,
+            )?);
+        }
+        let mut groups = VoxelGroups::new(source.stream(plan.io_bytes as u64)?);
+        let mut group = Vec::new();
+        let mut id = 0u32;
+        let mut record = [0u8; STATIC_LEN];
+        while groups.next_group(&mut group)? {
+            for k in 0..group.len() {
+                let s = &group[k];
+                let r = StaticRecord {
+                    prop: PropSurfel {
+                        voxel: s.voxel,
+                        group: s.group,
+                        point: s.point,
+                        normal: s.normal,
+                        extent: s.extent,
+                        coverage: coverage_in_voxel(&group, k),
+                    },
+                    id,
+                };
+                encode_static(&r, &mut record);
+                let row = row_of(&copy, s.voxel);
+                let b = bucket_rows.partition_point(|&first| first <= row) - 1;
+                buckets[b].write(&record)?;
+                id += 1;
+            }
+        }
+        io.read += id as u64 * crate::storage::RECORD_LEN as u64;
+        let bucket_paths: Vec<PathBuf> = buckets.iter().map(|b| b.path().to_path_buf()).collect();
+        for b in buckets {
+            io.written += b.finish()?;
+        }
+        // Sort each bucket, append it to the copy, and note where each surfel went.
+        let mut statics = SeqWriter::create(&copy.statics, plan.io_bytes)?;
+        let mut ids = SeqWriter::create(&copy.ids, plan.io_bytes)?;
+        let chunks = count.div_ceil(plan.chunk_surfels.max(1));
+        let mut positions = Scatter::<4>::new(
+            dir.path(),
+            &format!("positions-{main}"),
+            count,
+            plan.chunk_surfels,
+            plan.bucket_buffer(chunks),
+        )?;
+        let mut entries: Vec<(u64, u32, [u8; STATIC_LEN])> = Vec::new();
+        let mut position = 0u64;
+        for (path, &size) in bucket_paths.iter().zip(&bucket_sizes) {
+            entries.clear();
+            // Exactly the bucket's size: growth by doubling could overshoot the budget.
+            entries.reserve_exact(size as usize);
+            let mut reader = SeqReader::<STATIC_LEN>::open(path, plan.io_bytes)?;
+            while let Some(bytes) = reader.next_record()? {
+                let r = super::files::decode_static(&bytes);
+                let key = row_of(&copy, r.prop.voxel) * dims[u] as u64 + r.prop.voxel[u] as u64;
+                entries.push((key, r.id, bytes));
+            }
+            io.read += entries.len() as u64 * STATIC_LEN as u64;
+            entries.sort_unstable_by_key(|e| (e.0, e.1));
+            for (_, id, bytes) in &entries {
+                statics.write(bytes)?;
+                ids.write(&id.to_le_bytes())?;
+                positions.push(*id as u64, &(position as u32).to_le_bytes())?;
+                position += 1;
+            }
+            std::fs::remove_file(path).map_err(|e| OocError::io(path, "remove", e))?;
+        }
+        drop(entries);
+        io.written += statics.finish()? + ids.finish()?;
+        let mut chunks = positions.into_chunks()?;
+        let mut out = SeqWriter::create(&copy.positions, plan.io_bytes)?;
+        let mut chunk = Vec::new();
+        while let Some((_, len)) = {
+            chunk.clear();
+            chunk.resize(plan.chunk_surfels.min(count) as usize, 0u32);
+            chunks.next_chunk(|at, value| chunk[at] = u32::from_le_bytes(*value))?
+        } {
+            for p in &chunk[..len as usize] {
+                out.write(&p.to_le_bytes())?;
+            }
+        }
+        io.written += out.finish()? + chunks.written;
+        io.read += chunks.read;
+        // The per-iteration files, at full length.
+        RecordFile::create(&copy.radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
+        copies.push(copy);
+    }
+    let canonical_radiosity = dir.path().join("radiosity-canonical.bin");
+    RecordFile::create(&canonical_radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
+    let gathered = dir.path().join("gathered.bin");
+    RecordFile::create(&gathered)?.set_len(count * GATHER_LEN as u64)?;
+    let canonical_gathered = dir.path().join("gathered-canonical.bin");
+    RecordFile::create(&canonical_gathered)?.set_len(count * GATHER_LEN as u64)?;
+    Ok(WorkSet {
+        dir,
+        copies,
+        canonical_radiosity,
+        gathered,
+        canonical_gathered,
+        count,
+        voxels,
+    })
+}
+
+/// A surfel outside the grid would index past the histogram: refuse it by name.
+fn check_voxel(
+    source: &dyn SurfelSource,
+    voxel: &[i32; 3],
+    dims: [u32; 3],
+) -> Result<(), OocError> {
+    if (0..3).all(|k| voxel[k] >= 0 && (voxel[k] as u64) < dims[k] as u64) {
+        return Ok(());
+    }
+    Err(OocError::BadData {
+        source_name: source.describe(),
+        what: format!("a surfel lies in voxel {voxel:?}, outside the grid of {dims:?} voxels"),
+    })
+}

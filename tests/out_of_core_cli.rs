@@ -1,0 +1,163 @@
+//! `voxrad solve SHARDSET` and `voxrad solve --memory`: the real binary on shard sets, against the
+//! OBJ path, and with budgets it cannot work in.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Output};
+use voxrad::output::results::{read_results, Record};
+use voxrad::voxel::voxelize::{voxelize, GridSpec};
+
+fn voxrad(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(args)
+        .env("NO_COLOR", "1")
+        .output()
+        .expect("run voxrad")
+}
+
+fn s(p: &Path) -> String {
+    p.display().to_string()
+}
+
+fn ok(out: &Output, what: &str) {
+    assert!(
+        out.status.success(),
+        "{what}: status {:?}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Results sorted by surfel identity (voxel, then normal and point bits).
+fn sorted_records(dir: &Path) -> Vec<Record> {
+    let mut r = read_results(&dir.join("surfels.bin"))
+        .expect("results")
+        .records;
+    r.sort_by_key(|r| {
+        (
+            r.voxel,
+            r.normal.map(f32::to_bits),
+            r.point.map(f32::to_bits),
+        )
+    });
+    r
+}
+
+#[test]
+fn shard_set_and_memory_budget_give_the_obj_answer() {
+    let tmp = tempfile::tempdir().unwrap();
+    let obj = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/cornell_box.obj");
+    let scene = voxrad::scene::obj::load_obj(&obj).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(32)).unwrap();
+    let shards = tmp.path().join("cornell.shards");
+    common::write_shard_set(&set, &shards, 3);
+    let common_args = ["--directions", "49", "--iterations", "4", "--threads", "2"];
+    let obj_out = tmp.path().join("obj");
+    let mut args = vec!["solve", obj.to_str().unwrap(), "--out"];
+    let obj_out_s = s(&obj_out);
+    args.push(&obj_out_s);
+    args.extend(["--resolution", "32"]);
+    args.extend(common_args);
+    ok(&voxrad(&args), "OBJ solve");
+    let reference = sorted_records(&obj_out);
+
+    for (name, extra) in [
+        (
+            "shard set",
+            vec![s(&shards), "--memory".into(), "16MiB".into()],
+        ),
+        (
+            "OBJ under --memory",
+            vec![
+                s(&obj),
+                "--resolution".into(),
+                "32".into(),
+                "--memory".into(),
+                "1MiB".into(),
+            ],
+        ),
+    ] {
+        let out_dir = tmp.path().join(name.replace(' ', "_"));
+        let mut args: Vec<String> = vec!["solve".into()];
+        args.extend(extra);
+        args.extend(["--out".into(), s(&out_dir)]);
+        args.extend(common_args.iter().map(|a| a.to_string()));
+        let argv: Vec<&str> = args.iter().map(String::as_str).collect();
+        ok(&voxrad(&argv), name);
+        let got = sorted_records(&out_dir);
+        assert_eq!(got.len(), reference.len(), "{name}");
+        let peak = reference
+            .iter()
+            .flat_map(|r| r.radiosity.iter().flatten())
+            .fold(0f32, |a, &b| a.max(b));
+        let mut worst = 0f32;
+        for (a, b) in got.iter().zip(&reference) {
+            assert_eq!(a.voxel, b.voxel, "{name}");
+            for (x, y) in a
+                .radiosity
+                .iter()
+                .flatten()
+                .zip(b.radiosity.iter().flatten())
+            {
+                worst = worst.max((x - y).abs() / x.abs().max(y.abs()).max(1e-3 * peak));
+            }
+        }
+        println!("{name}: worst relative difference {worst:.2e}");
+        assert!(worst <= 1e-5, "{name}: {worst:e}");
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out_dir.join("report.json")).unwrap()).unwrap();
+        let ooc = &report["out_of_core"];
+        assert!(
+            ooc["bytes_read_per_voxel_direction"].as_f64().unwrap() > 0.0,
+            "{report}"
+        );
+        let bands = ooc["bands"].as_u64().unwrap();
+        if name == "shard set" {
+            // A roomy budget: one band per direction, and the previews are written.
+            assert_eq!(bands, 49 * 4, "{name}");
+            assert!(out_dir.join("render.png").exists(), "{name}");
+            assert!(out_dir.join("surfels.ply").exists(), "{name}");
+        } else {
+            assert!(bands > 2 * 49 * 4, "{name}: {bands} bands");
+        }
+        // The work directory is gone.
+        for entry in std::fs::read_dir(&out_dir).unwrap() {
+            let name = entry.unwrap().file_name();
+            assert!(
+                !name.to_string_lossy().starts_with(".voxrad-work"),
+                "{name:?} left"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_budget_too_small_is_refused_with_what_it_needs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let obj = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/cornell_box.obj");
+    let out = voxrad(&[
+        "solve",
+        obj.to_str().unwrap(),
+        "--out",
+        &s(&tmp.path().join("o")),
+        "--resolution",
+        "32",
+        "--memory",
+        "100KiB",
+    ]);
+    assert_eq!(
+        out.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("too small") && err.contains("--memory"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    let out = voxrad(&["solve", "x.obj", "--out", "o", "--memory", "lots"]);
+    assert_eq!(out.status.code(), Some(2));
+}
