@@ -120,24 +120,14 @@ impl Analysis {
                 let rule = match requested.tolerance {
                     Some(t) => format!(
                         "until the estimated relative error left ({:.1e}) was below the \
-                         tolerance {t:.1e}",
+                         tolerance {t:.1e}: the scene's own convergence, not a fixed count",
                         stats.residual
                     ),
                     None => format!("for the requested {} iterations", requested.max_iterations),
                 };
                 format!(
-                    "reflectance up to {:.3}; {} iterations, {rule}{}",
-                    self.max_reflectance,
-                    stats.iterations,
-                    if stats.converged && requested.tolerance.is_some() {
-                        format!(
-                            " (saved {} of the {} allowed)",
-                            requested.max_iterations.saturating_sub(stats.iterations),
-                            requested.max_iterations
-                        )
-                    } else {
-                        String::new()
-                    }
+                    "reflectance up to {:.3}; {} iterations, {rule}",
+                    self.max_reflectance, stats.iterations,
                 )
             },
         ));
@@ -146,8 +136,9 @@ impl Analysis {
             !self.grey,
             if self.grey {
                 "every material is grey (equal Kd and Ke channels): one channel solved and \
-                 copied to the other two, saving the gather and update of two channels (measured \
-                 on the furnace and the Cornell box: see the README)"
+                 copied to the other two, saving the gather and update of two channels (measured: \
+                 4 % of the iteration time on the furnace, nothing measurable on a grey Cornell \
+                 box, where finding partners dominates; README)"
             } else {
                 "some material has unequal RGB channels: three channels solved"
             },
@@ -158,8 +149,11 @@ impl Analysis {
                 stats.extrapolations > 0,
                 &if requested.accelerate {
                     format!(
-                        "the geometric tail of the remaining bounces was added {} times once the \
-                         iteration's change shrank by a steady factor",
+                        "the geometric tail of the remaining bounces was added at once ({} \
+                         extrapolations) when the iteration's change shrank by a steady factor; \
+                         measured saving: the furnace exact in 4 iterations instead of 87 \
+                         (rho 0.9) or 914 (rho 0.99), 20 to 35 % of the iterations on the \
+                         Cornell box at tolerances of 1e-3 and below (README)",
                         stats.extrapolations
                     )
                 } else {
