@@ -143,6 +143,7 @@ fn main() {
             max_iterations: args.iterations,
             tolerance: None,
             threads,
+            ..Default::default()
         };
         let t = Instant::now();
         let reference = solve_with(&set, &directions, &options).expect("solve");

@@ -327,6 +327,7 @@ fn child(target: u64, args: &Args) {
                 max_iterations: args.iterations,
                 tolerance: None,
                 threads: r.threads,
+                ..Default::default()
             };
             let before = status_kb("VmRSS").unwrap_or(0);
             let peak_reset = reset_rss_peak();
@@ -719,6 +720,7 @@ fn smoke() {
         max_iterations: 1,
         tolerance: None,
         threads: 1,
+        ..Default::default()
     };
     let solution = solve(&set, &options).expect("solve");
     assert_eq!(

@@ -118,8 +118,11 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
         "voxelized"
     );
 
-    let directions = DirectionSet::with_count(cmd.solve.directions);
-    let solution = solve_distributed(&set, &directions, &cmd.solve, comm)
+    // Simulate only what the scene calls for (see `solve::effects`).
+    let analysis = crate::solve::effects::analyse(&set);
+    let shaped = analysis.shape(&cmd.solve);
+    let directions = DirectionSet::with_count(shaped.directions);
+    let solution = solve_distributed(&set, &directions, &shaped, comm)
         .map_err(|e| AppError::Failure(e.to_string()))?;
     let stats = &solution.stats;
     tracing::info!(
@@ -156,7 +159,7 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     };
     let mut report = Report::new(run, &set, stats);
     report.set_phase("reduce", stats.reduce_seconds);
-    report.effects = effects(&set, &solution);
+    report.effects = analysis.effects(&cmd.solve, stats);
     report.set_phase("read", read_seconds);
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);
@@ -437,43 +440,6 @@ fn write_previews(
     Ok(())
 }
 
-/// What was simulated and why (the scene analysis is still plain: every solve is the full one).
-fn effects(set: &SurfelSet, solution: &Solution) -> Vec<Effect> {
-    let emitters = set.materials.iter().any(|m| m.is_emitter());
-    let reflective = set
-        .materials
-        .iter()
-        .any(|m| m.reflectance.iter().any(|&r| r > 0.0));
-    vec![
-        Effect::new(
-            "direct light",
-            emitters,
-            if emitters {
-                "the scene has emitting materials (Ke > 0)"
-            } else {
-                "no material emits (no Ke > 0): nothing to light"
-            },
-        ),
-        Effect::new(
-            "interreflection",
-            emitters && reflective,
-            if reflective {
-                "some material reflects (Kd > 0); iterated until the estimated error is below the tolerance"
-            } else {
-                "every reflectance is 0: light does not bounce"
-            },
-        ),
-        Effect::new(
-            "rgb channels",
-            true,
-            &format!(
-                "three channels solved; {} surfels",
-                solution.radiosity.len()
-            ),
-        ),
-    ]
-}
-
 /// Rebuilds a surfel set and solution from a results file, for rendering.
 fn from_results(results: &Results) -> (SurfelSet, Solution) {
     let surfels = results
@@ -592,4 +558,55 @@ pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), Ap
                 .map_err(|e| AppError::Failure(format!("cannot write to standard output: {e}")))
         }
     }
+}
+
+/// `voxrad study SCENE --out DIR [--quick]`: SCENE is a built-in name (`furnace`, `cornell`) or
+/// an .obj file. Writes `study.csv`, `study.md` and `study.png` and returns the study.
+pub fn run_study(
+    scene: &str,
+    out: &Path,
+    quick: bool,
+    threads: usize,
+) -> Result<crate::study::Study, AppError> {
+    use crate::study::{Plan, StudyScene};
+    let studied = match StudyScene::builtin(scene) {
+        Some(s) => s,
+        None => {
+            let path = Path::new(scene);
+            if !path.exists() {
+                return Err(AppError::BadInput(format!(
+                    "{scene}: neither a built-in scene (furnace, cornell) nor an existing .obj file"
+                )));
+            }
+            let loaded = load_obj(path).map_err(|e| {
+                if e.is_bad_input() {
+                    AppError::BadInput(e.to_string())
+                } else {
+                    AppError::Failure(e.to_string())
+                }
+            })?;
+            StudyScene {
+                name: scene.to_string(),
+                scene: loaded,
+                analytic: None,
+            }
+        }
+    };
+    let mut plan = if quick { Plan::quick() } else { Plan::full() };
+    plan.threads = threads;
+    let study = crate::study::run(&studied, &plan, |r| {
+        tracing::info!(
+            knob = r.knob,
+            resolution = r.settings.resolution,
+            directions = r.directions_used,
+            tolerance = r.settings.tolerance,
+            iterations = r.iterations,
+            seconds = format!("{:.2}", r.seconds),
+            mean_error = format!("{:.2e}", r.mean_error),
+            "study run"
+        );
+    })
+    .map_err(|e| AppError::BadInput(format!("{scene}: {e}")))?;
+    crate::study::write(&study, out).map_err(AppError::Failure)?;
+    Ok(study)
 }

@@ -9,7 +9,8 @@
 //! merges and an external sort under a memory budget. `outcore` solves from a shard set with
 //! every array that grows with the scene in files, under a `--memory` budget. `convert` is the
 //! library of the `voxrad-shard` tool: scenes into shard sets out of core, sets verified,
-//! re-split, results exported.
+//! re-split, results exported. `study` measures what accuracy costs in time; `quality` holds
+//! the presets chosen from it.
 
 pub mod app;
 pub mod convert;
@@ -19,7 +20,9 @@ pub mod geometry;
 pub mod outcore;
 pub mod output;
 pub mod progress;
+pub mod quality;
 pub mod scene;
 pub mod solve;
 pub mod storage;
+pub mod study;
 pub mod voxel;

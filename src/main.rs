@@ -4,9 +4,11 @@
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use voxrad::app::{
-    run_generate, run_probe, run_render, run_solve, AppError, GenerateScene, SolveCommand,
+    run_generate, run_probe, run_render, run_solve, run_study, AppError, GenerateScene,
+    SolveCommand,
 };
 use voxrad::output::report::Report;
+use voxrad::quality::Quality;
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::GridSpec;
 
@@ -37,15 +39,20 @@ enum Command {
         /// Output directory: report.json, surfels.bin, surfels.ply, render.png.
         #[arg(long)]
         out: PathBuf,
-        /// Voxels along the longest side of the scene.
-        #[arg(long, default_value_t = 128, conflicts_with = "voxel_size")]
-        resolution: u32,
+        /// Quality preset: resolution, directions, tolerance and tail extrapolation chosen
+        /// together from the accuracy/time study (see the README); explicit options override it.
+        #[arg(long, value_enum, default_value = "default")]
+        quality: QualityArg,
+        /// Voxels along the longest side of the scene (default: from --quality).
+        #[arg(long, conflicts_with = "voxel_size")]
+        resolution: Option<u32>,
         /// Voxel edge length in scene units (instead of --resolution).
         #[arg(long)]
         voxel_size: Option<f64>,
-        /// Approximate number of line directions (each covers s and -s).
-        #[arg(long, default_value_t = 1000)]
-        directions: usize,
+        /// Approximate number of line directions, each covering s and -s (default: from
+        /// --quality).
+        #[arg(long)]
+        directions: Option<usize>,
         /// Largest number of iterations; given without --tolerance, exactly this many are run.
         #[arg(long)]
         iterations: Option<usize>,
@@ -99,6 +106,21 @@ enum Command {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// What accuracy costs in time: sweeps directions, tolerance and resolution, measures each
+    /// run's error and time; writes study.csv, study.md and study.png.
+    Study {
+        /// A built-in scene (`furnace`, `cornell`) or an OBJ file.
+        scene: String,
+        /// Output directory.
+        #[arg(long)]
+        out: PathBuf,
+        /// A small, fast sweep (for tests and a first look).
+        #[arg(long)]
+        quick: bool,
+        /// Worker threads (default: all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+    },
     /// Radiosity at given surface points: reads x,y,z,nx,ny,nz rows, prints x,y,z,nx,ny,nz,B_r,B_g,B_b.
     Probe {
         /// A directory written by `voxrad solve`.
@@ -120,6 +142,16 @@ enum Distribute {
     Data,
     /// Groups of ranks share directions, ranks in a group share data (not built yet).
     Hybrid,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum QualityArg {
+    /// A first look in seconds (resolution 32, 109 directions, tolerance 1e-2).
+    Draft,
+    /// Balanced (resolution 32, 589 directions, tolerance 1e-4).
+    Default,
+    /// Slow and accurate (resolution 64, 1201 directions, tolerance 1e-5).
+    High,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -191,6 +223,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
         Command::Solve {
             scene,
             out,
+            quality,
             resolution,
             voxel_size,
             directions,
@@ -201,9 +234,16 @@ fn run(cli: Cli) -> Result<(), AppError> {
             memory,
             distribute,
         } => {
+            let preset = match quality {
+                QualityArg::Draft => Quality::Draft,
+                QualityArg::Default => Quality::Default,
+                QualityArg::High => Quality::High,
+            }
+            .preset();
+            let directions = directions.unwrap_or(preset.directions);
             let grid = match voxel_size {
                 Some(v) => GridSpec::VoxelSize(v),
-                None => GridSpec::Resolution(resolution),
+                None => GridSpec::Resolution(resolution.unwrap_or(preset.resolution)),
             };
             if let Some(t) = tolerance {
                 if !(t.is_finite() && t > 0.0) {
@@ -224,9 +264,13 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 tolerance: match (tolerance, iterations) {
                     (Some(t), _) => Some(t),
                     (None, Some(_)) => None,
-                    (None, None) => defaults.tolerance,
+                    (None, None) => Some(preset.tolerance),
                 },
                 threads,
+                // Extrapolation only under the tolerance rule: `--iterations K` alone asks for K
+                // plain Jacobi sweeps.
+                accelerate: preset.accelerate && (tolerance.is_some() || iterations.is_none()),
+                ..Default::default()
             };
             let cmd = SolveCommand {
                 scene,
@@ -274,6 +318,21 @@ fn run(cli: Cli) -> Result<(), AppError> {
             size,
         } => run_render(&dir, &out, camera.as_deref(), size),
         Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
+        Command::Study {
+            scene,
+            out,
+            quick,
+            threads,
+        } => {
+            let study = run_study(&scene, &out, quick, threads)?;
+            eprintln!(
+                "{} runs; reference: {}; study.csv, study.md, study.png in {}",
+                study.runs.len(),
+                study.reference,
+                out.display()
+            );
+            Ok(())
+        }
         Command::Generate {
             scene,
             out,

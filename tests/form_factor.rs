@@ -51,6 +51,7 @@ fn measured(directions: usize, resolution: u32) -> f64 {
         max_iterations: 2,
         tolerance: None,
         threads: 2,
+        ..Default::default()
     };
     let stats = solve(&set, &options).unwrap().stats;
     stats.absorbed_power[0] / stats.emitted_power[0]

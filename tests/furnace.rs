@@ -16,6 +16,7 @@ fn furnace_error(rho: f64, resolution: u32, directions: usize) -> (f64, f64, usi
         max_iterations: 20_000,
         tolerance: Some(1e-6),
         threads: 2,
+        ..Default::default()
     };
     let solution = solve(&set, &options).unwrap();
     let expected = e / (1.0 - rho);

@@ -28,6 +28,7 @@ fn furnished_room_furnace() {
         max_iterations: 500,
         tolerance: Some(1e-7),
         threads: 2,
+        ..Default::default()
     };
     let solution = solve(&set, &options).unwrap();
     let expected = e / (1.0 - rho);

@@ -159,6 +159,7 @@ fn solves_a_shard_set_16_times_its_memory_limit() {
         max_iterations: 2,
         tolerance: None,
         threads: 2,
+        ..Default::default()
     };
     let reference = solve_with(&set, &directions, &options).unwrap();
     let results = voxrad::output::results::read_results(&out.join("surfels.bin")).unwrap();

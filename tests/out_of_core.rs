@@ -21,6 +21,7 @@ fn compare(name: &str, scene: &Scene, resolution: u32, budgets: &[u64], threads:
         max_iterations: 4,
         tolerance: None,
         threads: 1,
+        ..Default::default()
     };
     let reference = solve_with(&set, &directions, &options).expect("solve");
     let peak = reference

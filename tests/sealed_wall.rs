@@ -52,6 +52,7 @@ fn sealed_room_stays_dark() {
         max_iterations: 6,
         tolerance: None,
         threads: 2,
+        ..Default::default()
     };
     let solution = solve(&set, &options).unwrap();
 
@@ -122,6 +123,7 @@ fn generated_sealed_rooms_stay_dark() {
         max_iterations: 5,
         tolerance: None,
         threads: 2,
+        ..Default::default()
     };
     let solution = solve(&set, &options).unwrap();
     let (mut dark, mut dark_count, mut lit) = (0.0f32, 0, 0.0f32);

@@ -41,6 +41,7 @@ fn sheet_sides(back_to_back: bool) -> (f64, f64) {
         max_iterations: 200,
         tolerance: Some(1e-6),
         threads: 2,
+        ..Default::default()
     };
     let solution = solve(&set, &options).unwrap();
     let (mut minus, mut plus, mut area) = (0.0, 0.0, 0.0);

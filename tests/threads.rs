@@ -20,6 +20,7 @@ fn solve_with_threads(scene: &Scene, resolution: u32, threads: usize) -> (Soluti
         max_iterations: 5,
         tolerance: None,
         threads,
+        ..Default::default()
     };
     let solution = solve(&set, &options).expect("solve");
     (solution, set.surfels.len())

@@ -27,10 +27,10 @@ use glam::DVec3;
 /// splitmix64 (Steele, Lea and Flood 2014): tiny, fast, passes BigCrush, and its output depends
 /// only on the seed, which is what reproducible test scenes need.
 #[derive(Clone, Debug)]
-pub(crate) struct Rng(u64);
+pub struct Rng(u64);
 
 impl Rng {
-    pub(crate) fn new(seed: u64) -> Self {
+    pub fn new(seed: u64) -> Self {
         Rng(seed)
     }
 
@@ -43,7 +43,7 @@ impl Rng {
     }
 
     /// Uniform in `[0, 1)` from the top 53 bits (exactly representable, never 1).
-    pub(crate) fn unit(&mut self) -> f64 {
+    pub fn unit(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 

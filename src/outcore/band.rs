@@ -383,6 +383,8 @@ impl DirectionPass<'_> {
             weight,
             surfels: &buffers.props,
             radiosity: &buffers.radiosity,
+            // All three channels (one-channel grey solves are an in-memory option so far).
+            channels: 3,
         };
         gather_all_lines(&buffers.lines, &input, &mut buffers.gathered, self.threads);
         let t3 = Instant::now();

@@ -225,6 +225,7 @@ fn run(
             result.total,
             options,
             &mut stats.solve,
+            |_| None,
         );
         last = result;
         if stop {

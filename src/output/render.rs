@@ -658,6 +658,7 @@ mod tests {
                 max_iterations: 3,
                 tolerance: None,
                 threads: 1,
+                ..Default::default()
             },
         )
         .unwrap();

@@ -34,6 +34,11 @@ pub struct SolveOptions {
     pub tolerance: Option<f64>,
     /// Worker threads (0: all cores).
     pub threads: usize,
+    /// Solve one channel and copy it to the other two. Honoured only when the scene is grey
+    /// (`effects::is_grey`); a coloured scene is always solved in three channels.
+    pub grey: bool,
+    /// Extrapolate the geometric tail of the iterations (see `accelerate`).
+    pub accelerate: bool,
 }
 
 impl Default for SolveOptions {
@@ -43,6 +48,8 @@ impl Default for SolveOptions {
             max_iterations: 1000,
             tolerance: Some(1e-4),
             threads: 0,
+            grey: false,
+            accelerate: false,
         }
     }
 }
@@ -161,7 +168,15 @@ fn run(
         .map(|s| s.material.map(|m| set.materials[m as usize].reflectance))
         .collect();
 
+    let channels = if options.grey && super::effects::is_grey(set) {
+        1
+    } else {
+        3
+    };
+    let mut extrapolation = super::accelerate::Extrapolation::default();
+    let mut previous = Vec::new();
     let mut stats = SolveStats {
+        channels,
         directions: directions.len(),
         threads,
         normalize_seconds,
@@ -201,6 +216,7 @@ fn run(
                     weight: d.solid_angle / std::f64::consts::PI,
                     surfels: &surfels,
                     radiosity: &radiosity,
+                    channels,
                 };
                 gather_all_lines(&lines, &input, &mut acc, threads);
                 t1
@@ -221,13 +237,16 @@ fn run(
         stats.updates += (n * directions.len()) as u64;
 
         // B = E + rho H / S, and the change it makes.
+        if options.accelerate {
+            previous.clone_from(&radiosity);
+        }
         let (mut change, mut total) = (0.0f64, 0.0f64);
         for k in 0..n {
             let s = &set.surfels[k];
             let norm = cosine_sum[s.normal_id as usize];
             let area = s.area as f64;
             for side in 0..2 {
-                for ch in 0..3 {
+                for ch in 0..channels {
                     let b = emission[k][side][ch] as f64
                         + reflectance[k][side][ch] * acc[k][side][ch] / norm;
                     change += area * (b - radiosity[k][side][ch] as f64).abs();
@@ -236,8 +255,30 @@ fn run(
                 }
             }
         }
-        if convergence.record(iteration, change, total, options, &mut stats) {
+        // Right after an extrapolation the change history starts again: until it contracts, the
+        // contraction measured before the jump estimates the error (see `accelerate`).
+        let stop = convergence.record(iteration, change, total, options, &mut stats, |relative| {
+            extrapolation.error_estimate(relative)
+        });
+        let relative = stats.last_change;
+        if stop {
             break;
+        }
+        if options.accelerate {
+            if let Some(factor) = extrapolation.observe(change, relative) {
+                super::accelerate::extrapolate(&mut radiosity, &previous, &emission, factor);
+                // The jump is not an iteration's change: the stopping rule starts again.
+                convergence.restart();
+            }
+        }
+    }
+    stats.extrapolations = extrapolation.count;
+    if channels == 1 {
+        for (b, a) in radiosity.iter_mut().zip(acc.iter_mut()) {
+            for side in 0..2 {
+                b[side] = [b[side][0]; 3];
+                a[side] = [a[side][0]; 3];
+            }
         }
     }
     progress.finish_and_clear();
@@ -264,7 +305,8 @@ impl Convergence {
     }
 
     /// Records iteration `iteration`, whose area-weighted change and total of `B` are `change`
-    /// and `total`, in `stats`; logs it; tells whether the solve should stop.
+    /// and `total`, in `stats`; logs it; tells whether the solve should stop. `fallback` gives
+    /// an estimate from the relative change while the history cannot (after a restart).
     pub(crate) fn record(
         &mut self,
         iteration: usize,
@@ -272,9 +314,13 @@ impl Convergence {
         total: f64,
         options: &SolveOptions,
         stats: &mut SolveStats,
+        fallback: impl FnOnce(f64) -> Option<f64>,
     ) -> bool {
         let relative = if total > 0.0 { change / total } else { 0.0 };
-        let estimate = error_estimate(relative, self.previous_change);
+        let estimate = match error_estimate(relative, self.previous_change) {
+            e if e.is_finite() => e,
+            e => fallback(relative).unwrap_or(e),
+        };
         stats.iterations = iteration;
         stats.last_change = relative;
         stats.residual = estimate;
@@ -291,6 +337,11 @@ impl Convergence {
             stats.converged = true;
         }
         stop
+    }
+
+    /// Forgets the change history (after a jump that was not an iteration).
+    pub(crate) fn restart(&mut self) {
+        self.previous_change = None;
     }
 }
 

@@ -5,8 +5,10 @@
 //! (`dispatch`) and gathers light along each line (`propagate`). `jacobi` owns the iteration loop,
 //! the stopping rule and the result.
 
+pub mod accelerate;
 pub mod coverage;
 pub mod dispatch;
+pub mod effects;
 pub mod jacobi;
 pub mod normalize;
 pub mod propagate;
@@ -42,4 +44,8 @@ pub struct SolveStats {
     /// Emitted and absorbed power per channel (world units: B times area).
     pub emitted_power: [f64; 3],
     pub absorbed_power: [f64; 3],
+    /// Channels actually solved: 1 for a grey scene solved once and copied, else 3.
+    pub channels: usize,
+    /// Tail extrapolations made (see `accelerate`).
+    pub extrapolations: usize,
 }

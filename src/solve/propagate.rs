@@ -128,6 +128,8 @@ pub struct DirectionInput<'a> {
     pub surfels: &'a [PropSurfel],
     /// Radiosity of the previous iteration, by surfel, side and channel.
     pub radiosity: &'a [[[f32; 3]; 2]],
+    /// Channels to gather (1 for a grey scene, whose channels are equal; else 3).
+    pub channels: usize,
 }
 
 /// Reusable per-thread buffers for one line at a time.
@@ -525,7 +527,7 @@ pub unsafe fn gather_line(
         // SAFETY: see the function's contract.
         let to = unsafe { &mut (*acc.add(line[k] as usize))[to_side] };
         let f = cos * input.weight * weight as f64;
-        for (t, b) in to.iter_mut().zip(from) {
+        for (t, b) in to.iter_mut().zip(from).take(input.channels) {
             *t += b as f64 * f;
         }
     };

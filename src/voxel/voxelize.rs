@@ -100,6 +100,47 @@ pub fn grid_for(scene: &Scene, spec: GridSpec) -> Result<Grid, VoxelizeError> {
     })
 }
 
+/// Marks every triangle that repeats an earlier one (same vertices, same winding): one surface
+/// modelled twice, as bad exports often do, whose area, and so emitted power, would otherwise
+/// count twice. Sorting 16 bytes per triangle (a hash and an index) keeps the transient memory
+/// small, which the converter's address-space limit needs; equal hashes are confirmed exactly.
+fn duplicates(scene: &Scene) -> Vec<bool> {
+    use std::hash::{Hash, Hasher};
+    let mut keyed: Vec<(u64, u32)> = scene
+        .triangles
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            triangle_key(t).hash(&mut h);
+            (h.finish(), i as u32)
+        })
+        .collect();
+    keyed.sort_unstable();
+    let mut duplicate = vec![false; scene.triangles.len()];
+    for run in keyed.chunk_by(|a, b| a.0 == b.0).filter(|r| r.len() > 1) {
+        for (k, &(_, i)) in run.iter().enumerate() {
+            let key = triangle_key(&scene.triangles[i as usize]);
+            // Earlier entries of the run have lower indices (sorted by hash, then index).
+            if run[..k]
+                .iter()
+                .any(|&(_, j)| triangle_key(&scene.triangles[j as usize]) == key)
+            {
+                duplicate[i as usize] = true;
+            }
+        }
+    }
+    duplicate
+}
+
+/// The exact vertices of a triangle, rotated to start at the smallest one (so that the same
+/// triangle listed from another vertex, with the same winding, has the same key).
+fn triangle_key(t: &crate::scene::Triangle) -> [[u64; 3]; 3] {
+    let v = t.vertices.map(|p| p.to_array().map(f64::to_bits));
+    let first = (0..3).min_by_key(|&k| v[k]).unwrap_or(0);
+    [v[first], v[(first + 1) % 3], v[(first + 2) % 3]]
+}
+
 /// Interleaves the bits of three non-negative coordinates (below 2^21) into a Morton code.
 pub fn morton(voxel: [i32; 3]) -> u64 {
     fn spread(v: i32) -> u64 {
@@ -210,7 +251,12 @@ impl PlaneGroups {
         let mut normals: Vec<[f32; 3]> = Vec::new();
         let mut group_normal: Vec<u32> = Vec::new();
         let mut planes = Vec::with_capacity(scene.triangles.len());
-        for t in &scene.triangles {
+        let duplicate = duplicates(scene);
+        for (t, &dup) in scene.triangles.iter().zip(&duplicate) {
+            if dup {
+                planes.push(None);
+                continue;
+            }
             let q = t.vertices.map(|v| grid.to_voxel_units(v));
             let entry = canonical_plane(&q).map(|plane| {
                 let key = plane_key(&plane);

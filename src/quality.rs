@@ -1,0 +1,60 @@
+//! Quality presets for `voxrad solve --quality draft|default|high`: resolution, direction count,
+//! tolerance and tail extrapolation chosen together from the accuracy/time study (`study`), so
+//! that no knob is paid for beyond what the others allow. The study on the Cornell box shows the
+//! error dominated by direction aliasing, then resolution, with truncated iterations far below
+//! both once the tolerance is 1e-3 or less; extrapolation costs nothing and never hurts, so every
+//! preset uses it. Measured error and time of each preset: README, "Quality presets".
+//!
+//! Options given explicitly on the command line override the preset's.
+
+/// A quality preset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Quality {
+    Draft,
+    Default,
+    High,
+}
+
+/// What a preset sets.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Preset {
+    pub resolution: u32,
+    pub directions: usize,
+    pub tolerance: f64,
+    pub accelerate: bool,
+}
+
+impl Quality {
+    pub const ALL: [Quality; 3] = [Quality::Draft, Quality::Default, Quality::High];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Quality::Draft => "draft",
+            Quality::Default => "default",
+            Quality::High => "high",
+        }
+    }
+
+    pub fn preset(self) -> Preset {
+        match self {
+            Quality::Draft => Preset {
+                resolution: 32,
+                directions: 109,
+                tolerance: 1e-2,
+                accelerate: true,
+            },
+            Quality::Default => Preset {
+                resolution: 32,
+                directions: 589,
+                tolerance: 1e-4,
+                accelerate: true,
+            },
+            Quality::High => Preset {
+                resolution: 64,
+                directions: 1201,
+                tolerance: 1e-5,
+                accelerate: true,
+            },
+        }
+    }
+}
