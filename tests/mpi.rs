@@ -51,6 +51,8 @@ fn directions_mode_matches_one_process_for_1_to_4_ranks() {
         max_iterations: 4,
         tolerance: None,
         threads: 1,
+        // As the command line runs `--iterations` without `--tolerance`: plain iterations.
+        ..SolveOptions::default()
     };
     let reference = solve_with(&set, &DirectionSet::with_count(49), &options).unwrap();
     let tmp = tempfile::tempdir().unwrap();
