@@ -64,6 +64,18 @@ pub enum OocError {
         needed: u64,
         what: String,
     },
+    #[error(
+        "the work files need about {} on the disk of {}, which has {} free; give --out a \
+         directory on a larger disk, or free space",
+        budget::format_bytes(*needed),
+        path.display(),
+        budget::format_bytes(*free)
+    )]
+    DiskTooSmall {
+        path: PathBuf,
+        needed: u64,
+        free: u64,
+    },
     #[error("{source_name} cannot be solved: {what}")]
     BadData { source_name: String, what: String },
     #[error("could not start {threads} worker threads: {message}")]
@@ -84,7 +96,7 @@ impl OocError {
         match self {
             OocError::Storage(e) => !matches!(e, StorageError::Io { .. }),
             OocError::BudgetTooSmall { .. } | OocError::BadData { .. } => true,
-            OocError::Io { .. } | OocError::Threads { .. } => false,
+            OocError::Io { .. } | OocError::Threads { .. } | OocError::DiskTooSmall { .. } => false,
         }
     }
 }

@@ -86,6 +86,7 @@ pub fn build(
     parent: &Path,
     io: &mut IoCounters,
 ) -> Result<WorkSet, OocError> {
+    check_disk(parent, source.info().count)?;
     let dir = tempfile::Builder::new()
         .prefix(".voxrad-work-")
         .tempdir_in(parent)
@@ -282,4 +283,55 @@ fn check_voxel(
         source_name: source.describe(),
         what: format!("a surfel lies in voxel {voxel:?}, outside the grid of {dims:?} voxels"),
     })
+}
+
+/// Bytes of work files per surfel at their peak: the three copies' static records, radiosity,
+/// indices and positions, the shared and canonical gathered light, canonical radiosity, and the
+/// bucket files of one permutation.
+pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + RADIOSITY_LEN as u64 + 8)
+    + 2 * GATHER_LEN as u64
+    + RADIOSITY_LEN as u64
+    + (8 + GATHER_LEN as u64);
+
+/// Refuses to start when the work files cannot fit on the disk of `parent`: a long solve must
+/// not find out hours later.
+fn check_disk(parent: &Path, surfels: u64) -> Result<(), OocError> {
+    let needed = surfels * DISK_BYTES_PER_SURFEL;
+    match free_bytes(parent) {
+        Some(free) if free < needed => Err(OocError::DiskTooSmall {
+            path: parent.to_path_buf(),
+            needed,
+            free,
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Bytes available to this user on the filesystem of `dir` (`None` if the system will not say).
+fn free_bytes(dir: &Path) -> Option<u64> {
+    use std::os::fd::AsRawFd;
+    let file = std::fs::File::open(dir).ok()?;
+    // SAFETY: a zeroed statvfs is a valid value for fstatvfs to fill; the descriptor is open for
+    // the duration of the call.
+    let mut st: libc::statvfs = unsafe { std::mem::zeroed() };
+    if unsafe { libc::fstatvfs(file.as_raw_fd(), &mut st) } != 0 {
+        return None;
+    }
+    Some(st.f_bavail as u64 * st.f_frsize as u64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn work_files_that_cannot_fit_are_refused_up_front() {
+        let dir = tempfile::tempdir().unwrap();
+        let free = free_bytes(dir.path()).expect("statvfs of a temporary directory");
+        assert!(free > 0);
+        assert!(check_disk(dir.path(), 1000).is_ok());
+        let too_many = free / DISK_BYTES_PER_SURFEL + 1;
+        let e = check_disk(dir.path(), too_many).unwrap_err();
+        assert!(e.to_string().contains("free"), "{e}");
+    }
 }
