@@ -92,6 +92,14 @@ fn directions_mode_matches_one_process_for_1_to_4_ranks() {
         assert!(worst <= 1e-5, "{ranks} ranks: {worst:e}");
         assert_eq!(report["ranks"], ranks);
         assert_eq!(report["mode"], "directions");
+        if ranks > 1 {
+            // Every rank solved its share of the directions.
+            let per_rank = report["per_rank"].as_array().expect("per_rank");
+            assert_eq!(per_rank.len(), ranks);
+            for r in per_rank {
+                assert!(r["propagate"].as_f64().unwrap() > 0.0, "{report}");
+            }
+        }
     }
 }
 

@@ -110,9 +110,21 @@ pub struct Report {
     pub exchanged_fraction: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub imbalance: Option<f64>,
+    /// Distributed solves: seconds of each rank (index = rank) in dispatch, propagate and the
+    /// reduction across ranks.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub per_rank: Vec<RankSeconds>,
     /// Present when the solve ran out of core (a shard set, or `--memory`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_of_core: Option<OutOfCoreReport>,
+}
+
+/// One rank's time in a distributed solve.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RankSeconds {
+    pub dispatch: f64,
+    pub propagate: f64,
+    pub reduce: f64,
 }
 
 /// What an out-of-core solve held and moved.
@@ -188,6 +200,15 @@ impl Report {
             energy: Energy::new(stats.emitted_power, stats.absorbed_power),
             exchanged_fraction: None,
             imbalance: None,
+            per_rank: stats
+                .per_rank_seconds
+                .iter()
+                .map(|&[dispatch, propagate, reduce]| RankSeconds {
+                    dispatch,
+                    propagate,
+                    reduce,
+                })
+                .collect(),
             out_of_core: None,
         }
     }

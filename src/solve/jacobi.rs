@@ -286,6 +286,17 @@ fn run(
         // A fixed count of iterations: report whether it reached the default tolerance.
         stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
     }
+    if comm.size() > 1 {
+        // Each rank fills its own slot; the sum hands every rank the whole table.
+        let mut table = vec![0.0; 3 * comm.size()];
+        table[3 * comm.rank()..3 * comm.rank() + 3].copy_from_slice(&[
+            stats.dispatch_seconds,
+            stats.propagate_seconds,
+            stats.reduce_seconds,
+        ]);
+        comm.sum_in_place(&mut table);
+        stats.per_rank_seconds = table.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    }
     energy(set, &acc, &cosine_sum, &mut stats);
     Solution { radiosity, stats }
 }

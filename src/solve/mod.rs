@@ -39,6 +39,8 @@ pub struct SolveStats {
     pub normalize_seconds: f64,
     /// Seconds summing the gathered light across ranks (distributed solves).
     pub reduce_seconds: f64,
+    /// Distributed solves: every rank's dispatch, propagate and reduce seconds, by rank.
+    pub per_rank_seconds: Vec<[f64; 3]>,
     /// Surfel-side updates: surfels x line directions x iterations.
     pub updates: u64,
     /// Emitted and absorbed power per channel (world units: B times area).
