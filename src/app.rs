@@ -185,10 +185,15 @@ fn run_solve_shard_set(cmd: &SolveCommand, started: Instant) -> Result<Report, A
     let read_seconds = started.elapsed().as_secs_f64();
     let mut report = solve_out_of_core_to(cmd, &source, budget)?;
     report.set_phase("read", read_seconds);
+    finish_report(report, &cmd.out, started)
+}
+
+/// Sets the report's total time and peak RSS, and writes it into `out`.
+fn finish_report(mut report: Report, out: &Path, started: Instant) -> Result<Report, AppError> {
     report.set_total(started.elapsed().as_secs_f64());
     report.refresh_peak_rss();
     report
-        .write(&cmd.out)
+        .write(out)
         .map_err(|e| AppError::Failure(e.to_string()))?;
     Ok(report)
 }
@@ -228,16 +233,11 @@ fn run_solve_obj_out_of_core(
     let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
     let mut report = solve_out_of_core_to(cmd, &source, budget)?;
     report.set_phase("convert", convert_seconds);
-    report.set_total(started.elapsed().as_secs_f64());
-    report.refresh_peak_rss();
-    report
-        .write(&cmd.out)
-        .map_err(|e| AppError::Failure(e.to_string()))?;
     tracing::info!(
         surfels = converted.surfels,
         "solved from a temporary shard set"
     );
-    Ok(report)
+    finish_report(report, &cmd.out, started)
 }
 
 fn create_out_dir(out: &Path) -> Result<(), AppError> {
