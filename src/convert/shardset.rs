@@ -247,24 +247,7 @@ pub fn verify_set(dir: &Path) -> Result<(Manifest, Verification), ConvertError> 
         let mut first_last: Option<([i32; 3], [i32; 3])> = None;
         let checked = (|| -> Result<ShardInfo, StorageError> {
             let info = shard::verify(&path)?;
-            let mismatch = if info.order != manifest.order {
-                Some(format!(
-                    "order {}, the manifest {}",
-                    info.order, manifest.order
-                ))
-            } else if info.count != entry.records || info.bytes != entry.bytes {
-                Some(format!(
-                    "{} records in {} bytes, the manifest {} in {}",
-                    info.count, info.bytes, entry.records, entry.bytes
-                ))
-            } else if info.crc32 != entry.crc32 {
-                Some(format!(
-                    "checksum {:#010x}, the manifest {:#010x}",
-                    info.crc32, entry.crc32
-                ))
-            } else {
-                None
-            };
+            let mismatch = entry.mismatch(&info, manifest.order);
             if let Some(what) = mismatch {
                 return Err(StorageError::Invalid {
                     path: path.clone(),

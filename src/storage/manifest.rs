@@ -96,6 +96,26 @@ impl ShardEntry {
             crc32: info.crc32,
         })
     }
+
+    /// How the shard file described by `info` differs from this entry of a manifest of order
+    /// `order` (order, record count and size, checksum), or `None` if it is the listed file.
+    pub fn mismatch(&self, info: &ShardInfo, order: usize) -> Option<String> {
+        if info.order != order {
+            Some(format!("order {}, the manifest {order}", info.order))
+        } else if info.count != self.records || info.bytes != self.bytes {
+            Some(format!(
+                "{} records in {} bytes, the manifest {} in {}",
+                info.count, info.bytes, self.records, self.bytes
+            ))
+        } else if info.crc32 != self.crc32 {
+            Some(format!(
+                "checksum {:#010x}, the manifest {:#010x}",
+                info.crc32, self.crc32
+            ))
+        } else {
+            None
+        }
+    }
 }
 
 /// The manifest of a shard set (see the module header).
@@ -302,21 +322,7 @@ impl Manifest {
                 let path = Self::shard_path(dir, entry);
                 let reader = ShardReader::open_lazy(&path)?;
                 let info = reader.info();
-                let mismatch = if info.order != self.order {
-                    Some(format!("order {}, the manifest {}", info.order, self.order))
-                } else if info.count != entry.records || info.bytes != entry.bytes {
-                    Some(format!(
-                        "{} records in {} bytes, the manifest {} in {}",
-                        info.count, info.bytes, entry.records, entry.bytes
-                    ))
-                } else if info.crc32 != entry.crc32 {
-                    Some(format!(
-                        "checksum {:#010x}, the manifest {:#010x}",
-                        info.crc32, entry.crc32
-                    ))
-                } else {
-                    None
-                };
+                let mismatch = entry.mismatch(info, self.order);
                 match mismatch {
                     Some(what) => Err(StorageError::invalid(
                         &path,
