@@ -4,6 +4,7 @@
 //! into the real objects, runs the pipeline (read -> voxelize -> solve -> write) and returns an
 //! [`AppError`] that knows whether the user's input was at fault (exit status 2) or not (1).
 
+use crate::distribute::data::solve_data;
 use crate::distribute::{Comm, Mode, SingleProcess};
 use crate::geometry::directions::DirectionSet;
 use crate::outcore::{solve_out_of_core, OocError, ShardSetSource, SurfelSource};
@@ -83,6 +84,19 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             mode.name()
         )));
     }
+    let mode = match mode {
+        Mode::Hybrid { groups: 0 } => Mode::Hybrid {
+            groups: crate::distribute::hybrid_groups(comm.size()),
+        },
+        Mode::Hybrid { groups } if comm.size() % groups != 0 => {
+            return Err(AppError::BadInput(format!(
+                "--groups {groups}: {} ranks cannot form {groups} equal groups; give a divisor \
+                 of the rank count (or leave --groups out)",
+                comm.size()
+            )))
+        }
+        other => other,
+    };
     if cmd.scene.is_dir() {
         return run_solve_shard_set(cmd, started);
     }
@@ -122,8 +136,12 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     let analysis = crate::solve::effects::analyse(&set);
     let shaped = analysis.shape(&cmd.solve);
     let directions = DirectionSet::with_count(shaped.directions);
-    let solution = solve_distributed(&set, &directions, &shaped, comm)
-        .map_err(|e| AppError::Failure(e.to_string()))?;
+    let solution = match mode {
+        Mode::Data => solve_data(&set, &directions, &shaped, comm, 1),
+        Mode::Hybrid { groups } => solve_data(&set, &directions, &shaped, comm, groups),
+        Mode::Single | Mode::Directions => solve_distributed(&set, &directions, &shaped, comm),
+    }
+    .map_err(|e| AppError::Failure(e.to_string()))?;
     let stats = &solution.stats;
     tracing::info!(
         iterations = stats.iterations,

@@ -7,6 +7,7 @@ use voxrad::app::{
     run_generate, run_probe, run_render, run_solve, run_study, AppError, GenerateScene,
     SolveCommand,
 };
+use voxrad::distribute::Mode;
 use voxrad::output::report::Report;
 use voxrad::quality::Quality;
 use voxrad::solve::SolveOptions;
@@ -70,9 +71,15 @@ enum Command {
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         memory: Option<u64>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
-        /// the scene and takes a share of the directions). Needs a build with `--features mpi`.
+        /// the scene and takes a share of the directions; `data`: ranks own whole lines and
+        /// surfels move between them; `hybrid`: groups of ranks share the directions, the data
+        /// is distributed inside a group). Needs a build with `--features mpi`.
         #[arg(long, value_enum)]
         distribute: Option<Distribute>,
+        /// With `--distribute hybrid`: number of direction groups, a divisor of the rank count
+        /// (default: the largest divisor not above its square root).
+        #[arg(long, requires = "distribute")]
+        groups: Option<usize>,
     },
     /// Render a solved result directory to a PNG.
     Render {
@@ -138,9 +145,9 @@ enum Command {
 enum Distribute {
     /// Directions dealt out to ranks; every rank holds the whole scene.
     Directions,
-    /// Lines dealt out to ranks (not built yet).
+    /// Whole lines owned by ranks; surfels move to their line's rank per direction.
     Data,
-    /// Groups of ranks share directions, ranks in a group share data (not built yet).
+    /// Groups of ranks share the directions; inside a group the data is distributed.
     Hybrid,
 }
 
@@ -168,18 +175,18 @@ enum SceneKind {
     Furnace,
 }
 
-/// The directions mode under MPI (a build with the `mpi` feature): the report and this rank.
+/// A distributed solve under MPI (a build with the `mpi` feature): the report and this rank.
 #[cfg(feature = "mpi")]
-fn solve_under_mpi(cmd: &SolveCommand) -> Result<(Report, usize), AppError> {
-    use voxrad::distribute::{mpi_comm::MpiComm, Comm, Mode};
+fn solve_under_mpi(cmd: &SolveCommand, mode: Mode) -> Result<(Report, usize), AppError> {
+    use voxrad::distribute::{mpi_comm::MpiComm, Comm};
     let comm = MpiComm::init()
         .ok_or_else(|| AppError::Failure("MPI could not be initialized".to_string()))?;
-    let report = voxrad::app::run_solve_on(cmd, &comm, Mode::Directions)?;
+    let report = voxrad::app::run_solve_on(cmd, &comm, mode)?;
     Ok((report, comm.rank()))
 }
 
 #[cfg(not(feature = "mpi"))]
-fn solve_under_mpi(_cmd: &SolveCommand) -> Result<(Report, usize), AppError> {
+fn solve_under_mpi(_cmd: &SolveCommand, _mode: Mode) -> Result<(Report, usize), AppError> {
     Err(AppError::BadInput(
         "--distribute needs MPI: this voxrad was built without it; build with `cargo build \
          --release --features mpi` (needs an MPI library such as libopenmpi-dev, and libclang)"
@@ -233,6 +240,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             image_size,
             memory,
             distribute,
+            groups,
         } => {
             let preset = match quality {
                 QualityArg::Draft => Quality::Draft,
@@ -280,17 +288,26 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 image_size,
                 memory,
             };
+            if groups.is_some() && !matches!(distribute, Some(Distribute::Hybrid)) {
+                return Err(AppError::BadInput(
+                    "--groups applies to --distribute hybrid only".into(),
+                ));
+            }
+            if groups == Some(0) {
+                return Err(AppError::BadInput(
+                    "--groups 0: at least one group is needed".into(),
+                ));
+            }
             let (report, rank) = match distribute {
                 None => (run_solve(&cmd)?, 0),
-                Some(Distribute::Directions) => solve_under_mpi(&cmd)?,
-                Some(other) => {
-                    return Err(AppError::BadInput(
-                        format!(
-                            "--distribute {other:?} is not built yet; use --distribute directions"
-                        )
-                        .to_lowercase(),
-                    ))
-                }
+                Some(Distribute::Directions) => solve_under_mpi(&cmd, Mode::Directions)?,
+                Some(Distribute::Data) => solve_under_mpi(&cmd, Mode::Data)?,
+                Some(Distribute::Hybrid) => solve_under_mpi(
+                    &cmd,
+                    Mode::Hybrid {
+                        groups: groups.unwrap_or(0),
+                    },
+                )?,
             };
             if rank != 0 {
                 // Only rank 0 speaks for the run.

@@ -3,14 +3,18 @@
 //!
 //! Modes (`--distribute`): `directions` (paper, section 3.2): every rank holds the whole scene,
 //! takes every `size`-th direction, and the light gathered is summed across ranks once per
-//! iteration; every rank then holds the same radiosity. Data and hybrid distribution (sections 4
-//! and 5) are not built yet.
+//! iteration; every rank then holds the same radiosity. `data` (section 4, module [`data`]):
+//! each rank owns whole lines, found per direction by an elastic balance ([`balance`]), and the
+//! surfels travel between ranks as the directions turn. `hybrid` (section 5): groups of ranks take
+//! blocks of directions, and inside a group the data is distributed.
 //!
 //! All communication happens on the main thread, between the threaded parts of the solver.
 //! Sums are made in rank order (gathered to rank 0, added there rank by rank, broadcast back),
 //! never by the MPI library's own reduction, whose order may change between runs: so the same
 //! launch gives the same bits every time.
 
+pub mod balance;
+pub mod data;
 #[cfg(feature = "mpi")]
 pub mod mpi_comm;
 
@@ -24,6 +28,12 @@ pub trait Comm {
     fn sum_in_place(&self, values: &mut [f64]);
     /// The largest of `value` over ranks.
     fn max_u64(&self, value: u64) -> u64;
+    /// Sends `outgoing[d]` to rank `d` (one buffer per rank, this rank's own included) and
+    /// returns what every rank sent here, indexed by source rank.
+    fn exchange(&self, outgoing: Vec<Vec<u8>>) -> Vec<Vec<u8>>;
+    /// Splits the processes into groups: those passing the same `color` form one, ranked in the
+    /// order of their ranks here. Every process must call it.
+    fn split(&self, color: usize) -> Box<dyn Comm>;
 }
 
 /// One process: sums are the values themselves.
@@ -44,6 +54,14 @@ impl Comm for SingleProcess {
     fn max_u64(&self, value: u64) -> u64 {
         value
     }
+
+    fn exchange(&self, outgoing: Vec<Vec<u8>>) -> Vec<Vec<u8>> {
+        outgoing
+    }
+
+    fn split(&self, _color: usize) -> Box<dyn Comm> {
+        Box::new(SingleProcess)
+    }
 }
 
 /// How a solve is spread over processes.
@@ -53,6 +71,11 @@ pub enum Mode {
     Single,
     /// Directions dealt out to ranks; every rank holds the whole scene.
     Directions,
+    /// Whole lines owned by ranks, surfels exchanged per direction.
+    Data,
+    /// Groups of ranks share the directions; data distributed inside a group. `groups` 0 picks
+    /// the count (see [`hybrid_groups`]).
+    Hybrid { groups: usize },
 }
 
 impl Mode {
@@ -60,8 +83,20 @@ impl Mode {
         match self {
             Mode::Single => "single",
             Mode::Directions => "directions",
+            Mode::Data => "data",
+            Mode::Hybrid { .. } => "hybrid",
         }
     }
+}
+
+/// The number of direction groups of a hybrid run on `size` ranks when the user gave none: the
+/// largest divisor of `size` not above its square root (4 ranks: 2 groups of 2), so that both the
+/// direction share and the data share grow with the machine.
+pub fn hybrid_groups(size: usize) -> usize {
+    (1..=size.max(1))
+        .filter(|g| size % g == 0 && g * g <= size)
+        .max()
+        .unwrap_or(1)
 }
 
 /// The world size an MPI launcher announced to this process, if any (Open MPI, MPICH/Hydra and

@@ -117,6 +117,10 @@ pub struct Report {
     /// Present when the solve ran out of core (a shard set, or `--memory`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_of_core: Option<OutOfCoreReport>,
+    /// Data and hybrid modes: groups, what moved between ranks, balance, and every rank's
+    /// seconds per phase (balance, fill, exchange, merge, dispatch, propagate, reduce).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub data_distribution: Option<crate::distribute::data::DataStats>,
 }
 
 /// One rank's time in a distributed solve.
@@ -198,8 +202,8 @@ impl Report {
             voxel_direction_updates_per_second: rate,
             effects: Vec::new(),
             energy: Energy::new(stats.emitted_power, stats.absorbed_power),
-            exchanged_fraction: None,
-            imbalance: None,
+            exchanged_fraction: stats.data.as_ref().map(|d| d.exchanged_fraction),
+            imbalance: stats.data.as_ref().map(|d| d.imbalance),
             per_rank: stats
                 .per_rank_seconds
                 .iter()
@@ -210,6 +214,7 @@ impl Report {
                 })
                 .collect(),
             out_of_core: None,
+            data_distribution: stats.data.clone(),
         }
     }
 

@@ -58,6 +58,8 @@ impl Default for SolveOptions {
 pub enum SolveError {
     #[error("could not start {threads} worker threads: {message}")]
     Threads { threads: usize, message: String },
+    #[error("{ranks} ranks cannot form {groups} equal groups: give a --groups that divides the rank count")]
+    Groups { groups: usize, ranks: usize },
 }
 
 /// Solves the radiosity of `set` with the cube direction set closest to `options.directions`.

@@ -50,4 +50,6 @@ pub struct SolveStats {
     pub channels: usize,
     /// Tail extrapolations made (see `accelerate`).
     pub extrapolations: usize,
+    /// Data and hybrid modes: what the distribution moved and how balanced it was.
+    pub data: Option<crate::distribute::data::DataStats>,
 }

@@ -1,0 +1,900 @@
+//! The data and hybrid modes (paper, sections 4 and 5): ranks own whole lines, and surfels
+//! travel to the rank that owns their line as the directions turn.
+//!
+//! Every rank holds a share of the surfels with their radiosity and the light they have gathered
+//! so far in this iteration (`Held`). Per direction, in the walk order of `DirectionSet` (octant by
+//! octant, neighbours on the sphere one after another):
+//!
+//! 1. **balance**: the elastic distribution of the direction's lines over the group's ranks
+//!    ([`balance`](super::balance)), found from histograms added over ranks in the first
+//!    iteration and remembered for the later ones;
+//! 2. **fill**: the surfels whose line now belongs to another rank are packed per destination,
+//!    in the order they are held (sorted along the direction's octant order), and compressed with
+//!    zstd where that pays;
+//! 3. **exchange**: one all-to-all with variable counts;
+//! 4. **merge**: the kept surfels and the received packs, each sorted, are merged k-way into the
+//!    octant order (a full sort only when the octant order changes, four times per iteration);
+//! 5. **dispatch and propagate**: the in-memory solver's, on the held surfels, which now hold
+//!    every line they touch whole.
+//!
+//! A surfel's gathered light is accumulated in direction order, on whichever rank holds it, and
+//! each line is processed from the same surfels in the same order as on one process: the data
+//! mode gives the single-process radiosity bit for bit (the stopping rule's sums are added in
+//! another grouping, which can only move a borderline stop by one iteration).
+//!
+//! **Hybrid.** The ranks form `G` groups of equal size; group `g` takes the `g`-th contiguous
+//! block of directions (contiguous, so that the directions a group walks stay close) and spreads
+//! the data over its ranks. At the end of an iteration every group brings its surfels to one
+//! canonical distribution (blocks of surfel ids), so that the `k`-th rank of every group holds
+//! the same surfels; those ranks add their gathered light, in group order, and all update `B`.
+//!
+//! Every rank still reads and voxelizes the whole scene (the surfel set is the input of this
+//! function) and keeps the scene tables; only the solver's per-surfel state is distributed.
+
+use super::balance::{self, Distribution, Projection};
+use super::Comm;
+use crate::geometry::directions::DirectionSet;
+use crate::geometry::lines::LineFrame;
+use crate::geometry::order;
+use crate::solve::dispatch::{dispatch, Lines, OrderedEntry};
+use crate::solve::jacobi::{gather_all_lines, Convergence, SolveError, SolveOptions};
+use crate::solve::normalize::cosine_sums;
+use crate::solve::propagate::{DirectionInput, PropSurfel};
+use crate::solve::{Solution, SolveStats};
+use crate::voxel::SurfelSet;
+use rayon::prelude::*;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::time::Instant;
+
+/// Bytes of one surfel on the wire: id (4), propagation data (68), radiosity (24) and gathered
+/// light (48).
+pub const RECORD_BYTES: usize = 144;
+
+/// Packs smaller than this are sent as they are.
+const COMPRESS_FROM: usize = 4096;
+
+/// What the data distribution did, for the report.
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct DataStats {
+    /// Direction groups (1 in the data mode) and ranks per group.
+    pub groups: usize,
+    pub ranks_per_group: usize,
+    /// Mean, over the directions of every iteration, of the fraction of the surfels that
+    /// changed rank for that direction.
+    pub exchanged_fraction: f64,
+    /// The largest such fraction (the first direction of an iteration, or of an octant).
+    pub max_exchanged_fraction: f64,
+    /// The fraction for each direction, in walk order (averaged over iterations).
+    pub exchanged_by_direction: Vec<f64>,
+    /// Mean, over directions, of the largest rank's surfels over the mean (1 is perfect).
+    pub imbalance: f64,
+    pub max_imbalance: f64,
+    /// Surfel bytes sent to other ranks, before and after compression.
+    pub bytes_packed: u64,
+    pub bytes_sent: u64,
+    /// Every rank's seconds per phase, by rank.
+    pub per_rank: Vec<PhaseSeconds>,
+}
+
+/// One rank's seconds in each phase of the data mode.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct PhaseSeconds {
+    pub balance: f64,
+    pub fill: f64,
+    pub exchange: f64,
+    pub merge: f64,
+    pub dispatch: f64,
+    pub propagate: f64,
+    pub reduce: f64,
+}
+
+impl PhaseSeconds {
+    const FIELDS: usize = 7;
+
+    fn to_array(self) -> [f64; Self::FIELDS] {
+        [
+            self.balance,
+            self.fill,
+            self.exchange,
+            self.merge,
+            self.dispatch,
+            self.propagate,
+            self.reduce,
+        ]
+    }
+
+    fn from_slice(v: &[f64]) -> Self {
+        PhaseSeconds {
+            balance: v[0],
+            fill: v[1],
+            exchange: v[2],
+            merge: v[3],
+            dispatch: v[4],
+            propagate: v[5],
+            reduce: v[6],
+        }
+    }
+}
+
+/// The surfels a rank holds, structure of arrays (propagation reads `prop` and `radiosity` as
+/// slices indexed like the lines' members).
+#[derive(Default)]
+struct Held {
+    ids: Vec<u32>,
+    prop: Vec<PropSurfel>,
+    radiosity: Vec<[[f32; 3]; 2]>,
+    acc: Vec<[[f64; 3]; 2]>,
+}
+
+impl Held {
+    fn len(&self) -> usize {
+        self.ids.len()
+    }
+
+    fn with_capacity(n: usize) -> Self {
+        Held {
+            ids: Vec::with_capacity(n),
+            prop: Vec::with_capacity(n),
+            radiosity: Vec::with_capacity(n),
+            acc: Vec::with_capacity(n),
+        }
+    }
+
+    fn push_from(&mut self, other: &Held, i: usize) {
+        self.ids.push(other.ids[i]);
+        self.prop.push(other.prop[i]);
+        self.radiosity.push(other.radiosity[i]);
+        self.acc.push(other.acc[i]);
+    }
+
+    /// Appends surfel `i` in wire form.
+    fn encode(&self, i: usize, out: &mut Vec<u8>) {
+        let p = &self.prop[i];
+        out.extend_from_slice(&self.ids[i].to_le_bytes());
+        for v in p.voxel {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+        out.extend_from_slice(&p.group.to_le_bytes());
+        let floats = p
+            .point
+            .iter()
+            .chain(&p.normal)
+            .chain(p.extent.iter().flatten())
+            .chain(std::iter::once(&p.coverage))
+            .chain(self.radiosity[i].iter().flatten());
+        for f in floats {
+            out.extend_from_slice(&f.to_le_bytes());
+        }
+        for a in self.acc[i].iter().flatten() {
+            out.extend_from_slice(&a.to_le_bytes());
+        }
+    }
+
+    /// Appends the surfels of a pack made by `encode`.
+    fn decode_all(&mut self, bytes: &[u8]) {
+        for r in bytes.chunks_exact(RECORD_BYTES) {
+            let u = |k: usize| u32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
+            let f = |k: usize| f32::from_bits(u(k));
+            let d = |k: usize| {
+                let mut b = [0u8; 8];
+                b.copy_from_slice(&r[k..k + 8]);
+                f64::from_le_bytes(b)
+            };
+            self.ids.push(u(0));
+            let f3 = |k: usize| [f(k), f(k + 4), f(k + 8)];
+            self.prop.push(PropSurfel {
+                voxel: [u(4) as i32, u(8) as i32, u(12) as i32],
+                group: u(16),
+                point: f3(20),
+                normal: f3(32),
+                extent: [f3(44), f3(56)],
+                coverage: f(68),
+            });
+            self.radiosity.push([f3(72), f3(84)]);
+            let d3 = |k: usize| [d(k), d(k + 8), d(k + 16)];
+            self.acc.push([d3(96), d3(120)]);
+        }
+    }
+
+    /// The surfels of `self` in the order `order` (indices into `self`).
+    fn reorder(&self, order: &[u32]) -> Held {
+        let mut out = Held::with_capacity(order.len());
+        for &i in order {
+            out.push_from(self, i as usize);
+        }
+        out
+    }
+}
+
+/// Compresses a pack when that pays: a flag byte (0 raw, 1 zstd), the raw length, the bytes.
+fn seal(raw: Vec<u8>) -> Vec<u8> {
+    if raw.is_empty() {
+        return raw;
+    }
+    let packed = if raw.len() >= COMPRESS_FROM {
+        zstd::bulk::compress(&raw, 1)
+            .ok()
+            .filter(|c| c.len() < raw.len() * 7 / 8)
+    } else {
+        None
+    };
+    let mut out = Vec::with_capacity(9 + packed.as_ref().map_or(raw.len(), Vec::len));
+    out.push(packed.is_some() as u8);
+    out.extend_from_slice(&(raw.len() as u64).to_le_bytes());
+    out.extend_from_slice(packed.as_deref().unwrap_or(&raw));
+    out
+}
+
+/// The raw bytes of a pack made by `seal`.
+fn unseal(sealed: &[u8]) -> Vec<u8> {
+    if sealed.is_empty() {
+        return Vec::new();
+    }
+    let mut len = [0u8; 8];
+    len.copy_from_slice(&sealed[1..9]);
+    let len = u64::from_le_bytes(len) as usize;
+    if sealed[0] == 1 {
+        zstd::bulk::decompress(&sealed[9..], len)
+            .expect("a pack compressed by this program decompresses")
+    } else {
+        sealed[9..].to_vec()
+    }
+}
+
+/// The sort key of the data mode: position in octant order `order`, then surfel id (the
+/// single-process solver breaks ties by index, which is the id).
+#[inline]
+fn key(order: usize, prop: &PropSurfel, id: u32) -> ((i64, i64, i64), u32) {
+    (order::sort_key(order, prop.voxel), id)
+}
+
+/// Merges the sorted runs `bounds[r]..bounds[r + 1]` of `held` (sorted by `key` in `order`)
+/// into one order: a k-way merge through a heap of the runs' heads.
+fn merge_runs(held: &Held, bounds: &[usize], order: usize) -> Vec<u32> {
+    let mut heap = BinaryHeap::new();
+    for r in 0..bounds.len() - 1 {
+        if bounds[r] < bounds[r + 1] {
+            let i = bounds[r];
+            heap.push(Reverse((key(order, &held.prop[i], held.ids[i]), i, r)));
+        }
+    }
+    let mut out = Vec::with_capacity(held.len());
+    while let Some(Reverse((_, i, r))) = heap.pop() {
+        out.push(i as u32);
+        let next = i + 1;
+        if next < bounds[r + 1] {
+            heap.push(Reverse((
+                key(order, &held.prop[next], held.ids[next]),
+                next,
+                r,
+            )));
+        }
+    }
+    out
+}
+
+/// Solves `set` in the data mode (`groups == 1`) or the hybrid mode (`groups > 1` groups of
+/// `comm.size() / groups` ranks). Every rank returns the whole radiosity.
+pub fn solve_data(
+    set: &SurfelSet,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    comm: &dyn Comm,
+    groups: usize,
+) -> Result<Solution, SolveError> {
+    let size = comm.size();
+    if groups == 0 || size % groups != 0 {
+        return Err(SolveError::Groups {
+            groups,
+            ranks: size,
+        });
+    }
+    let threads = if options.threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        options.threads
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| SolveError::Threads {
+            threads,
+            message: e.to_string(),
+        })?;
+    let per_group = size / groups;
+    let group = comm.rank() / per_group;
+    // Both splits are collective: every rank makes them, in this order.
+    let group_comm = comm.split(group);
+    let peers = comm.split(group_comm.rank());
+    let solver = DataSolver::new(set, directions, options, threads, &pool, groups, group);
+    Ok(solver.run(comm, group_comm.as_ref(), peers.as_ref()))
+}
+
+/// The scene-wide tables every rank keeps, and the solve's settings.
+struct DataSolver<'a> {
+    set: &'a SurfelSet,
+    directions: &'a DirectionSet,
+    options: &'a SolveOptions,
+    threads: usize,
+    pool: &'a rayon::ThreadPool,
+    groups: usize,
+    group: usize,
+    frames: Vec<LineFrame>,
+    projections: Vec<Projection>,
+    cosine_sum: Vec<f64>,
+    emission: Vec<[[f32; 3]; 2]>,
+    reflectance: Vec<[[f64; 3]; 2]>,
+    surfels: Vec<PropSurfel>,
+    channels: usize,
+}
+
+/// Per-rank bookkeeping of the phases and of what moved.
+#[derive(Default)]
+struct Tally {
+    seconds: PhaseSeconds,
+    /// Surfels this rank sent away, per direction (summed over iterations).
+    moved: Vec<f64>,
+    bytes_packed: u64,
+    bytes_sent: u64,
+}
+
+impl<'a> DataSolver<'a> {
+    fn new(
+        set: &'a SurfelSet,
+        directions: &'a DirectionSet,
+        options: &'a SolveOptions,
+        threads: usize,
+        pool: &'a rayon::ThreadPool,
+        groups: usize,
+        group: usize,
+    ) -> Self {
+        let dims = set.grid.dims;
+        let coverage = crate::solve::coverage::coverages(set);
+        let surfels = set
+            .surfels
+            .iter()
+            .zip(&coverage)
+            .map(|(s, &coverage)| PropSurfel {
+                coverage,
+                voxel: s.voxel,
+                group: s.group,
+                point: s.point,
+                normal: s.normal,
+                extent: s.extent,
+            })
+            .collect();
+        DataSolver {
+            set,
+            directions,
+            options,
+            threads,
+            pool,
+            groups,
+            group,
+            frames: directions
+                .directions
+                .iter()
+                .map(|d| LineFrame::new(d.vector, dims))
+                .collect(),
+            projections: (0..12)
+                .map(|k| Projection::new(k / 3, k % 3, dims))
+                .collect(),
+            cosine_sum: pool.install(|| cosine_sums(&set.normals, directions)),
+            emission: set
+                .surfels
+                .iter()
+                .map(|s| {
+                    s.material
+                        .map(|m| set.materials[m as usize].emission.map(|e| e as f32))
+                })
+                .collect(),
+            reflectance: set
+                .surfels
+                .iter()
+                .map(|s| s.material.map(|m| set.materials[m as usize].reflectance))
+                .collect(),
+            surfels,
+            channels: if options.grey && crate::solve::effects::is_grey(set) {
+                1
+            } else {
+                3
+            },
+        }
+    }
+
+    /// The crossing plane and axes of direction `k` (by octant order and cube face).
+    fn projection(&self, k: usize) -> &Projection {
+        let v = self.directions.directions[k].vector;
+        &self.projections[order::order_of(v) * 3 + balance::walk_face(v)]
+    }
+
+    /// The canonical share of rank `rank` of a group of `ranks`: a block of surfel ids.
+    fn block(&self, rank: usize, ranks: usize) -> std::ops::Range<usize> {
+        let n = self.set.surfels.len();
+        n * rank / ranks..n * (rank + 1) / ranks
+    }
+
+    fn owner_of_id(&self, id: u32, ranks: usize) -> usize {
+        let n = self.set.surfels.len();
+        // The inverse of `block`: the last rank whose block starts at or before `id`.
+        ((id as usize + 1) * ranks - 1) / n.max(1)
+    }
+
+    fn run(&self, world: &dyn Comm, group_comm: &dyn Comm, peers: &dyn Comm) -> Solution {
+        let n = self.set.surfels.len();
+        let d_count = self.directions.len();
+        let (ranks, me) = (group_comm.size(), group_comm.rank());
+        let mine: Vec<usize> = (d_count * self.group / self.groups
+            ..d_count * (self.group + 1) / self.groups)
+            .collect();
+        let mut held = Held::with_capacity(n / ranks + 1);
+        for id in self.block(me, ranks) {
+            held.ids.push(id as u32);
+            held.prop.push(self.surfels[id]);
+            held.radiosity.push(self.emission[id]);
+            held.acc.push([[0.0; 3]; 2]);
+        }
+        // The octant order `held` is sorted in (None: by id).
+        let mut held_order: Option<usize> = None;
+        let mut remembered: Vec<Option<Distribution>> = vec![None; d_count];
+        let mut tally = Tally {
+            moved: vec![0.0; d_count],
+            ..Default::default()
+        };
+        let mut lines = Lines::default();
+        let mut stats = SolveStats {
+            channels: self.channels,
+            directions: d_count,
+            threads: self.threads,
+            ..Default::default()
+        };
+        let mut convergence = Convergence::new();
+        let mut extrapolation = crate::solve::accelerate::Extrapolation::default();
+        let any_light = self
+            .emission
+            .iter()
+            .any(|e| e.iter().flatten().any(|&v| v > 0.0));
+        let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
+        let mut iterations_done = 0;
+
+        for iteration in 1..=self.options.max_iterations {
+            if !any_light {
+                stats.converged = true;
+                break;
+            }
+            held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+            progress.reset();
+            progress.set_message(format!("iteration {iteration}"));
+            for &k in &mine {
+                let d = &self.directions.directions[k];
+                let o = order::order_of(d.vector);
+                let t = Instant::now();
+                if remembered[k].is_none() {
+                    remembered[k] = Some(self.balance(k, &held, group_comm));
+                }
+                let distribution = remembered[k].as_ref().expect("just filled");
+                tally.seconds.balance += t.elapsed().as_secs_f64();
+                let projection = self.projection(k);
+                let owner = |prop: &PropSurfel, _id: u32| {
+                    let (row, col) = projection.bin(&self.frames[k], d.vector, prop.voxel);
+                    distribution.owner(row, col)
+                };
+                held = self.redistribute(held, held_order, o, group_comm, &mut tally, k, owner);
+                held_order = Some(o);
+                self.propagate(k, &mut held, &mut lines, &mut tally);
+                progress.inc(1);
+            }
+            let t = Instant::now();
+            if self.groups > 1 {
+                // One canonical distribution, then the peers' light added in group order.
+                let block_owner = |_: &PropSurfel, id: u32| self.owner_of_id(id, ranks);
+                held = self.redistribute(
+                    held,
+                    None,
+                    0,
+                    group_comm,
+                    &mut tally,
+                    usize::MAX,
+                    block_owner,
+                );
+                held_order = None;
+                let mut flat: Vec<f64> = held.acc.iter().flatten().flatten().copied().collect();
+                peers.sum_in_place(&mut flat);
+                for (a, v) in held.acc.iter_mut().flatten().flatten().zip(&flat) {
+                    *a = *v;
+                }
+            }
+            stats.updates += (n * d_count) as u64;
+            let stop = self.update(
+                &mut held,
+                world,
+                iteration,
+                &mut convergence,
+                &mut extrapolation,
+                &mut stats,
+            );
+            tally.seconds.reduce += t.elapsed().as_secs_f64();
+            iterations_done = iteration;
+            if stop {
+                break;
+            }
+        }
+        progress.finish_and_clear();
+        stats.extrapolations = extrapolation.count;
+        if self.options.tolerance.is_none() {
+            stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
+        }
+        stats.dispatch_seconds = tally.seconds.dispatch;
+        stats.propagate_seconds = tally.seconds.propagate;
+        stats.reduce_seconds = tally.seconds.reduce;
+        stats.data = Some(self.summary(world, &tally, &remembered, iterations_done));
+        let radiosity = self.finish(&held, world, &mut stats);
+        Solution { radiosity, stats }
+    }
+
+    /// The elastic distribution of direction `k` over the group, from histograms added over
+    /// the group's ranks.
+    fn balance(&self, k: usize, held: &Held, group_comm: &dyn Comm) -> Distribution {
+        let d = &self.directions.directions[k];
+        let projection = self.projection(k);
+        let frame = &self.frames[k];
+        let bins: Vec<(usize, usize)> = self.pool.install(|| {
+            held.prop
+                .par_iter()
+                .map(|p| projection.bin(frame, d.vector, p.voxel))
+                .collect()
+        });
+        let width = projection.bins();
+        let mut rows = vec![0.0f64; width];
+        for &(r, _) in &bins {
+            rows[r] += 1.0;
+        }
+        group_comm.sum_in_place(&mut rows);
+        balance::distribute(group_comm.size(), &rows, |row_cuts| {
+            let bands = row_cuts.len() - 1;
+            let mut columns = vec![0.0f64; bands * width];
+            for &(r, c) in &bins {
+                let band = row_cuts.partition_point(|&x| x <= r).clamp(1, bands) - 1;
+                columns[band * width + c] += 1.0;
+            }
+            group_comm.sum_in_place(&mut columns);
+            columns.chunks(width).map(<[f64]>::to_vec).collect()
+        })
+    }
+
+    /// Sends every held surfel to the rank `owner` names, and returns what this rank holds
+    /// then, sorted in octant order `order` (by id when `direction` is `usize::MAX`, the
+    /// canonical distribution). `held_order` is the order `held` is sorted in now.
+    #[allow(clippy::too_many_arguments)]
+    fn redistribute(
+        &self,
+        held: Held,
+        held_order: Option<usize>,
+        order: usize,
+        group_comm: &dyn Comm,
+        tally: &mut Tally,
+        direction: usize,
+        owner: impl Fn(&PropSurfel, u32) -> usize + Sync,
+    ) -> Held {
+        let (ranks, me) = (group_comm.size(), group_comm.rank());
+        if ranks == 1 && held_order == Some(order) && direction != usize::MAX {
+            return held;
+        }
+        // Fill: destinations in held order, so every pack is sorted as `held` is.
+        let t = Instant::now();
+        let owners: Vec<usize> = self.pool.install(|| {
+            (0..held.len())
+                .into_par_iter()
+                .map(|i| owner(&held.prop[i], held.ids[i]))
+                .collect()
+        });
+        let mut packs: Vec<Vec<u8>> = vec![Vec::new(); ranks];
+        let mut kept = Vec::new();
+        for (i, &dest) in owners.iter().enumerate() {
+            if dest == me {
+                kept.push(i as u32);
+            } else {
+                held.encode(i, &mut packs[dest]);
+            }
+        }
+        let moved = held.len() - kept.len();
+        if direction != usize::MAX {
+            tally.moved[direction] += moved as f64;
+        }
+        tally.bytes_packed += (moved * RECORD_BYTES) as u64;
+        let packs: Vec<Vec<u8>> = self
+            .pool
+            .install(|| packs.into_par_iter().map(seal).collect());
+        tally.bytes_sent += packs.iter().map(|p| p.len() as u64).sum::<u64>();
+        tally.seconds.fill += t.elapsed().as_secs_f64();
+
+        let t = Instant::now();
+        let received = group_comm.exchange(packs);
+        tally.seconds.exchange += t.elapsed().as_secs_f64();
+
+        // Merge: the kept run, then one run per source rank.
+        let t = Instant::now();
+        let mut combined = held.reorder(&kept);
+        drop(held);
+        let mut bounds = vec![0, combined.len()];
+        for pack in received.iter().filter(|p| !p.is_empty()) {
+            combined.decode_all(&unseal(pack));
+            bounds.push(combined.len());
+        }
+        let sorted_by = |h: &Held| -> Vec<u32> {
+            let mut idx: Vec<u32> = (0..h.len() as u32).collect();
+            if direction == usize::MAX {
+                idx.sort_unstable_by_key(|&i| h.ids[i as usize]);
+            } else {
+                idx.sort_unstable_by_key(|&i| key(order, &h.prop[i as usize], h.ids[i as usize]));
+            }
+            idx
+        };
+        let permutation = if direction != usize::MAX && held_order == Some(order) {
+            merge_runs(&combined, &bounds, order)
+        } else {
+            sorted_by(&combined)
+        };
+        let out = combined.reorder(&permutation);
+        tally.seconds.merge += t.elapsed().as_secs_f64();
+        out
+    }
+
+    /// Dispatch and propagation of direction `k` over the held surfels.
+    fn propagate(&self, k: usize, held: &mut Held, lines: &mut Lines, tally: &mut Tally) {
+        let d = &self.directions.directions[k];
+        let t0 = Instant::now();
+        let entries: Vec<OrderedEntry> = held
+            .prop
+            .iter()
+            .enumerate()
+            .map(|(i, p)| OrderedEntry {
+                voxel: p.voxel,
+                index: i as u32,
+            })
+            .collect();
+        let Held {
+            prop,
+            radiosity,
+            acc,
+            ..
+        } = held;
+        let t1 = self.pool.install(|| {
+            dispatch(&entries, &self.frames[k], self.threads, lines);
+            let t1 = Instant::now();
+            let input = DirectionInput {
+                unit: d.unit,
+                weight: d.solid_angle / std::f64::consts::PI,
+                surfels: prop,
+                radiosity,
+                channels: self.channels,
+            };
+            gather_all_lines(lines, &input, acc, self.threads);
+            t1
+        });
+        tally.seconds.dispatch += (t1 - t0).as_secs_f64();
+        tally.seconds.propagate += t1.elapsed().as_secs_f64();
+    }
+
+    /// `B = E + rho H / S` on the held surfels, the change it makes added over the world (group
+    /// 0 speaks for every surfel once), the stopping rule and the extrapolation. Returns whether
+    /// to stop.
+    fn update(
+        &self,
+        held: &mut Held,
+        world: &dyn Comm,
+        iteration: usize,
+        convergence: &mut Convergence,
+        extrapolation: &mut crate::solve::accelerate::Extrapolation,
+        stats: &mut SolveStats,
+    ) -> bool {
+        let previous = if self.options.accelerate {
+            held.radiosity.clone()
+        } else {
+            Vec::new()
+        };
+        let (mut change, mut total) = (0.0f64, 0.0f64);
+        for i in 0..held.len() {
+            let id = held.ids[i] as usize;
+            let s = &self.set.surfels[id];
+            let norm = self.cosine_sum[s.normal_id as usize];
+            let area = s.area as f64;
+            for side in 0..2 {
+                for ch in 0..self.channels {
+                    let b = self.emission[id][side][ch] as f64
+                        + self.reflectance[id][side][ch] * held.acc[i][side][ch] / norm;
+                    change += area * (b - held.radiosity[i][side][ch] as f64).abs();
+                    total += area * b;
+                    held.radiosity[i][side][ch] = b as f32;
+                }
+            }
+        }
+        let mut sums = if self.group == 0 {
+            [change, total]
+        } else {
+            [0.0, 0.0]
+        };
+        world.sum_in_place(&mut sums);
+        let [change, total] = sums;
+        let stop = convergence.record(iteration, change, total, self.options, stats, |r| {
+            extrapolation.error_estimate(r)
+        });
+        if stop {
+            return true;
+        }
+        if self.options.accelerate {
+            let relative = stats.last_change;
+            if let Some(factor) = extrapolation.observe(change, relative) {
+                let emission: Vec<[[f32; 3]; 2]> = held
+                    .ids
+                    .iter()
+                    .map(|&id| self.emission[id as usize])
+                    .collect();
+                crate::solve::accelerate::extrapolate(
+                    &mut held.radiosity,
+                    &previous,
+                    &emission,
+                    factor,
+                );
+                convergence.restart();
+            }
+        }
+        false
+    }
+
+    /// Exchanged fraction, imbalance, bytes and every rank's phase seconds.
+    fn summary(
+        &self,
+        world: &dyn Comm,
+        tally: &Tally,
+        remembered: &[Option<Distribution>],
+        iterations: usize,
+    ) -> DataStats {
+        let n = self.set.surfels.len().max(1) as f64;
+        let mut moved = tally.moved.clone();
+        let mut table = vec![0.0; PhaseSeconds::FIELDS * world.size()];
+        table[PhaseSeconds::FIELDS * world.rank()..][..PhaseSeconds::FIELDS]
+            .copy_from_slice(&tally.seconds.to_array());
+        moved.extend_from_slice(&table);
+        moved.push(tally.bytes_packed as f64);
+        moved.push(tally.bytes_sent as f64);
+        world.sum_in_place(&mut moved);
+        let d_count = self.directions.len();
+        let bytes_sent = moved.pop().unwrap_or(0.0) as u64;
+        let bytes_packed = moved.pop().unwrap_or(0.0) as u64;
+        let table = moved.split_off(d_count);
+        let fractions: Vec<f64> = moved
+            .iter()
+            .map(|&m| m / (n * iterations.max(1) as f64))
+            .collect();
+        // Imbalance: every group found its own directions' distributions; gather them all.
+        let mut imbalance = vec![0.0; d_count];
+        for (k, d) in remembered.iter().enumerate() {
+            if let Some(d) = d {
+                if world.rank() % (world.size() / self.groups) == 0 {
+                    imbalance[k] = d.imbalance();
+                }
+            }
+        }
+        world.sum_in_place(&mut imbalance);
+        let used: Vec<f64> = imbalance.iter().copied().filter(|&x| x > 0.0).collect();
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+        let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
+        DataStats {
+            groups: self.groups,
+            ranks_per_group: world.size() / self.groups,
+            exchanged_fraction: mean(&fractions),
+            max_exchanged_fraction: max(&fractions),
+            exchanged_by_direction: fractions.clone(),
+            imbalance: if used.is_empty() { 1.0 } else { mean(&used) },
+            max_imbalance: if used.is_empty() { 1.0 } else { max(&used) },
+            bytes_packed,
+            bytes_sent,
+            per_rank: table
+                .chunks(PhaseSeconds::FIELDS)
+                .map(PhaseSeconds::from_slice)
+                .collect(),
+        }
+    }
+
+    /// The whole radiosity on every rank (group 0's surfels added over the world), and the
+    /// energy balance from the last gather.
+    fn finish(&self, held: &Held, world: &dyn Comm, stats: &mut SolveStats) -> Vec<[[f32; 3]; 2]> {
+        let n = self.set.surfels.len();
+        let mut flat = vec![0.0f64; n * 6 + 6];
+        let area_unit = self.set.grid.voxel_size * self.set.grid.voxel_size;
+        if self.group == 0 {
+            for i in 0..held.len() {
+                let id = held.ids[i] as usize;
+                let s = &self.set.surfels[id];
+                let norm = self.cosine_sum[s.normal_id as usize];
+                let area = s.area as f64 * area_unit;
+                for side in 0..2 {
+                    let m = &self.set.materials[s.material[side] as usize];
+                    for ch in 0..3 {
+                        let c = if self.channels == 1 { 0 } else { ch };
+                        flat[id * 6 + side * 3 + ch] = held.radiosity[i][side][c] as f64;
+                        flat[n * 6 + ch] += m.emission[ch] * area;
+                        flat[n * 6 + 3 + ch] +=
+                            (1.0 - m.reflectance[ch]) * held.acc[i][side][c] / norm * area;
+                    }
+                }
+            }
+        }
+        world.sum_in_place(&mut flat);
+        for ch in 0..3 {
+            stats.emitted_power[ch] = flat[n * 6 + ch];
+            stats.absorbed_power[ch] = flat[n * 6 + 3 + ch];
+        }
+        flat[..n * 6]
+            .chunks_exact(6)
+            .map(|c| {
+                [
+                    [c[0] as f32, c[1] as f32, c[2] as f32],
+                    [c[3] as f32, c[4] as f32, c[5] as f32],
+                ]
+            })
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn records_survive_the_wire() {
+        let mut held = Held::default();
+        for k in 0..5u32 {
+            let f = k as f32 + 0.25;
+            held.ids.push(k * 7);
+            held.prop.push(PropSurfel {
+                voxel: [k as i32, -(k as i32), 3],
+                group: k + 100,
+                point: [f, f * 2.0, f * 3.0],
+                normal: [0.0, 1.0, -f],
+                extent: [[0.1, 0.2, 0.3], [f, 0.5, 0.6]],
+                coverage: 0.75,
+            });
+            held.radiosity.push([[f, 1.0, 2.0], [3.0, 4.0, f]]);
+            held.acc
+                .push([[1e-300, f as f64, 2.5], [f64::MAX, 0.0, -1.0]]);
+        }
+        let mut bytes = Vec::new();
+        for i in 0..held.len() {
+            held.encode(i, &mut bytes);
+        }
+        assert_eq!(bytes.len(), 5 * RECORD_BYTES);
+        let mut back = Held::default();
+        back.decode_all(&unseal(&seal(bytes)));
+        assert_eq!(back.ids, held.ids);
+        assert_eq!(back.prop, held.prop);
+        assert_eq!(back.radiosity, held.radiosity);
+        assert_eq!(back.acc, held.acc);
+    }
+
+    #[test]
+    fn large_packs_are_compressed_and_restored() {
+        let raw: Vec<u8> = (0..100_000u32).map(|k| (k / 1000) as u8).collect();
+        let sealed = seal(raw.clone());
+        assert!(sealed.len() < raw.len() / 4);
+        assert_eq!(unseal(&sealed), raw);
+    }
+
+    #[test]
+    fn canonical_blocks_invert() {
+        for n in [1usize, 7, 100, 101] {
+            for ranks in 1..6 {
+                let set_len = n;
+                let block = |r: usize| set_len * r / ranks..set_len * (r + 1) / ranks;
+                for r in 0..ranks {
+                    for id in block(r) {
+                        let owner = ((id + 1) * ranks - 1) / n;
+                        assert_eq!(owner, r, "n {n} ranks {ranks} id {id}");
+                    }
+                }
+            }
+        }
+    }
+}
