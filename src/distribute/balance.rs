@@ -77,26 +77,72 @@ impl Projection {
         (2 * self.half + 1) as usize
     }
 
-    /// The bin `(row, column)` of the line of `frame` (direction `vector`) through `voxel`.
-    #[inline]
-    pub fn bin(&self, frame: &LineFrame, vector: [i64; 3], voxel: [i32; 3]) -> (usize, usize) {
-        // The line's point on layer 0 of the main axis, from its exact (i, j): the same for
-        // every voxel of the line.
-        let layer = voxel[frame.main] as usize;
-        let (su, sv) = frame.layer_shift(layer);
+    /// The crossing point of the line `(i, j)` of `frame` (direction `vector`), in the
+    /// plane's coordinates (bins from the centre, unrounded).
+    fn crossing(&self, frame: &LineFrame, vector: [i64; 3], i: f64, j: f64) -> [f64; 2] {
+        // The line's point on layer 0 of the main axis.
         let (su0, sv0) = frame.layer_shift(0);
         let mut p = [0.0f64; 3];
-        p[frame.u] = (voxel[frame.u] as i64 + su as i64 - su0 as i64) as f64;
-        p[frame.v] = (voxel[frame.v] as i64 + sv as i64 - sv0 as i64) as f64;
+        p[frame.u] = i - su0 as f64;
+        p[frame.v] = j - sv0 as f64;
         let p = DVec3::from_array(p);
         let s = DVec3::new(vector[0] as f64, vector[1] as f64, vector[2] as f64);
         let t = self.normal.dot(self.centre - p) / self.normal.dot(s);
         let d = p + s * t - self.centre;
-        let to_bin = |x: f64| {
-            ((x * BINS_PER_VOXEL).floor() as i64 + self.half).clamp(0, 2 * self.half) as usize
-        };
-        (to_bin(self.e1.dot(d)), to_bin(self.e2.dot(d)))
+        [
+            self.e1.dot(d) * BINS_PER_VOXEL,
+            self.e2.dot(d) * BINS_PER_VOXEL,
+        ]
     }
+
+    /// The bins of the lines of one direction: the crossing point is an affine function of a
+    /// line's `(i, j)`, evaluated from its coefficients (the same arithmetic on every rank, and
+    /// for every voxel of a line, since it reads only `(i, j)`).
+    pub fn lines<'a>(&self, frame: &'a LineFrame, vector: [i64; 3]) -> LineBins<'a> {
+        let origin = self.crossing(frame, vector, 0.0, 0.0);
+        let di = self.crossing(frame, vector, 1.0, 0.0);
+        let dj = self.crossing(frame, vector, 0.0, 1.0);
+        LineBins {
+            frame,
+            origin,
+            along_i: [di[0] - origin[0], di[1] - origin[1]],
+            along_j: [dj[0] - origin[0], dj[1] - origin[1]],
+            half: self.half,
+        }
+    }
+}
+
+/// The bins of the lines of one direction (see [`Projection::lines`]).
+pub struct LineBins<'a> {
+    frame: &'a LineFrame,
+    origin: [f64; 2],
+    along_i: [f64; 2],
+    along_j: [f64; 2],
+    half: i64,
+}
+
+impl LineBins<'_> {
+    /// The bin `(row, column)` of the line through `voxel`.
+    #[inline]
+    pub fn bin(&self, voxel: [i32; 3]) -> (usize, usize) {
+        let f = self.frame;
+        let (su, sv) = f.layer_shift(voxel[f.main] as usize);
+        let i = (voxel[f.u] as i64 + su as i64) as f64;
+        let j = (voxel[f.v] as i64 + sv as i64) as f64;
+        let to_bin = |k: usize| {
+            let x = self.origin[k] + self.along_i[k] * i + self.along_j[k] * j;
+            (floor(x) + self.half).clamp(0, 2 * self.half) as usize
+        };
+        (to_bin(0), to_bin(1))
+    }
+}
+
+/// `x` rounded down, without a call into the maths library (`f64::floor` is one on CPUs
+/// without SSE 4.1, and this runs for every surfel and direction).
+#[inline(always)]
+fn floor(x: f64) -> i64 {
+    let t = x as i64;
+    t - ((t as f64) > x) as i64
 }
 
 /// Which rank owns each bin of one direction: bands of rows, then pieces of each band's columns.
@@ -119,6 +165,20 @@ impl Distribution {
         band * (cuts.len() - 1) + interval_of(cuts, column)
     }
 
+    /// A faster [`Distribution::owner`] for one pass over the surfels: the band of every row
+    /// tabulated (the remembered distributions keep only their cuts).
+    pub fn table(&self) -> OwnerTable<'_> {
+        let rows = self.row_cuts.last().copied().unwrap_or(0);
+        let mut band_of_row = Vec::with_capacity(rows);
+        for (band, w) in self.row_cuts.windows(2).enumerate() {
+            band_of_row.extend(std::iter::repeat_n(band as u32, w[1] - w[0]));
+        }
+        OwnerTable {
+            distribution: self,
+            band_of_row,
+        }
+    }
+
     /// Largest over mean load: 1 is perfect balance.
     pub fn imbalance(&self) -> f64 {
         let total: f64 = self.loads.iter().sum();
@@ -127,6 +187,26 @@ impl Distribution {
         }
         let max = self.loads.iter().copied().fold(0.0, f64::max);
         max * self.loads.len() as f64 / total
+    }
+}
+
+/// [`Distribution::owner`] with the bands of rows tabulated.
+pub struct OwnerTable<'a> {
+    distribution: &'a Distribution,
+    band_of_row: Vec<u32>,
+}
+
+impl OwnerTable<'_> {
+    #[inline]
+    pub fn owner(&self, row: usize, column: usize) -> usize {
+        let band = self.band_of_row[row] as usize;
+        let cuts = &self.distribution.column_cuts[band];
+        let pieces = cuts.len() - 1;
+        if pieces == 1 {
+            band
+        } else {
+            band * pieces + interval_of(cuts, column)
+        }
     }
 }
 
@@ -273,7 +353,7 @@ mod tests {
                 for y in 0..9 {
                     for z in 0..11 {
                         let v = [x, y, z];
-                        let bin = projection.bin(&frame, d.vector, v);
+                        let bin = projection.lines(&frame, d.vector).bin(v);
                         assert!(bin.0 < projection.bins() && bin.1 < projection.bins());
                         let line = frame.line_index(v);
                         assert_eq!(*bin_of_line.entry(line).or_insert(bin), bin, "{d:?}");
@@ -295,8 +375,10 @@ mod tests {
             assert_eq!(dist.loads.len(), ranks);
             assert!(dist.imbalance() < 1.3, "{ranks}: {:?}", dist.loads);
             let mut seen = vec![false; ranks];
+            let table = dist.table();
             for r in 0..40 {
                 for c in 0..40 {
+                    assert_eq!(table.owner(r, c), dist.owner(r, c));
                     seen[dist.owner(r, c)] = true;
                 }
             }

@@ -43,8 +43,6 @@ use crate::solve::propagate::{DirectionInput, PropSurfel};
 use crate::solve::{Solution, SolveStats};
 use crate::voxel::SurfelSet;
 use rayon::prelude::*;
-use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 use std::time::Instant;
 
 /// Bytes of one surfel on the wire: id (4), propagation data (68), radiosity (24) and gathered
@@ -117,62 +115,85 @@ impl PhaseSeconds {
     }
 }
 
-/// The surfels a rank holds, structure of arrays (propagation reads `prop` and `radiosity` as
-/// slices indexed like the lines' members).
+/// The surfels a rank holds. Their data sits in slots that do not move while they stay (a
+/// surfel that leaves frees its slot, one that arrives takes a free slot), and `order` lists the
+/// live slots sorted along the current octant order: a direction moves and merges 16-byte
+/// entries, not whole surfels. Propagation reads `prop` and `radiosity` by slot, as the lines'
+/// members name them.
 #[derive(Default)]
 struct Held {
     ids: Vec<u32>,
     prop: Vec<PropSurfel>,
     radiosity: Vec<[[f32; 3]; 2]>,
     acc: Vec<[[f64; 3]; 2]>,
+    /// Slots of surfels that left.
+    free: Vec<u32>,
+    /// The live slots (with their voxels) in the current order: what dispatch reads.
+    order: Vec<OrderedEntry>,
 }
 
 impl Held {
     fn len(&self) -> usize {
-        self.ids.len()
+        self.order.len()
     }
 
-    fn with_capacity(n: usize) -> Self {
-        Held {
-            ids: Vec::with_capacity(n),
-            prop: Vec::with_capacity(n),
-            radiosity: Vec::with_capacity(n),
-            acc: Vec::with_capacity(n),
+    /// Stores a surfel in a free slot (or a new one) and returns the slot.
+    fn store(
+        &mut self,
+        id: u32,
+        prop: PropSurfel,
+        radiosity: [[f32; 3]; 2],
+        acc: [[f64; 3]; 2],
+    ) -> u32 {
+        match self.free.pop() {
+            Some(slot) => {
+                let k = slot as usize;
+                self.ids[k] = id;
+                self.prop[k] = prop;
+                self.radiosity[k] = radiosity;
+                self.acc[k] = acc;
+                slot
+            }
+            None => {
+                self.ids.push(id);
+                self.prop.push(prop);
+                self.radiosity.push(radiosity);
+                self.acc.push(acc);
+                (self.ids.len() - 1) as u32
+            }
         }
     }
 
-    fn push_from(&mut self, other: &Held, i: usize) {
-        self.ids.push(other.ids[i]);
-        self.prop.push(other.prop[i]);
-        self.radiosity.push(other.radiosity[i]);
-        self.acc.push(other.acc[i]);
-    }
-
-    /// Appends surfel `i` in wire form.
-    fn encode(&self, i: usize, out: &mut Vec<u8>) {
+    /// Appends the surfel in slot `slot` in wire form (little-endian, the layout `decode_all`
+    /// reads).
+    fn encode(&self, slot: u32, out: &mut Vec<u8>) {
+        let i = slot as usize;
         let p = &self.prop[i];
-        out.extend_from_slice(&self.ids[i].to_le_bytes());
-        for v in p.voxel {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-        out.extend_from_slice(&p.group.to_le_bytes());
-        let floats = p
-            .point
+        let mut r = [0u8; RECORD_BYTES];
+        let mut at = 0;
+        let mut put = |bytes: [u8; 4]| {
+            r[at..at + 4].copy_from_slice(&bytes);
+            at += 4;
+        };
+        put(self.ids[i].to_le_bytes());
+        p.voxel.iter().for_each(|v| put(v.to_le_bytes()));
+        put(p.group.to_le_bytes());
+        p.point
             .iter()
             .chain(&p.normal)
             .chain(p.extent.iter().flatten())
             .chain(std::iter::once(&p.coverage))
-            .chain(self.radiosity[i].iter().flatten());
-        for f in floats {
-            out.extend_from_slice(&f.to_le_bytes());
+            .chain(self.radiosity[i].iter().flatten())
+            .for_each(|f| put(f.to_le_bytes()));
+        for (k, a) in self.acc[i].iter().flatten().enumerate() {
+            r[96 + 8 * k..104 + 8 * k].copy_from_slice(&a.to_le_bytes());
         }
-        for a in self.acc[i].iter().flatten() {
-            out.extend_from_slice(&a.to_le_bytes());
-        }
+        out.extend_from_slice(&r);
     }
 
-    /// Appends the surfels of a pack made by `encode`.
-    fn decode_all(&mut self, bytes: &[u8]) {
+    /// Stores the surfels of a pack made by `encode`; appends their entries, in pack order, to
+    /// `entries`.
+    fn decode_all(&mut self, bytes: &[u8], entries: &mut Vec<OrderedEntry>) {
         for r in bytes.chunks_exact(RECORD_BYTES) {
             let u = |k: usize| u32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
             let f = |k: usize| f32::from_bits(u(k));
@@ -181,38 +202,32 @@ impl Held {
                 b.copy_from_slice(&r[k..k + 8]);
                 f64::from_le_bytes(b)
             };
-            self.ids.push(u(0));
             let f3 = |k: usize| [f(k), f(k + 4), f(k + 8)];
-            self.prop.push(PropSurfel {
+            let d3 = |k: usize| [d(k), d(k + 8), d(k + 16)];
+            let prop = PropSurfel {
                 voxel: [u(4) as i32, u(8) as i32, u(12) as i32],
                 group: u(16),
                 point: f3(20),
                 normal: f3(32),
                 extent: [f3(44), f3(56)],
                 coverage: f(68),
+            };
+            let slot = self.store(u(0), prop, [f3(72), f3(84)], [d3(96), d3(120)]);
+            entries.push(OrderedEntry {
+                voxel: prop.voxel,
+                index: slot,
             });
-            self.radiosity.push([f3(72), f3(84)]);
-            let d3 = |k: usize| [d(k), d(k + 8), d(k + 16)];
-            self.acc.push([d3(96), d3(120)]);
         }
-    }
-
-    /// The surfels of `self` in the order `order` (indices into `self`).
-    fn reorder(&self, order: &[u32]) -> Held {
-        let mut out = Held::with_capacity(order.len());
-        for &i in order {
-            out.push_from(self, i as usize);
-        }
-        out
     }
 }
 
-/// Compresses a pack when that pays: a flag byte (0 raw, 1 zstd), the raw length, the bytes.
-fn seal(raw: Vec<u8>) -> Vec<u8> {
+/// A pack on the wire: a flag byte (0 raw, 1 zstd), the raw length, the bytes. With `compress`,
+/// a pack of at least [`COMPRESS_FROM`] bytes is compressed when that makes it 1/8 smaller.
+fn seal(raw: Vec<u8>, compress: bool) -> Vec<u8> {
     if raw.is_empty() {
         return raw;
     }
-    let packed = if raw.len() >= COMPRESS_FROM {
+    let packed = if compress && raw.len() >= COMPRESS_FROM {
         zstd::bulk::compress(&raw, 1)
             .ok()
             .filter(|c| c.len() < raw.len() * 7 / 8)
@@ -245,44 +260,54 @@ fn unseal(sealed: &[u8]) -> Vec<u8> {
 /// The sort key of the data mode: position in octant order `order`, then surfel id (the
 /// single-process solver breaks ties by index, which is the id).
 #[inline]
-fn key(order: usize, prop: &PropSurfel, id: u32) -> ((i64, i64, i64), u32) {
-    (order::sort_key(order, prop.voxel), id)
+fn key(order: usize, voxel: [i32; 3], id: u32) -> ((i64, i64, i64), u32) {
+    (order::sort_key(order, voxel), id)
 }
 
-/// Merges the sorted runs `bounds[r]..bounds[r + 1]` of `held` (sorted by `key` in `order`)
-/// into one order: a k-way merge through a heap of the runs' heads.
-fn merge_runs(held: &Held, bounds: &[usize], order: usize) -> Vec<u32> {
-    let mut heap = BinaryHeap::new();
-    for r in 0..bounds.len() - 1 {
-        if bounds[r] < bounds[r + 1] {
-            let i = bounds[r];
-            heap.push(Reverse((key(order, &held.prop[i], held.ids[i]), i, r)));
+/// Merges two runs sorted by `key` into one (ties: `a` first, never met since keys are unique).
+fn merge_two<K: Ord>(
+    a: &[OrderedEntry],
+    b: &[OrderedEntry],
+    key: impl Fn(&OrderedEntry) -> K,
+) -> Vec<OrderedEntry> {
+    let mut out = Vec::with_capacity(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        if key(&b[j]) < key(&a[i]) {
+            out.push(b[j]);
+            j += 1;
+        } else {
+            out.push(a[i]);
+            i += 1;
         }
     }
-    let mut out = Vec::with_capacity(held.len());
-    while let Some(Reverse((_, i, r))) = heap.pop() {
-        out.push(i as u32);
-        let next = i + 1;
-        if next < bounds[r + 1] {
-            heap.push(Reverse((
-                key(order, &held.prop[next], held.ids[next]),
-                next,
-                r,
-            )));
-        }
-    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
     out
 }
 
-/// Solves `set` in the data mode (`groups == 1`) or the hybrid mode (`groups > 1` groups of
-/// `comm.size() / groups` ranks). Every rank returns the whole radiosity.
+/// How the data is distributed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DataOptions {
+    /// Direction groups: 1 is the data mode, more the hybrid mode (`comm.size() / groups`
+    /// ranks per group).
+    pub groups: usize,
+    /// Compress the exchanged packs with zstd. It shrinks them several times but costs a few
+    /// nanoseconds per byte: it pays on a network slower than the compressor, not over shared
+    /// memory.
+    pub compress: bool,
+}
+
+/// Solves `set` in the data mode or the hybrid mode (see [`DataOptions`]). Every rank returns
+/// the whole radiosity.
 pub fn solve_data(
     set: &SurfelSet,
     directions: &DirectionSet,
     options: &SolveOptions,
     comm: &dyn Comm,
-    groups: usize,
+    data: DataOptions,
 ) -> Result<Solution, SolveError> {
+    let DataOptions { groups, compress } = data;
     let size = comm.size();
     if groups == 0 || size % groups != 0 {
         return Err(SolveError::Groups {
@@ -307,7 +332,8 @@ pub fn solve_data(
     // Both splits are collective: every rank makes them, in this order.
     let group_comm = comm.split(group);
     let peers = comm.split(group_comm.rank());
-    let solver = DataSolver::new(set, directions, options, threads, &pool, groups, group);
+    let mut solver = DataSolver::new(set, directions, options, threads, &pool, groups, group);
+    solver.compress = compress;
     Ok(solver.run(comm, group_comm.as_ref(), peers.as_ref()))
 }
 
@@ -320,6 +346,7 @@ struct DataSolver<'a> {
     pool: &'a rayon::ThreadPool,
     groups: usize,
     group: usize,
+    compress: bool,
     frames: Vec<LineFrame>,
     projections: Vec<Projection>,
     cosine_sum: Vec<f64>,
@@ -372,6 +399,7 @@ impl<'a> DataSolver<'a> {
             pool,
             groups,
             group,
+            compress: false,
             frames: directions
                 .directions
                 .iter()
@@ -428,12 +456,14 @@ impl<'a> DataSolver<'a> {
         let mine: Vec<usize> = (d_count * self.group / self.groups
             ..d_count * (self.group + 1) / self.groups)
             .collect();
-        let mut held = Held::with_capacity(n / ranks + 1);
+        let mut held = Held::default();
         for id in self.block(me, ranks) {
-            held.ids.push(id as u32);
-            held.prop.push(self.surfels[id]);
-            held.radiosity.push(self.emission[id]);
-            held.acc.push([[0.0; 3]; 2]);
+            let prop = self.surfels[id];
+            let slot = held.store(id as u32, prop, self.emission[id], [[0.0; 3]; 2]);
+            held.order.push(OrderedEntry {
+                voxel: prop.voxel,
+                index: slot,
+            });
         }
         // The octant order `held` is sorted in (None: by id).
         let mut held_order: Option<usize> = None;
@@ -475,12 +505,13 @@ impl<'a> DataSolver<'a> {
                 }
                 let distribution = remembered[k].as_ref().expect("just filled");
                 tally.seconds.balance += t.elapsed().as_secs_f64();
-                let projection = self.projection(k);
-                let owner = |prop: &PropSurfel, _id: u32| {
-                    let (row, col) = projection.bin(&self.frames[k], d.vector, prop.voxel);
-                    distribution.owner(row, col)
+                let bins = self.projection(k).lines(&self.frames[k], d.vector);
+                let table = distribution.table();
+                let owner = |voxel: [i32; 3], _id: u32| {
+                    let (row, col) = bins.bin(voxel);
+                    table.owner(row, col)
                 };
-                held = self.redistribute(held, held_order, o, group_comm, &mut tally, k, owner);
+                self.redistribute(&mut held, held_order, o, group_comm, &mut tally, k, owner);
                 held_order = Some(o);
                 self.propagate(k, &mut held, &mut lines, &mut tally);
                 progress.inc(1);
@@ -488,9 +519,9 @@ impl<'a> DataSolver<'a> {
             let t = Instant::now();
             if self.groups > 1 {
                 // One canonical distribution, then the peers' light added in group order.
-                let block_owner = |_: &PropSurfel, id: u32| self.owner_of_id(id, ranks);
-                held = self.redistribute(
-                    held,
+                let block_owner = |_: [i32; 3], id: u32| self.owner_of_id(id, ranks);
+                self.redistribute(
+                    &mut held,
                     None,
                     0,
                     group_comm,
@@ -499,10 +530,16 @@ impl<'a> DataSolver<'a> {
                     block_owner,
                 );
                 held_order = None;
-                let mut flat: Vec<f64> = held.acc.iter().flatten().flatten().copied().collect();
+                let mut flat: Vec<f64> = held
+                    .order
+                    .iter()
+                    .flat_map(|e| held.acc[e.index as usize].into_iter().flatten())
+                    .collect();
                 peers.sum_in_place(&mut flat);
-                for (a, v) in held.acc.iter_mut().flatten().flatten().zip(&flat) {
-                    *a = *v;
+                for (e, v) in held.order.iter().zip(flat.chunks_exact(6)) {
+                    let a = &mut held.acc[e.index as usize];
+                    a[0].copy_from_slice(&v[..3]);
+                    a[1].copy_from_slice(&v[3..]);
                 }
             }
             stats.updates += (n * d_count) as u64;
@@ -538,11 +575,11 @@ impl<'a> DataSolver<'a> {
     fn balance(&self, k: usize, held: &Held, group_comm: &dyn Comm) -> Distribution {
         let d = &self.directions.directions[k];
         let projection = self.projection(k);
-        let frame = &self.frames[k];
+        let line_bins = projection.lines(&self.frames[k], d.vector);
         let bins: Vec<(usize, usize)> = self.pool.install(|| {
-            held.prop
+            held.order
                 .par_iter()
-                .map(|p| projection.bin(frame, d.vector, p.voxel))
+                .map(|e| line_bins.bin(e.voxel))
                 .collect()
         });
         let width = projection.bins();
@@ -563,105 +600,105 @@ impl<'a> DataSolver<'a> {
         })
     }
 
-    /// Sends every held surfel to the rank `owner` names, and returns what this rank holds
-    /// then, sorted in octant order `order` (by id when `direction` is `usize::MAX`, the
-    /// canonical distribution). `held_order` is the order `held` is sorted in now.
+    /// Sends every held surfel to the rank `owner` names (from its voxel and id), and leaves
+    /// `held` with what this rank holds then, sorted in octant order `order` (by id when
+    /// `direction` is `usize::MAX`, the canonical distribution). `held_order` is the order
+    /// `held` is sorted in now.
     #[allow(clippy::too_many_arguments)]
     fn redistribute(
         &self,
-        held: Held,
+        held: &mut Held,
         held_order: Option<usize>,
         order: usize,
         group_comm: &dyn Comm,
         tally: &mut Tally,
         direction: usize,
-        owner: impl Fn(&PropSurfel, u32) -> usize + Sync,
-    ) -> Held {
+        owner: impl Fn([i32; 3], u32) -> usize + Sync,
+    ) {
         let (ranks, me) = (group_comm.size(), group_comm.rank());
-        if ranks == 1 && held_order == Some(order) && direction != usize::MAX {
-            return held;
-        }
+        let canonical = direction == usize::MAX;
         // Fill: destinations in held order, so every pack is sorted as `held` is.
         let t = Instant::now();
-        let owners: Vec<usize> = self.pool.install(|| {
-            (0..held.len())
-                .into_par_iter()
-                .map(|i| owner(&held.prop[i], held.ids[i]))
-                .collect()
-        });
+        let mut kept = Vec::with_capacity(held.len());
         let mut packs: Vec<Vec<u8>> = vec![Vec::new(); ranks];
-        let mut kept = Vec::new();
-        for (i, &dest) in owners.iter().enumerate() {
-            if dest == me {
-                kept.push(i as u32);
-            } else {
-                held.encode(i, &mut packs[dest]);
+        if ranks == 1 {
+            kept = std::mem::take(&mut held.order);
+        } else {
+            let owners: Vec<u32> = self.pool.install(|| {
+                held.order
+                    .par_iter()
+                    .map(|e| owner(e.voxel, held.ids[e.index as usize]) as u32)
+                    .collect()
+            });
+            let entries = std::mem::take(&mut held.order);
+            for (e, &dest) in entries.iter().zip(&owners) {
+                if dest as usize == me {
+                    kept.push(*e);
+                } else {
+                    held.encode(e.index, &mut packs[dest as usize]);
+                    held.free.push(e.index);
+                }
             }
         }
-        let moved = held.len() - kept.len();
-        if direction != usize::MAX {
+        let moved = packs.iter().map(Vec::len).sum::<usize>() / RECORD_BYTES;
+        if !canonical {
             tally.moved[direction] += moved as f64;
         }
         tally.bytes_packed += (moved * RECORD_BYTES) as u64;
+        let compress = self.compress;
         let packs: Vec<Vec<u8>> = self
             .pool
-            .install(|| packs.into_par_iter().map(seal).collect());
+            .install(|| packs.into_par_iter().map(|p| seal(p, compress)).collect());
         tally.bytes_sent += packs.iter().map(|p| p.len() as u64).sum::<u64>();
         tally.seconds.fill += t.elapsed().as_secs_f64();
 
         let t = Instant::now();
-        let received = group_comm.exchange(packs);
+        let received = if ranks == 1 {
+            Vec::new()
+        } else {
+            group_comm.exchange(packs)
+        };
         tally.seconds.exchange += t.elapsed().as_secs_f64();
 
-        // Merge: the kept run, then one run per source rank.
+        // Merge: the received packs (each sorted) into one run, then with the kept run.
         let t = Instant::now();
-        let mut combined = held.reorder(&kept);
-        drop(held);
-        let mut bounds = vec![0, combined.len()];
+        let mut arrived = Vec::new();
         for pack in received.iter().filter(|p| !p.is_empty()) {
-            combined.decode_all(&unseal(pack));
-            bounds.push(combined.len());
+            held.decode_all(&unseal(pack), &mut arrived);
         }
-        let sorted_by = |h: &Held| -> Vec<u32> {
-            let mut idx: Vec<u32> = (0..h.len() as u32).collect();
-            if direction == usize::MAX {
-                idx.sort_unstable_by_key(|&i| h.ids[i as usize]);
-            } else {
-                idx.sort_unstable_by_key(|&i| key(order, &h.prop[i as usize], h.ids[i as usize]));
-            }
-            idx
-        };
-        let permutation = if direction != usize::MAX && held_order == Some(order) {
-            merge_runs(&combined, &bounds, order)
+        let ids = &held.ids;
+        held.order = if canonical {
+            kept.extend_from_slice(&arrived);
+            kept.sort_unstable_by_key(|e| ids[e.index as usize]);
+            kept
         } else {
-            sorted_by(&combined)
+            let key = |e: &OrderedEntry| key(order, e.voxel, ids[e.index as usize]);
+            if held_order == Some(order) {
+                // The packs are sorted runs: a stable sort merges them as runs.
+                arrived.sort_by_key(key);
+                merge_two(&kept, &arrived, key)
+            } else {
+                kept.extend_from_slice(&arrived);
+                kept.sort_unstable_by_key(key);
+                kept
+            }
         };
-        let out = combined.reorder(&permutation);
         tally.seconds.merge += t.elapsed().as_secs_f64();
-        out
     }
 
     /// Dispatch and propagation of direction `k` over the held surfels.
     fn propagate(&self, k: usize, held: &mut Held, lines: &mut Lines, tally: &mut Tally) {
         let d = &self.directions.directions[k];
         let t0 = Instant::now();
-        let entries: Vec<OrderedEntry> = held
-            .prop
-            .iter()
-            .enumerate()
-            .map(|(i, p)| OrderedEntry {
-                voxel: p.voxel,
-                index: i as u32,
-            })
-            .collect();
         let Held {
             prop,
             radiosity,
             acc,
+            order,
             ..
         } = held;
         let t1 = self.pool.install(|| {
-            dispatch(&entries, &self.frames[k], self.threads, lines);
+            dispatch(order, &self.frames[k], self.threads, lines);
             let t1 = Instant::now();
             let input = DirectionInput {
                 unit: d.unit,
@@ -695,7 +732,8 @@ impl<'a> DataSolver<'a> {
             Vec::new()
         };
         let (mut change, mut total) = (0.0f64, 0.0f64);
-        for i in 0..held.len() {
+        for e in &held.order {
+            let i = e.index as usize;
             let id = held.ids[i] as usize;
             let s = &self.set.surfels[id];
             let norm = self.cosine_sum[s.normal_id as usize];
@@ -805,7 +843,8 @@ impl<'a> DataSolver<'a> {
         let mut flat = vec![0.0f64; n * 6 + 6];
         let area_unit = self.set.grid.voxel_size * self.set.grid.voxel_size;
         if self.group == 0 {
-            for i in 0..held.len() {
+            for e in &held.order {
+                let i = e.index as usize;
                 let id = held.ids[i] as usize;
                 let s = &self.set.surfels[id];
                 let norm = self.cosine_sum[s.normal_id as usize];
@@ -848,38 +887,48 @@ mod tests {
         let mut held = Held::default();
         for k in 0..5u32 {
             let f = k as f32 + 0.25;
-            held.ids.push(k * 7);
-            held.prop.push(PropSurfel {
+            let prop = PropSurfel {
                 voxel: [k as i32, -(k as i32), 3],
                 group: k + 100,
                 point: [f, f * 2.0, f * 3.0],
                 normal: [0.0, 1.0, -f],
                 extent: [[0.1, 0.2, 0.3], [f, 0.5, 0.6]],
                 coverage: 0.75,
-            });
-            held.radiosity.push([[f, 1.0, 2.0], [3.0, 4.0, f]]);
-            held.acc
-                .push([[1e-300, f as f64, 2.5], [f64::MAX, 0.0, -1.0]]);
+            };
+            let radiosity = [[f, 1.0, 2.0], [3.0, 4.0, f]];
+            let acc = [[1e-300, f as f64, 2.5], [f64::MAX, 0.0, -1.0]];
+            held.store(k * 7, prop, radiosity, acc);
         }
-        let mut bytes = Vec::new();
-        for i in 0..held.len() {
-            held.encode(i, &mut bytes);
+        for compress in [false, true] {
+            let mut bytes = Vec::new();
+            for slot in 0..5 {
+                held.encode(slot, &mut bytes);
+            }
+            assert_eq!(bytes.len(), 5 * RECORD_BYTES);
+            let mut back = Held::default();
+            // A freed slot is taken first.
+            back.store(99, held.prop[0], held.radiosity[0], held.acc[0]);
+            back.free.push(0);
+            let mut entries = Vec::new();
+            back.decode_all(&unseal(&seal(bytes, compress)), &mut entries);
+            let slots: Vec<u32> = entries.iter().map(|e| e.index).collect();
+            assert_eq!(slots, [0, 1, 2, 3, 4]);
+            assert_eq!(back.ids, held.ids);
+            assert_eq!(back.prop, held.prop);
+            assert_eq!(back.radiosity, held.radiosity);
+            assert_eq!(back.acc, held.acc);
         }
-        assert_eq!(bytes.len(), 5 * RECORD_BYTES);
-        let mut back = Held::default();
-        back.decode_all(&unseal(&seal(bytes)));
-        assert_eq!(back.ids, held.ids);
-        assert_eq!(back.prop, held.prop);
-        assert_eq!(back.radiosity, held.radiosity);
-        assert_eq!(back.acc, held.acc);
     }
 
     #[test]
     fn large_packs_are_compressed_and_restored() {
         let raw: Vec<u8> = (0..100_000u32).map(|k| (k / 1000) as u8).collect();
-        let sealed = seal(raw.clone());
+        let sealed = seal(raw.clone(), true);
         assert!(sealed.len() < raw.len() / 4);
         assert_eq!(unseal(&sealed), raw);
+        let plain = seal(raw.clone(), false);
+        assert_eq!(plain.len(), raw.len() + 9);
+        assert_eq!(unseal(&plain), raw);
     }
 
     #[test]

@@ -71,11 +71,11 @@ pub enum Mode {
     Single,
     /// Directions dealt out to ranks; every rank holds the whole scene.
     Directions,
-    /// Whole lines owned by ranks, surfels exchanged per direction.
-    Data,
+    /// Whole lines owned by ranks, surfels exchanged per direction (`compress`: with zstd).
+    Data { compress: bool },
     /// Groups of ranks share the directions; data distributed inside a group. `groups` 0 picks
     /// the count (see [`hybrid_groups`]).
-    Hybrid { groups: usize },
+    Hybrid { groups: usize, compress: bool },
 }
 
 impl Mode {
@@ -83,7 +83,7 @@ impl Mode {
         match self {
             Mode::Single => "single",
             Mode::Directions => "directions",
-            Mode::Data => "data",
+            Mode::Data { .. } => "data",
             Mode::Hybrid { .. } => "hybrid",
         }
     }

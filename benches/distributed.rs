@@ -1,0 +1,310 @@
+//! The MPI modes measured, and a model that predicts them on more ranks (needs the `mpi` feature
+//! and Open MPI's `mpirun`).
+//!
+//! 1. **Speed-up at 2 ranks** for each mode against one process (one thread per rank, so the
+//!    machine's two cores are used once): the wall-clock seconds of the whole solve call (the
+//!    `solve` phase of `report.json`), and the data mode's phases on every rank.
+//! 2. **Exchanged fraction and imbalance for 2 to 64 ranks** in the data mode (and hybrid): more
+//!    ranks than cores are oversubscribed, which ruins their times but not these two figures, which
+//!    depend only on the distribution.
+//! 3. **The model**: per iteration, on `P` ranks with `n` surfels and `D` directions,
+//!    - directions: `T = c n D / P + T_sum`, where the sum of `6 n` values is gathered to rank 0
+//!      and broadcast: `T_sum = 2 (P - 1) 48 n / beta`;
+//!    - data: `T = c n D imb(P) / P + D (alpha (P - 1) + f(P) (n / P) b / beta)`, `b` the bytes
+//!      sent per exchanged surfel (after compression), `f` the exchanged fraction, `imb` the
+//!      imbalance;
+//!    - hybrid with `G` groups of `Q = P / G` ranks: the data mode's terms on `Q` ranks for `D / G`
+//!      directions, plus the sum across groups of `48 n / Q` values per rank.
+//!
+//!    `c` (seconds per voxel-direction) comes from the one-process run, `beta` from the bytes and
+//!    seconds of the 2-rank data exchange (shared memory here; a cluster's network is slower, so
+//!    both are printed), `alpha` is a latency per peer per exchange (assumed, printed), `f` and
+//!    `imb` are measured up to 64 ranks and extrapolated beyond by a power law fitted to them.
+//!
+//! ```text
+//! cargo bench --features mpi --bench distributed
+//! cargo bench --features mpi --bench distributed -- --resolution 96 --directions 193 \
+//!     --sweep-ranks 2,4,8,16,32,64 --sweep-resolution 64 --sweep-directions 589
+//! ```
+
+use serde_json::Value;
+use std::path::Path;
+use std::process::Command;
+
+struct Args {
+    resolution: u32,
+    directions: usize,
+    iterations: usize,
+    sweep_ranks: Vec<usize>,
+    sweep_resolution: u32,
+    sweep_directions: usize,
+    /// Latency per peer per exchange assumed by the model (seconds).
+    alpha: f64,
+    /// A cluster network's bandwidth per rank for the model's second column (bytes/s).
+    network_beta: f64,
+}
+
+fn parse_args() -> Args {
+    let mut a = Args {
+        resolution: 96,
+        directions: 193,
+        iterations: 2,
+        sweep_ranks: vec![2, 4, 8, 16, 32, 64],
+        sweep_resolution: 64,
+        sweep_directions: 589,
+        alpha: 5e-6,
+        network_beta: 5e9,
+    };
+    let argv: Vec<String> = std::env::args().skip(1).collect();
+    let mut k = 0;
+    while k < argv.len() {
+        let value = argv.get(k + 1).cloned().unwrap_or_default();
+        let number = |v: &str| -> f64 { v.parse().unwrap_or_else(|_| panic!("bad value {v}")) };
+        match argv[k].as_str() {
+            "--resolution" => a.resolution = number(&value) as u32,
+            "--directions" => a.directions = number(&value) as usize,
+            "--iterations" => a.iterations = number(&value) as usize,
+            "--sweep-resolution" => a.sweep_resolution = number(&value) as u32,
+            "--sweep-directions" => a.sweep_directions = number(&value) as usize,
+            "--alpha" => a.alpha = number(&value),
+            "--network-beta" => a.network_beta = number(&value),
+            "--sweep-ranks" => {
+                a.sweep_ranks = value.split(',').map(|r| number(r) as usize).collect()
+            }
+            _ => {
+                k += 1;
+                continue;
+            }
+        }
+        k += 2;
+    }
+    a
+}
+
+/// Runs `voxrad solve` on the Cornell box (under `mpirun -n ranks` unless `ranks` is `None`) and
+/// returns its report.
+fn solve(
+    ranks: Option<usize>,
+    extra: &[&str],
+    resolution: u32,
+    directions: usize,
+    iterations: usize,
+) -> Value {
+    let out = tempfile::tempdir().expect("temporary directory");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/cornell_box.obj");
+    let binary = env!("CARGO_BIN_EXE_voxrad");
+    let mut command = match ranks {
+        None => Command::new(binary),
+        Some(p) => {
+            let mut c = Command::new("mpirun");
+            c.args(["-n", &p.to_string(), "--oversubscribe"])
+                .args(["--mca", "btl", "self,vader"])
+                .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+                .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+                .arg(binary);
+            c
+        }
+    };
+    let output = command
+        .arg("solve")
+        .arg(&scene)
+        .arg("--out")
+        .arg(out.path())
+        .args(["--resolution", &resolution.to_string()])
+        .args(["--directions", &directions.to_string()])
+        .args(["--iterations", &iterations.to_string()])
+        .args(["--threads", "1", "--image-size", "64x48"])
+        .args(extra)
+        .output()
+        .expect("run voxrad (and mpirun)");
+    assert!(
+        output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let text = std::fs::read(out.path().join("report.json")).expect("report.json");
+    serde_json::from_slice(&text).expect("report.json parses")
+}
+
+fn seconds(report: &Value, phase: &str) -> f64 {
+    report["seconds"][phase].as_f64().unwrap_or(0.0)
+}
+
+/// Least-squares fit of `y = a x^b` on log axes.
+fn power_law(points: &[(f64, f64)]) -> (f64, f64) {
+    let pts: Vec<(f64, f64)> = points
+        .iter()
+        .filter(|p| p.0 > 0.0 && p.1 > 0.0)
+        .map(|&(x, y)| (x.ln(), y.ln()))
+        .collect();
+    let m = pts.len() as f64;
+    let (sx, sy) = pts.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+    let (sxx, sxy) = pts
+        .iter()
+        .fold((0.0, 0.0), |a, p| (a.0 + p.0 * p.0, a.1 + p.0 * p.1));
+    let b = (m * sxy - sx * sy) / (m * sxx - sx * sx);
+    let a = ((sy - b * sx) / m).exp();
+    (a, b)
+}
+
+fn main() {
+    if std::env::args().any(|a| a == "--list") {
+        return;
+    }
+    let args = parse_args();
+    let (res, dirs, iters) = (args.resolution, args.directions, args.iterations);
+
+    println!("## Speed-up at 2 ranks (Cornell box, resolution {res}, {dirs} directions, {iters} iterations, 1 thread per rank)\n");
+    let single = solve(None, &[], res, dirs, iters);
+    let n = single["surfels"].as_f64().unwrap_or(0.0);
+    let d = single["directions"].as_f64().unwrap_or(0.0);
+    let t1 = seconds(&single, "solve");
+    println!("| mode | ranks | solve s | speed-up | efficiency |");
+    println!("|---|---|---|---|---|");
+    println!("| one process | 1 | {t1:.2} | 1.00 | 100% |");
+    let mut data2 = Value::Null;
+    for mode in ["directions", "data"] {
+        let report = solve(Some(2), &["--distribute", mode], res, dirs, iters);
+        let t = seconds(&report, "solve");
+        println!(
+            "| {mode} | 2 | {t:.2} | {:.2} | {:.0}% |",
+            t1 / t,
+            100.0 * t1 / t / 2.0
+        );
+        if mode == "data" {
+            data2 = report;
+        }
+    }
+    let phases = &data2["data_distribution"]["per_rank"];
+    println!("\nData mode, 2 ranks, seconds per phase:\n");
+    println!("| rank | balance | fill | exchange | merge | dispatch | propagate | reduce |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for (r, p) in phases.as_array().into_iter().flatten().enumerate() {
+        let f = |k: &str| p[k].as_f64().unwrap_or(0.0);
+        println!(
+            "| {r} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+            f("balance"),
+            f("fill"),
+            f("exchange"),
+            f("merge"),
+            f("dispatch"),
+            f("propagate"),
+            f("reduce")
+        );
+    }
+
+    let (sres, sdirs) = (args.sweep_resolution, args.sweep_directions);
+    println!("\n## Exchanged fraction and imbalance (Cornell box, resolution {sres}, {sdirs} directions, 1 iteration)\n");
+    println!("| mode | ranks | groups | exchanged mean | exchanged max | imbalance mean | imbalance max | bytes sent per surfel-direction |");
+    println!("|---|---|---|---|---|---|---|---|");
+    let mut fractions = Vec::new();
+    let mut imbalances = Vec::new();
+    let mut sent_per_moved = Vec::new();
+    for &p in &args.sweep_ranks {
+        let mut modes = vec!["data"];
+        if p >= 4 {
+            modes.push("hybrid");
+        }
+        for mode in modes {
+            let r = solve(Some(p), &["--distribute", mode], sres, sdirs, 1);
+            let dd = &r["data_distribution"];
+            let f = |k: &str| dd[k].as_f64().unwrap_or(0.0);
+            let (surfels, directions) = (
+                r["surfels"].as_f64().unwrap_or(1.0),
+                r["directions"].as_f64().unwrap_or(1.0),
+            );
+            let per_update = f("bytes_sent") / (surfels * directions);
+            println!(
+                "| {mode} | {p} | {} | {:.4} | {:.3} | {:.4} | {:.3} | {per_update:.2} |",
+                dd["groups"],
+                f("exchanged_fraction"),
+                f("max_exchanged_fraction"),
+                f("imbalance"),
+                f("max_imbalance"),
+            );
+            if mode == "data" {
+                fractions.push((p as f64, f("exchanged_fraction")));
+                imbalances.push((p as f64, f("imbalance") - 1.0));
+                let moved = f("exchanged_fraction") * surfels * directions;
+                if moved > 0.0 {
+                    sent_per_moved.push(f("bytes_sent") / moved);
+                }
+            }
+        }
+    }
+
+    // The model's parameters.
+    let c = t1 / (n * d * iters as f64);
+    let phase = |r: usize, k: &str| phases[r][k].as_f64().unwrap_or(0.0);
+    let exchange_seconds = (phase(0, "exchange") + phase(1, "exchange")) / 2.0;
+    let bytes2 = data2["data_distribution"]["bytes_sent"]
+        .as_f64()
+        .unwrap_or(0.0)
+        / 2.0;
+    let beta_here = if exchange_seconds > 0.0 {
+        bytes2 / exchange_seconds
+    } else {
+        f64::INFINITY
+    };
+    let b = sent_per_moved.iter().sum::<f64>() / sent_per_moved.len().max(1) as f64;
+    let (fa, fb) = power_law(&fractions);
+    let (ia, ib) = power_law(&imbalances);
+    let measured = |table: &[(f64, f64)], p: f64| table.iter().find(|x| x.0 == p).map(|x| x.1);
+    let fraction = |p: f64| {
+        if p <= 1.0 {
+            return 0.0;
+        }
+        measured(&fractions, p).unwrap_or(fa * p.powf(fb)).min(1.0)
+    };
+    let imbalance = |p: f64| {
+        if p <= 1.0 {
+            return 1.0;
+        }
+        1.0 + measured(&imbalances, p).unwrap_or(ia * p.powf(ib))
+    };
+    println!("\n## Model\n");
+    println!(
+        "c = {c:.3e} s per voxel-direction (one process, one thread); b = {b:.1} bytes sent per \
+         exchanged surfel; beta = {:.2} GB/s measured here (shared memory), {:.2} GB/s assumed \
+         for a network; alpha = {:.1} us per peer per exchange (assumed); f(P) = {fa:.4} P^{fb:.3}, \
+         imbalance(P) - 1 = {ia:.4} P^{ib:.3} beyond the measured ranks.\n",
+        beta_here / 1e9,
+        args.network_beta / 1e9,
+        args.alpha * 1e6
+    );
+    let (big_n, big_d) = (1e8, 589.0);
+    println!("Predicted seconds per iteration for n = 10^8 surfels, D = {big_d} directions (and parallel efficiency):\n");
+    println!("| ranks | directions (network) | data (network) | hybrid G = sqrt P (network) | data (shared-memory beta) |");
+    println!("|---|---|---|---|---|");
+    for p in [2.0f64, 8.0, 64.0, 512.0] {
+        let work = c * big_n * big_d;
+        let directions_mode = |beta: f64| work / p + 2.0 * (p - 1.0) * 48.0 * big_n / beta;
+        let data_mode = |q: f64, dirs: f64, beta: f64| {
+            work * (dirs / big_d) * imbalance(q) / q
+                + dirs * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
+        };
+        let g = (p.sqrt().floor()).max(1.0);
+        let hybrid = |beta: f64| {
+            let q = p / g;
+            work / p * imbalance(q)
+                + (big_d / g) * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
+                // Back to the canonical distribution, then the sum across the groups.
+                + (big_n / q) * b / beta
+                + 2.0 * (g - 1.0) * 48.0 * big_n / q / beta
+        };
+        let eff = |t: f64| 100.0 * work / p / t;
+        let (tdir, tdata, thyb, tdata_here) = (
+            directions_mode(args.network_beta),
+            data_mode(p, big_d, args.network_beta),
+            hybrid(args.network_beta),
+            data_mode(p, big_d, beta_here),
+        );
+        println!(
+            "| {p} | {tdir:.1} ({:.0}%) | {tdata:.1} ({:.0}%) | {thyb:.1} ({:.0}%) | {tdata_here:.1} ({:.0}%) |",
+            eff(tdir),
+            eff(tdata),
+            eff(thyb),
+            eff(tdata_here)
+        );
+    }
+}
