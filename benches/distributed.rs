@@ -48,7 +48,7 @@ fn parse_args() -> Args {
     let mut a = Args {
         resolution: 96,
         directions: 193,
-        iterations: 2,
+        iterations: 4,
         sweep_ranks: vec![2, 4, 8, 16, 32, 64],
         sweep_resolution: 64,
         sweep_directions: 589,
@@ -163,15 +163,23 @@ fn main() {
     println!("|---|---|---|---|---|");
     println!("| one process | 1 | {t1:.2} | 1.00 | 100% |");
     let mut data2 = Value::Null;
-    for mode in ["directions", "data"] {
-        let report = solve(Some(2), &["--distribute", mode], res, dirs, iters);
+    let runs: [(&str, &[&str]); 3] = [
+        ("directions", &["--distribute", "directions"]),
+        ("data", &["--distribute", "data"]),
+        (
+            "data, zstd exchange",
+            &["--distribute", "data", "--compress-exchange"],
+        ),
+    ];
+    for (name, extra) in runs {
+        let report = solve(Some(2), extra, res, dirs, iters);
         let t = seconds(&report, "solve");
         println!(
-            "| {mode} | 2 | {t:.2} | {:.2} | {:.0}% |",
+            "| {name} | 2 | {t:.2} | {:.2} | {:.0}% |",
             t1 / t,
             100.0 * t1 / t / 2.0
         );
-        if mode == "data" {
+        if name == "data" {
             data2 = report;
         }
     }

@@ -157,6 +157,11 @@ pub struct Distribution {
 }
 
 impl Distribution {
+    /// Number of row bands.
+    pub fn bands(&self) -> usize {
+        self.row_cuts.len() - 1
+    }
+
     /// The owner of bin `(row, column)`.
     #[inline]
     pub fn owner(&self, row: usize, column: usize) -> usize {
@@ -232,18 +237,26 @@ pub const IMBALANCE_GOAL: f64 = 1.05;
 /// The elastic distribution over `ranks` ranks. `rows` is the global row histogram; `columns`
 /// gives, for bands of rows, their global column histograms (the caller adds them over ranks).
 ///
-/// It starts with the band count of [`row_bands`]. A wall seen edge-on along the drift puts a
-/// whole plane of lines into one row, which no band cut can split: while the imbalance is above
-/// [`IMBALANCE_GOAL`], fewer bands with more column pieces are tried, and the best is kept.
+/// It starts with `preferred` bands (the previous direction's count, so that consecutive
+/// directions keep the same shape of pieces), or else the count of [`row_bands`]. A wall seen
+/// edge-on along the drift puts a whole plane of lines into one row, which no band cut can split:
+/// while the imbalance is above [`IMBALANCE_GOAL`], other band counts with more or fewer column
+/// pieces are tried, and the best is kept.
 pub fn distribute(
     ranks: usize,
     rows: &[f64],
+    preferred: Option<usize>,
     mut columns: impl FnMut(&[usize]) -> Vec<Vec<f64>>,
 ) -> Distribution {
     let ranks = ranks.max(1);
+    let first = preferred
+        .filter(|&b| b >= 1 && ranks % b == 0)
+        .unwrap_or_else(|| row_bands(ranks));
+    let others = (1..=row_bands(ranks))
+        .rev()
+        .filter(|&b| ranks % b == 0 && b != first);
     let mut best: Option<Distribution> = None;
-    let first = row_bands(ranks);
-    for bands in (1..=first).rev().filter(|b| ranks % b == 0) {
+    for bands in std::iter::once(first).chain(others) {
         let candidate = cut(ranks, bands, rows, &mut columns);
         let better = best
             .as_ref()
@@ -367,7 +380,7 @@ mod tests {
     fn owners_cover_all_ranks_with_equal_loads() {
         let rows: Vec<f64> = vec![10.0; 40];
         for ranks in 1..9 {
-            let dist = distribute(ranks, &rows, |cuts| {
+            let dist = distribute(ranks, &rows, None, |cuts| {
                 cuts.windows(2)
                     .map(|w| vec![(w[1] - w[0]) as f64 * 10.0 / 40.0; 40])
                     .collect()

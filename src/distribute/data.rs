@@ -501,7 +501,14 @@ impl<'a> DataSolver<'a> {
                 let o = order::order_of(d.vector);
                 let t = Instant::now();
                 if remembered[k].is_none() {
-                    remembered[k] = Some(self.balance(k, &held, group_comm));
+                    let previous = mine
+                        .iter()
+                        .rev()
+                        .skip_while(|&&j| j != k)
+                        .nth(1)
+                        .and_then(|&j| remembered[j].as_ref())
+                        .map(Distribution::bands);
+                    remembered[k] = Some(self.balance(k, &held, group_comm, previous));
                 }
                 let distribution = remembered[k].as_ref().expect("just filled");
                 tally.seconds.balance += t.elapsed().as_secs_f64();
@@ -572,7 +579,13 @@ impl<'a> DataSolver<'a> {
 
     /// The elastic distribution of direction `k` over the group, from histograms added over
     /// the group's ranks.
-    fn balance(&self, k: usize, held: &Held, group_comm: &dyn Comm) -> Distribution {
+    fn balance(
+        &self,
+        k: usize,
+        held: &Held,
+        group_comm: &dyn Comm,
+        preferred_bands: Option<usize>,
+    ) -> Distribution {
         let d = &self.directions.directions[k];
         let projection = self.projection(k);
         let line_bins = projection.lines(&self.frames[k], d.vector);
@@ -588,7 +601,7 @@ impl<'a> DataSolver<'a> {
             rows[r] += 1.0;
         }
         group_comm.sum_in_place(&mut rows);
-        balance::distribute(group_comm.size(), &rows, |row_cuts| {
+        balance::distribute(group_comm.size(), &rows, preferred_bands, |row_cuts| {
             let bands = row_cuts.len() - 1;
             let mut columns = vec![0.0f64; bands * width];
             for &(r, c) in &bins {
