@@ -8,13 +8,14 @@
 //!    ranks than cores are oversubscribed, which ruins their times but not these two figures, which
 //!    depend only on the distribution.
 //! 3. **The model**: per iteration, on `P` ranks with `n` surfels and `D` directions,
-//!    - directions: `T = c n D / P + T_sum`, where the sum of `6 n` values is gathered to rank 0
-//!      and broadcast: `T_sum = 2 (P - 1) 48 n / beta`;
+//!    - directions: `T = c n D / P + T_sum`, where the sum of `6 n` values is a reduce-scatter and
+//!      an all-gather: `T_sum = 2 (alpha (P - 1) + 48 n (P - 1) / (P beta))`;
 //!    - data: `T = c n D imb(P) / P + D (alpha (P - 1) + f(P) (n / P) b / beta)`, `b` the bytes
 //!      sent per exchanged surfel (after compression), `f` the exchanged fraction, `imb` the
 //!      imbalance;
 //!    - hybrid with `G` groups of `Q = P / G` ranks: the data mode's terms on `Q` ranks for `D / G`
-//!      directions, plus the sum across groups of `48 n / Q` values per rank.
+//!      directions, one exchange back to the canonical distribution, and the sum across the `G`
+//!      groups of `6 n / Q` values per rank.
 //!
 //!    `c` (seconds per voxel-direction) comes from the one-process run, `beta` from the bytes and
 //!    seconds of the 2-rank data exchange (shared memory here; a cluster's network is slower, so
@@ -23,7 +24,7 @@
 //!
 //! ```text
 //! cargo bench --features mpi --bench distributed
-//! cargo bench --features mpi --bench distributed -- --resolution 96 --directions 193 \
+//! cargo bench --features mpi --bench distributed -- --resolution 96 --directions 193 --iterations 4 \
 //!     --sweep-ranks 2,4,8,16,32,64 --sweep-resolution 64 --sweep-directions 589
 //! ```
 
@@ -286,7 +287,10 @@ fn main() {
     println!("|---|---|---|---|---|");
     for p in [2.0f64, 8.0, 64.0, 512.0] {
         let work = c * big_n * big_d;
-        let directions_mode = |beta: f64| work / p + 2.0 * (p - 1.0) * 48.0 * big_n / beta;
+        let sum = |ranks: f64, values: f64, beta: f64| {
+            2.0 * (args.alpha * (ranks - 1.0) + 8.0 * values * (ranks - 1.0) / ranks / beta)
+        };
+        let directions_mode = |beta: f64| work / p + sum(p, 6.0 * big_n, beta);
         let data_mode = |q: f64, dirs: f64, beta: f64| {
             work * (dirs / big_d) * imbalance(q) / q
                 + dirs * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
@@ -298,7 +302,7 @@ fn main() {
                 + (big_d / g) * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
                 // Back to the canonical distribution, then the sum across the groups.
                 + (big_n / q) * b / beta
-                + 2.0 * (g - 1.0) * 48.0 * big_n / q / beta
+                + sum(g, 6.0 * big_n / q, beta)
         };
         let eff = |t: f64| 100.0 * work / p / t;
         let (tdir, tdata, thyb, tdata_here) = (

@@ -9,9 +9,9 @@
 //! blocks of directions, and inside a group the data is distributed.
 //!
 //! All communication happens on the main thread, between the threaded parts of the solver.
-//! Sums are made in rank order (gathered to rank 0, added there rank by rank, broadcast back),
-//! never by the MPI library's own reduction, whose order may change between runs: so the same
-//! launch gives the same bits every time.
+//! Sums are made in rank order (each rank adds one part of the values, rank 0's first, and
+//! hands the result to all), never by the MPI library's own reduction, whose order may change
+//! between runs: so the same launch gives the same bits every time.
 
 pub mod balance;
 pub mod data;

@@ -2,14 +2,15 @@
 //! through the `mpi` crate).
 //!
 //! One MPI call moves at most 2^31 - 1 elements, and very large messages were slow: sums go in
-//! chunks of [`CHUNK`] values. Each chunk is gathered to rank 0, added there in rank order, and
-//! broadcast back, so the result does not depend on the library's choice of reduction order.
+//! chunks of [`CHUNK`] values per rank, exchanges in rounds of at most [`EXCHANGE_CHUNK`] bytes
+//! per pair of ranks. A sum is a reduce-scatter and an all-gather built on the exchange: each
+//! rank adds one part of the values in rank order, so the result does not depend on the
+//! library's choice of reduction order, and no rank moves more than about twice the values.
 
 use super::Comm;
 use mpi::collective::CommunicatorCollectives;
 use mpi::datatype::{Partition, PartitionMut};
 use mpi::topology::{Color, Communicator, SimpleCommunicator};
-use mpi::traits::Root;
 use mpi::Count;
 
 /// Values per collective call (8 MiB of f64 per rank).
@@ -51,29 +52,25 @@ impl Comm for MpiComm {
         if size == 1 {
             return;
         }
-        let root = self.world.process_at_rank(0);
-        let mut gathered = if self.rank() == 0 {
-            vec![0f64; CHUNK.min(values.len()) * size]
-        } else {
-            Vec::new()
-        };
-        for chunk in values.chunks_mut(CHUNK) {
+        // A reduce-scatter then an all-gather, both as exchanges: every rank adds up one part of
+        // the values, in rank order, so each rank moves about twice its values whatever the
+        // rank count (a sum gathered on one rank would move `size` times that through it).
+        // Chunks of `CHUNK` values per part bound the buffers.
+        for chunk in values.chunks_mut(CHUNK * size) {
             let len = chunk.len();
-            if self.rank() == 0 {
-                let buf = &mut gathered[..len * size];
-                root.gather_into_root(&*chunk, buf);
-                // Rank 0's own values first, then rank 1's, ...: a fixed order.
-                for (k, v) in chunk.iter_mut().enumerate() {
-                    let mut sum = buf[k];
-                    for r in 1..size {
-                        sum += buf[r * len + k];
-                    }
-                    *v = sum;
+            let part = |r: usize| len * r / size..len * (r + 1) / size;
+            let outgoing = (0..size).map(|r| to_bytes(&chunk[part(r)])).collect();
+            let incoming = self.exchange(outgoing);
+            let mut sum = from_bytes(&incoming[0]);
+            for bytes in &incoming[1..] {
+                for (s, v) in sum.iter_mut().zip(from_bytes(bytes)) {
+                    *s += v;
                 }
-            } else {
-                root.gather_into(&*chunk);
             }
-            root.broadcast_into(chunk);
+            let gathered = self.exchange(vec![to_bytes(&sum); size]);
+            for (r, bytes) in gathered.iter().enumerate() {
+                chunk[part(r)].copy_from_slice(&from_bytes(bytes));
+            }
         }
     }
 
@@ -144,6 +141,17 @@ impl Comm for MpiComm {
             world: group,
         })
     }
+}
+
+fn to_bytes(values: &[f64]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+fn from_bytes(bytes: &[u8]) -> Vec<f64> {
+    bytes
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+        .collect()
 }
 
 /// MPI counts and displacements of consecutive pieces of the given sizes (each below 2^31).
