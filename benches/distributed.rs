@@ -26,6 +26,7 @@
 //! cargo bench --features mpi --bench distributed
 //! cargo bench --features mpi --bench distributed -- --resolution 96 --directions 193 --iterations 4 \
 //!     --sweep-ranks 2,4,8,16,32,64 --sweep-resolution 64 --sweep-directions 589
+//! cargo bench --features mpi --bench distributed -- --speedup-only   # part 1 alone
 //! ```
 
 use serde_json::Value;
@@ -43,6 +44,8 @@ struct Args {
     alpha: f64,
     /// A cluster network's bandwidth per rank for the model's second column (bytes/s).
     network_beta: f64,
+    /// Only the speed-up at 2 ranks (for a quiet machine), no sweep and no model.
+    speedup_only: bool,
 }
 
 fn parse_args() -> Args {
@@ -55,6 +58,7 @@ fn parse_args() -> Args {
         sweep_directions: 589,
         alpha: 5e-6,
         network_beta: 5e9,
+        speedup_only: false,
     };
     let argv: Vec<String> = std::env::args().skip(1).collect();
     let mut k = 0;
@@ -62,6 +66,11 @@ fn parse_args() -> Args {
         let value = argv.get(k + 1).cloned().unwrap_or_default();
         let number = |v: &str| -> f64 { v.parse().unwrap_or_else(|_| panic!("bad value {v}")) };
         match argv[k].as_str() {
+            "--speedup-only" => {
+                a.speedup_only = true;
+                k += 1;
+                continue;
+            }
             "--resolution" => a.resolution = number(&value) as u32,
             "--directions" => a.directions = number(&value) as usize,
             "--iterations" => a.iterations = number(&value) as usize,
@@ -202,6 +211,9 @@ fn main() {
         );
     }
 
+    if args.speedup_only {
+        return;
+    }
     let (sres, sdirs) = (args.sweep_resolution, args.sweep_directions);
     println!("\n## Exchanged fraction and imbalance (Cornell box, resolution {sres}, {sdirs} directions, 1 iteration)\n");
     println!("| mode | ranks | groups | exchanged mean | exchanged max | imbalance mean | imbalance max | bytes sent per surfel-direction |");
