@@ -235,3 +235,50 @@ fn data_and_hybrid_modes_match_one_process_for_1_to_4_ranks() {
         }
     }
 }
+
+#[test]
+fn large_sums_across_ranks_match_one_process() {
+    // 6 values per surfel and rank above 2^20 in all: the sum goes as a reduce-scatter and an
+    // all-gather instead of through rank 0.
+    let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(96)).unwrap();
+    assert!(set.surfels.len() * 6 * 3 > voxrad::distribute::mpi_comm::GATHER_LIMIT);
+    let options = SolveOptions {
+        directions: 13,
+        max_iterations: 2,
+        tolerance: None,
+        threads: 1,
+        ..SolveOptions::default()
+    };
+    let reference = solve_with(&set, &DirectionSet::with_count(13), &options).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("large");
+    let o = mpirun(
+        3,
+        &[
+            "solve",
+            &cornell(),
+            "--out",
+            out.to_str().unwrap(),
+            "--resolution",
+            "96",
+            "--directions",
+            "13",
+            "--iterations",
+            "2",
+            "--threads",
+            "1",
+            "--distribute",
+            "directions",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let results = read_results(&out.join("surfels.bin")).unwrap();
+    let got: Vec<_> = results.records.iter().map(|r| r.radiosity).collect();
+    let worst = common::worst_relative_difference(&got, &reference.radiosity);
+    println!(
+        "3 ranks, {} surfels: worst relative difference {worst:.2e}",
+        set.surfels.len()
+    );
+    assert!(worst <= 1e-5, "{worst:e}");
+}

@@ -3,18 +3,24 @@
 //!
 //! One MPI call moves at most 2^31 - 1 elements, and very large messages were slow: sums go in
 //! chunks of [`CHUNK`] values per rank, exchanges in rounds of at most [`EXCHANGE_CHUNK`] bytes
-//! per pair of ranks. A sum is a reduce-scatter and an all-gather built on the exchange: each
-//! rank adds one part of the values in rank order, so the result does not depend on the
-//! library's choice of reduction order, and no rank moves more than about twice the values.
+//! per pair of ranks. A large sum is a reduce-scatter and an all-gather built on the exchange:
+//! each rank adds one part of the values in rank order, so the result does not depend on the
+//! library's choice of reduction order, and no rank moves more than about twice the values. A
+//! small one (histograms, energy sums) is gathered to rank 0, added there in rank order and
+//! broadcast: fewer messages. Both add in the same order, so they give the same bits.
 
 use super::Comm;
 use mpi::collective::CommunicatorCollectives;
 use mpi::datatype::{Partition, PartitionMut};
 use mpi::topology::{Color, Communicator, SimpleCommunicator};
+use mpi::traits::Root;
 use mpi::Count;
 
 /// Values per collective call (8 MiB of f64 per rank).
 pub const CHUNK: usize = 1 << 20;
+
+/// Sums whose gathered values (`len * size`) stay below this go through rank 0.
+pub const GATHER_LIMIT: usize = 1 << 20;
 
 /// Bytes per pair of ranks in one round of an exchange (well below MPI's 2^31 - 1 counts).
 pub const EXCHANGE_CHUNK: usize = 1 << 26;
@@ -38,6 +44,30 @@ impl MpiComm {
     }
 }
 
+impl MpiComm {
+    /// A small sum: gathered to rank 0, added there in rank order, broadcast back (a tree of
+    /// messages, where an all-to-all would send `size - 1` messages from every rank).
+    fn sum_through_root(&self, values: &mut [f64]) {
+        let size = self.size();
+        let root = self.world.process_at_rank(0);
+        if self.rank() == 0 {
+            let mut gathered = vec![0f64; values.len() * size];
+            root.gather_into_root(&*values, &mut gathered[..]);
+            let len = values.len();
+            for (k, v) in values.iter_mut().enumerate() {
+                let mut sum = gathered[k];
+                for r in 1..size {
+                    sum += gathered[r * len + k];
+                }
+                *v = sum;
+            }
+        } else {
+            root.gather_into(&*values);
+        }
+        root.broadcast_into(values);
+    }
+}
+
 impl Comm for MpiComm {
     fn rank(&self) -> usize {
         self.world.rank() as usize
@@ -50,6 +80,10 @@ impl Comm for MpiComm {
     fn sum_in_place(&self, values: &mut [f64]) {
         let size = self.size();
         if size == 1 {
+            return;
+        }
+        if values.len() * size <= GATHER_LIMIT {
+            self.sum_through_root(values);
             return;
         }
         // A reduce-scatter then an all-gather, both as exchanges: every rank adds up one part of
