@@ -13,10 +13,12 @@
 //! the presets chosen from it.
 
 pub mod app;
+pub mod checkpoint;
 pub mod convert;
 pub mod distribute;
 pub mod gen;
 pub mod geometry;
+pub mod interrupt;
 pub mod outcore;
 pub mod output;
 pub mod progress;

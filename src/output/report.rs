@@ -117,6 +117,10 @@ pub struct Report {
     /// Present when the solve ran out of core (a shard set, or `--memory`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_of_core: Option<OutOfCoreReport>,
+    /// Present when the solve continued from a checkpoint (`--resume`): the iteration it held.
+    /// `iterations` counts from the start; the times and rates are this run's alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resumed_from_iteration: Option<usize>,
 }
 
 /// One rank's time in a distributed solve.
@@ -172,7 +176,9 @@ impl Report {
         let total = stats.normalize_seconds + stats.dispatch_seconds + stats.propagate_seconds;
         seconds.insert("total".to_string(), total);
         let iterating = stats.dispatch_seconds + stats.propagate_seconds;
-        let updates = voxels as f64 * stats.directions as f64 * stats.iterations as f64;
+        // A resumed solve iterated only since its checkpoint.
+        let iterated = stats.iterations - stats.resumed_from_iteration.unwrap_or(0);
+        let updates = voxels as f64 * stats.directions as f64 * iterated as f64;
         let rate = if iterating > 0.0 {
             updates / iterating
         } else {
@@ -210,6 +216,7 @@ impl Report {
                 })
                 .collect(),
             out_of_core: None,
+            resumed_from_iteration: stats.resumed_from_iteration,
         }
     }
 

@@ -50,4 +50,6 @@ pub struct SolveStats {
     pub channels: usize,
     /// Tail extrapolations made (see `accelerate`).
     pub extrapolations: usize,
+    /// The iteration of the checkpoint this solve continued from (`--resume`).
+    pub resumed_from_iteration: Option<usize>,
 }
