@@ -137,3 +137,64 @@ pub fn describe(status: &ExitStatus) -> String {
         _ => "unknown".to_string(),
     }
 }
+
+/// The processes whose parent is `pid` (from `/proc`).
+pub fn children_of(pid: i32) -> Vec<i32> {
+    let mut out = Vec::new();
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return out;
+    };
+    for entry in entries.flatten() {
+        let Ok(child) = entry.file_name().to_string_lossy().parse::<i32>() else {
+            continue;
+        };
+        if stat_fields(child).is_some_and(|(_, ppid)| ppid == pid) {
+            out.push(child);
+        }
+    }
+    out
+}
+
+/// State letter and parent of a process, from `/proc/PID/stat` (the command name, in
+/// parentheses, may hold spaces: the fields after its closing parenthesis are read).
+fn stat_fields(pid: i32) -> Option<(char, i32)> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let mut fields = rest.split_whitespace();
+    let state = fields.next()?.chars().next()?;
+    let ppid = fields.next()?.parse().ok()?;
+    Some((state, ppid))
+}
+
+/// Whether `pid` is still running (a zombie counts as gone).
+pub fn alive(pid: i32) -> bool {
+    stat_fields(pid).is_some_and(|(state, _)| state != 'Z' && state != 'X')
+}
+
+/// The value of `key` in the environment of process `pid`.
+pub fn env_of(pid: i32, key: &str) -> Option<String> {
+    let bytes = std::fs::read(format!("/proc/{pid}/environ")).ok()?;
+    bytes.split(|&b| b == 0).find_map(|entry| {
+        let text = String::from_utf8_lossy(entry);
+        let (k, v) = text.split_once('=')?;
+        (k == key).then(|| v.to_string())
+    })
+}
+
+/// Sends SIGKILL to each of `pids` and waits (at most 30 s) until none runs.
+pub fn kill_and_reap(pids: &[i32]) {
+    for &p in pids {
+        // SAFETY: kill(2) on processes this test started (through mpirun).
+        unsafe {
+            libc::kill(p, libc::SIGKILL);
+        }
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while pids.iter().any(|&p| alive(p)) {
+        assert!(
+            Instant::now() < deadline,
+            "processes {pids:?} survive SIGKILL"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
