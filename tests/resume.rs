@@ -303,7 +303,9 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
     flipped[at] ^= 1;
     let mut wrong_header = good.clone();
     wrong_header[30] ^= 1;
-    let cases: Vec<(&str, Vec<u8>, &[&str], &[&str])> = vec![
+    // What is wrong, the checkpoint's bytes, options of the run, words the message must hold.
+    type Case<'a> = (&'a str, Vec<u8>, &'a [&'a str], &'a [&'a str]);
+    let cases: Vec<Case> = vec![
         (
             "flipped radiosity bit",
             flipped,

@@ -6,7 +6,8 @@
 //! `converged`, `residual`, `tolerance`, `seconds` (`total` plus one entry per phase),
 //! `peak_rss_bytes`, `voxel_direction_updates_per_second`, `effects` (`[{name, simulated, why}]`),
 //! `energy` (`emitted_power`, `absorbed_power`, `escaped_power` as RGB, and `balance`), and in
-//! data mode `exchanged_fraction` and `imbalance` (absent otherwise).
+//! data mode `exchanged_fraction` and `imbalance` (absent otherwise), and after `--resume`
+//! `resumed_from_iteration`.
 //!
 //! The file is written atomically (see [`super::atomic`]) as pretty-printed JSON.
 
