@@ -100,7 +100,9 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
                 let ckpt = checkpoint::path_in(&out);
                 child.wait_for(Duration::from_secs(120), || ckpt.exists());
             }
-            let delay = rng.uniform(0.02, 0.9) * seconds;
+            // Short enough that several kills land before the end: some during start-up or a
+            // checkpoint's writing, most in mid-iteration.
+            let delay = rng.uniform(0.02, 0.4) * seconds;
             child.run_or_kill_after(Duration::from_secs_f64(delay))
         } else {
             Ended::Exited(child.wait_at_most(Duration::from_secs(120)))

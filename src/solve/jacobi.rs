@@ -243,6 +243,15 @@ fn run(
         convergence.previous_change = loaded.state.previous_change;
         extrapolation = loaded.state.extrapolation;
         let done = loaded.state.iteration as usize;
+        if loaded.state.ranks as usize != comm.size() {
+            // Valid, but the sums across ranks are grouped differently from here on.
+            tracing::info!(
+                "the checkpoint was written by {} rank(s), this solve has {}: the result may \
+                 differ from an uninterrupted run in the last bits",
+                loaded.state.ranks,
+                comm.size()
+            );
+        }
         stats.iterations = done;
         stats.resumed_from_iteration = Some(done);
         first = done + 1;
