@@ -149,7 +149,7 @@ fn launches_that_do_not_fit_are_refused() {
 }
 
 /// `mpirun -n 2 voxrad solve --distribute directions` of the Cornell box into `out`, with a
-/// checkpoint after every iteration (the command is not run).
+/// checkpoint after every iteration unless `extra` says otherwise (the command is not run).
 fn mpirun_solve(out: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new("mpirun");
     c.args(["-n", "2", "--oversubscribe"])
@@ -175,11 +175,14 @@ fn mpirun_solve(out: &Path, extra: &[&str]) -> Command {
             "1",
             "--image-size",
             "64x48",
-            "--checkpoint-every",
-            "0",
             "--distribute",
             "directions",
         ])
+        .args(
+            ["--checkpoint-every", "0"]
+                .iter()
+                .filter(|_| !extra.contains(&"--checkpoint-every")),
+        )
         .args(extra)
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
@@ -237,7 +240,7 @@ fn directions_mode_killed_at_random_moments_resumes_to_the_same_bytes() {
     let out = tmp.path().join("out");
     let ckpt = voxrad::checkpoint::path_in(&out);
     let mut rng = Rng::seeded(0x5eed_0003);
-    let kills = 3;
+    let kills = 4;
     let (mut killed, mut resumed) = (0, 0);
     let mut finished = false;
     for run in 1..=kills {
@@ -249,7 +252,7 @@ fn directions_mode_killed_at_random_moments_resumes_to_the_same_bytes() {
         if run == 1 {
             child.wait_for(Duration::from_secs(120), || ckpt.exists());
         }
-        let delay = Duration::from_secs_f64(rng.uniform(0.05, 0.9) * seconds);
+        let delay = Duration::from_secs_f64(rng.uniform(0.05, 0.4) * seconds);
         std::thread::sleep(delay.saturating_sub(Duration::from_millis(50)));
         let ranks = process::children_of(child.pid());
         let ended = child.run_or_kill_after(Duration::from_millis(50));
@@ -330,5 +333,54 @@ fn a_rank_that_dies_ends_the_job_and_the_checkpoint_resumes_it() {
             .unwrap_or("")
             .trim()
     );
+    resume_to_the_end(&out, &reference, &tmp.path().join("resume.log"));
+}
+
+#[test]
+fn sigterm_to_one_rank_stops_every_rank_with_a_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    mpi_reference(&reference, &tmp.path().join("reference.log"));
+    let out = tmp.path().join("out");
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    // No periodic checkpoint: the one to resume from is written on the signal.
+    let mut child = Child::spawn(
+        mpirun_solve(&out, &["--checkpoint-every", "1000"]),
+        &tmp.path().join("run.log"),
+    );
+    let log = tmp.path().join("run.log");
+    assert!(
+        child.wait_for(Duration::from_secs(120), || {
+            std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
+        }),
+        "no iteration 2:\n{}",
+        child.log()
+    );
+    assert!(!ckpt.exists());
+    // Only rank 1 hears it (the checkpoint writer, rank 0, does not): all must stop together.
+    let ranks = process::children_of(child.pid());
+    let rank1 = *ranks
+        .iter()
+        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
+        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
+    // SAFETY: kill(2) on a process this test started (through mpirun).
+    unsafe {
+        libc::kill(rank1, libc::SIGTERM);
+    }
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+    assert!(
+        text.contains("interrupted by SIGTERM") && text.contains("--resume"),
+        "{text}"
+    );
+    ranks_end_with_their_launcher(&ranks);
+    println!(
+        "{}",
+        text.lines()
+            .find(|l| l.contains("checkpoint at"))
+            .unwrap_or("")
+    );
+    assert!(ckpt.exists(), "rank 0 wrote no checkpoint:\n{text}");
     resume_to_the_end(&out, &reference, &tmp.path().join("resume.log"));
 }
