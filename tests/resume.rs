@@ -209,68 +209,90 @@ fn child_log(log: &Path) -> String {
     std::fs::read_to_string(log).unwrap_or_default()
 }
 
-#[test]
-fn sigterm_and_sigint_stop_with_a_checkpoint_and_exit_status_3() {
-    let tmp = tempfile::tempdir().unwrap();
-    let reference = tmp.path().join("reference");
-    run_to_end(solve_command(&reference, &[]), &tmp.path().join("ref.log"));
-
-    // SIGTERM in mid-solve, once a few iterations are done.
-    let out = tmp.path().join("term");
-    let text = stopped_by(
-        libc::SIGTERM,
-        &out,
-        &[],
-        &tmp.path().join("term.log"),
-        |log, _| log.contains("iteration=3 "),
-    );
-    println!("{}", text.lines().last().unwrap_or(""));
-    let saved = CheckpointFile::open(&checkpoint::path_in(&out)).unwrap();
-    assert!(saved.header.state.iteration >= 3);
-
-    // SIGINT before the first iteration is done: the checkpoint of iteration 0.
-    let early = tmp.path().join("int");
-    let text = stopped_by(
-        libc::SIGINT,
-        &early,
-        &[],
-        &tmp.path().join("int.log"),
-        |log, _| log.contains("voxelized"),
-    );
-    println!("{}", text.lines().last().unwrap_or(""));
-
-    // Out of core, SIGTERM after a checkpoint.
-    let ooc = tmp.path().join("ooc");
-    let ooc_reference = tmp.path().join("ooc-reference");
-    run_to_end(
-        solve_command(&ooc_reference, &["--memory", "1MiB"]),
-        &tmp.path().join("ooc-ref.log"),
-    );
-    let text = stopped_by(
-        libc::SIGTERM,
-        &ooc,
-        &["--memory", "1MiB"],
-        &tmp.path().join("ooc.log"),
-        |_, out| checkpoint::path_in(out).exists(),
-    );
-    println!("{}", text.lines().last().unwrap_or(""));
-
-    for (dir, reference) in [
-        (&out, &reference),
-        (&early, &reference),
-        (&ooc, &ooc_reference),
-    ] {
-        let extra: &[&str] = if dir == &ooc {
-            &["--memory", "1MiB", "--resume"]
-        } else {
-            &["--resume"]
-        };
-        let (text, _) = run_to_end(solve_command(dir, extra), &dir.with_extension("resume.log"));
+/// Resumes each stopped solve `(out, extra options)` and compares with `reference`.
+fn resume_each(stopped: &[(&Path, &[&str])], reference: &Path) {
+    for (dir, extra) in stopped {
+        let extra = [*extra, &["--resume"]].concat();
+        let (text, _) = run_to_end(
+            solve_command(dir, &extra),
+            &dir.with_extension("resume.log"),
+        );
         assert!(text.contains("resumed from a checkpoint"), "{text}");
         assert!(results(dir) == results(reference), "{}", dir.display());
         assert!(report(dir)["resumed_from_iteration"].is_u64());
         assert_clean(dir);
     }
+}
+
+/// Options under which only a stop signal writes a checkpoint (none is due in a short run).
+const ONLY_ON_SIGNAL: [&str; 2] = ["--checkpoint-every", "1000"];
+
+#[test]
+fn sigterm_and_sigint_stop_an_in_memory_solve_with_a_checkpoint_and_exit_status_3() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    run_to_end(solve_command(&reference, &[]), &tmp.path().join("ref.log"));
+
+    // SIGTERM in mid-solve, once a few iterations are done: the checkpoint is written on it.
+    let term = tmp.path().join("term");
+    let text = stopped_by(
+        libc::SIGTERM,
+        &term,
+        &ONLY_ON_SIGNAL,
+        &tmp.path().join("term.log"),
+        |log, _| log.contains("iteration=3 "),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    assert_eq!(text.matches("checkpoint written").count(), 1, "{text}");
+    let saved = CheckpointFile::open(&checkpoint::path_in(&term)).unwrap();
+    assert!(saved.header.state.iteration >= 3);
+
+    // SIGINT before the first iteration is done: the checkpoint of iteration 0.
+    let int = tmp.path().join("int");
+    let text = stopped_by(
+        libc::SIGINT,
+        &int,
+        &ONLY_ON_SIGNAL,
+        &tmp.path().join("int.log"),
+        |log, _| log.contains("voxelized"),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    resume_each(&[(&term, &[]), (&int, &[])], &reference);
+}
+
+#[test]
+fn sigterm_stops_an_out_of_core_solve_in_mid_iteration_or_in_its_setup() {
+    let tmp = tempfile::tempdir().unwrap();
+    let memory: &[&str] = &["--memory", "1MiB"];
+    let reference = tmp.path().join("reference");
+    run_to_end(
+        solve_command(&reference, memory),
+        &tmp.path().join("ref.log"),
+    );
+
+    // In mid-iteration: the canonical radiosity of the last completed iteration is saved.
+    let mid = tmp.path().join("mid");
+    let text = stopped_by(
+        libc::SIGTERM,
+        &mid,
+        &[memory, &ONLY_ON_SIGNAL].concat(),
+        &tmp.path().join("mid.log"),
+        |log, _| log.contains("iteration=2 "),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    assert_eq!(text.matches("checkpoint written").count(), 1, "{text}");
+
+    // While the work files are being made: acted on when the iterations start.
+    let setup = tmp.path().join("setup");
+    let text = stopped_by(
+        libc::SIGTERM,
+        &setup,
+        &[memory, &ONLY_ON_SIGNAL].concat(),
+        &tmp.path().join("setup.log"),
+        |log, _| log.contains("out-of-core plan"),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    resume_each(&[(&mid, memory), (&setup, memory)], &reference);
 }
 
 #[test]
