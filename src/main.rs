@@ -269,6 +269,10 @@ fn run(cli: Cli) -> Result<(), AppError> {
             if let Err(e) = voxrad::interrupt::install() {
                 tracing::warn!("cannot handle SIGTERM and SIGINT ({e}); they will end the solve without a checkpoint");
             }
+            voxrad::interrupt::watch_setup(format!(
+                "nothing new to save: rerun with --resume (it continues from {} if there is one)",
+                voxrad::checkpoint::path_in(&out).display()
+            ));
             let preset = match quality {
                 QualityArg::Draft => Quality::Draft,
                 QualityArg::Default => Quality::Default,

@@ -245,6 +245,9 @@ fn run(
             "resumed from a checkpoint"
         );
     }
+    if checkpoints.is_some() {
+        crate::interrupt::start_iterating();
+    }
     for iteration in first_iteration..=options.max_iterations {
         if !any_light {
             stats.solve.converged = true;
@@ -276,6 +279,11 @@ fn run(
                     first: k == 0,
                 };
                 pass.run(&directions.directions[d], &mut buffers, &mut io, &mut times)?;
+                // The pass may have stopped early on a signal: its light is incomplete.
+                signal = crate::interrupt::requested();
+                if signal.is_some() {
+                    break;
+                }
                 progress.inc(1);
             }
             drop(histogram);

@@ -262,6 +262,9 @@ fn run(
         );
     }
 
+    if checkpoints.is_some() {
+        crate::interrupt::start_iterating();
+    }
     for iteration in first..=options.max_iterations {
         if !any_light {
             stats.converged = true;
