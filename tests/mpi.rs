@@ -384,3 +384,25 @@ fn sigterm_to_one_rank_stops_every_rank_with_a_checkpoint() {
     assert!(ckpt.exists(), "rank 0 wrote no checkpoint:\n{text}");
     resume_to_the_end(&out, &reference, &tmp.path().join("resume.log"));
 }
+
+#[test]
+fn a_damaged_checkpoint_is_refused_by_every_rank_without_a_hang() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    std::fs::write(&ckpt, b"VXRDCKPT\x01\0\0\0\x08\0\0\0damaged!").unwrap();
+    let mut child = Child::spawn(
+        mpirun_solve(&out, &["--resume"]),
+        &tmp.path().join("run.log"),
+    );
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(2), "{}:\n{text}", describe(&status));
+    assert!(
+        text.contains(&ckpt.display().to_string()) && text.contains("truncated checkpoint"),
+        "{text}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
+    assert!(!out.join("surfels.bin").exists());
+}
