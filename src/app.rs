@@ -2,18 +2,22 @@
 //!
 //! The binary parses arguments (validation only) and calls these; each turns the parsed options
 //! into the real objects, runs the pipeline (read -> voxelize -> solve -> write) and returns an
-//! [`AppError`] that knows whether the user's input was at fault (exit status 2) or not (1).
+//! [`AppError`] that knows whether the user's input was at fault (exit status 2) or not (1),
+//! or that a stop signal ended the solve (3, with a checkpoint to resume from).
 
+use crate::checkpoint::{self, CheckpointError, CheckpointFile, Identity, Saver};
 use crate::distribute::data::{solve_data, DataOptions};
 use crate::distribute::{Comm, Mode, SingleProcess};
 use crate::geometry::directions::DirectionSet;
-use crate::outcore::{solve_out_of_core, OocError, ShardSetSource, SurfelSource};
+use crate::outcore::{
+    solve_out_of_core_checkpointed, OocCheckpoints, OocError, ShardSetSource, SurfelSource,
+};
 use crate::output::render::{auto_camera, render_png, Camera};
 use crate::output::report::{Effect, OutOfCoreReport, Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results, ResultsWriter};
 use crate::output::{ply, probe, RENDER_FILE};
 use crate::scene::obj::load_obj;
-use crate::solve::jacobi::solve_distributed;
+use crate::solve::jacobi::{solve_checkpointed, Checkpoints, SolveError};
 use crate::solve::{Solution, SolveOptions};
 use crate::voxel::voxelize::{voxelize, GridSpec};
 use crate::voxel::{Surfel, SurfelSet};
@@ -29,6 +33,9 @@ pub enum AppError {
     /// Anything else (I/O failures, resources): exit status 1.
     #[error("{0}")]
     Failure(String),
+    /// SIGTERM or SIGINT stopped the solve; the message names the checkpoint: exit status 3.
+    #[error("{0}")]
+    Interrupted(String),
 }
 
 impl AppError {
@@ -36,6 +43,7 @@ impl AppError {
         match self {
             AppError::BadInput(_) => 2,
             AppError::Failure(_) => 1,
+            AppError::Interrupted(_) => 3,
         }
     }
 }
@@ -50,6 +58,26 @@ pub struct SolveCommand {
     pub image_size: (u32, u32),
     /// `--memory`: solve out of core within this many bytes.
     pub memory: Option<u64>,
+    /// `--resume` and how often checkpoints are written.
+    pub checkpoint: CheckpointOptions,
+}
+
+/// When a solve writes checkpoints into its out directory, and whether it starts from one.
+#[derive(Clone, Debug)]
+pub struct CheckpointOptions {
+    /// `--resume`: continue from `OUT/checkpoint.bin` if there is one.
+    pub resume: bool,
+    /// `--checkpoint-every`: least time between two checkpoints (zero: every iteration).
+    pub every: std::time::Duration,
+}
+
+impl Default for CheckpointOptions {
+    fn default() -> Self {
+        CheckpointOptions {
+            resume: false,
+            every: std::time::Duration::from_secs(60),
+        }
+    }
 }
 
 /// Reads and voxelizes the scene, solves, writes every output; returns the report.
@@ -76,6 +104,14 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             )));
         }
     }
+    if matches!(mode, Mode::Data { .. } | Mode::Hybrid { .. }) && cmd.checkpoint.resume {
+        return Err(AppError::BadInput(format!(
+            "--resume with --distribute {}: the data and hybrid modes write no checkpoints yet \
+             (a stop signal ends them at once with status 3); checkpoints and --resume work in \
+             one process and with --distribute directions",
+            mode.name()
+        )));
+    }
     if mode != Mode::Single && (cmd.scene.is_dir() || cmd.memory.is_some()) {
         return Err(AppError::BadInput(format!(
             "{}: --distribute {} does not work out of core yet (shard sets, --memory); solve an \
@@ -83,6 +119,9 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             cmd.scene.display(),
             mode.name()
         )));
+    }
+    if comm.rank() == 0 {
+        checkpoint::remove_leftovers(&cmd.out);
     }
     let mode = match mode {
         Mode::Hybrid {
@@ -141,21 +180,21 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     let shaped = analysis.shape(&cmd.solve);
     let directions = DirectionSet::with_count(shaped.directions);
     let t = Instant::now();
+    let data_failure = |e: crate::solve::jacobi::SolveError| AppError::Failure(e.to_string());
     let solution = match mode {
         Mode::Data { compress } => {
             let data = DataOptions {
                 groups: 1,
                 compress,
             };
-            solve_data(&set, &directions, &shaped, comm, data)
+            solve_data(&set, &directions, &shaped, comm, data).map_err(data_failure)?
         }
         Mode::Hybrid { groups, compress } => {
             let data = DataOptions { groups, compress };
-            solve_data(&set, &directions, &shaped, comm, data)
+            solve_data(&set, &directions, &shaped, comm, data).map_err(data_failure)?
         }
-        Mode::Single | Mode::Directions => solve_distributed(&set, &directions, &shaped, comm),
-    }
-    .map_err(|e| AppError::Failure(e.to_string()))?;
+        Mode::Single | Mode::Directions => solve_in_memory(cmd, &set, &directions, &shaped, comm)?,
+    };
     let solve_seconds = t.elapsed().as_secs_f64();
     let stats = &solution.stats;
     tracing::info!(
@@ -205,8 +244,83 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
         report
             .write(&cmd.out)
             .map_err(|e| AppError::Failure(e.to_string()))?;
+        checkpoint::remove_finished(&cmd.out);
     }
     Ok(report)
+}
+
+/// The in-memory solve, with checkpoints in the out directory (rank 0 writes them), from the
+/// one there under `--resume`.
+fn solve_in_memory(
+    cmd: &SolveCommand,
+    set: &SurfelSet,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    comm: &dyn Comm,
+) -> Result<Solution, AppError> {
+    if comm.rank() == 0 {
+        create_out_dir(&cmd.out)?;
+    }
+    // As the solver decides it (`jacobi`): one channel only for a grey scene.
+    let channels = if options.grey && crate::solve::effects::is_grey(set) {
+        1
+    } else {
+        3
+    };
+    let identity = Identity::in_memory(set, directions, channels, options.accelerate);
+    let path = checkpoint::path_in(&cmd.out);
+    let resume = if cmd.checkpoint.resume {
+        checkpoint::load_shared(comm, &path, &identity, options.max_iterations)
+            .map_err(checkpoint_error)?
+    } else {
+        None
+    };
+    if comm.rank() == 0 {
+        say_where_it_starts(cmd, &path, resume.is_some());
+    }
+    let mut saver = Saver::new(
+        &cmd.out,
+        identity,
+        comm.rank() == 0,
+        cmd.checkpoint.every,
+        comm.size(),
+        resume.as_ref().map(|l| l.state.iteration),
+    );
+    let checkpoints = Checkpoints {
+        saver: &mut saver,
+        resume,
+    };
+    solve_checkpointed(set, directions, options, comm, checkpoints).map_err(|e| match e {
+        SolveError::Interrupted(i) => AppError::Interrupted(i.to_string()),
+        other => AppError::Failure(other.to_string()),
+    })
+}
+
+/// Logs whether the solve continues from a checkpoint or starts afresh, and why.
+fn say_where_it_starts(cmd: &SolveCommand, path: &Path, resumed: bool) {
+    if resumed {
+        return; // the solver logs the iteration it resumes from
+    }
+    if cmd.checkpoint.resume {
+        tracing::info!(
+            "--resume: no checkpoint at {}; starting from the beginning",
+            path.display()
+        );
+    } else if path.exists() {
+        tracing::warn!(
+            "{} is left from an earlier run; starting afresh and replacing it (give --resume to \
+             continue from it)",
+            path.display()
+        );
+    }
+}
+
+fn checkpoint_error(e: CheckpointError) -> AppError {
+    if e.is_bad_input() {
+        AppError::BadInput(e.to_string())
+    } else {
+        AppError::Failure(e.to_string())
+    }
 }
 
 /// `voxrad solve SHARDSET`: out of core, within `--memory` (default: a quarter of the memory
@@ -223,6 +337,63 @@ fn run_solve_shard_set(cmd: &SolveCommand, started: Instant) -> Result<Report, A
     finish_report(report, &cmd.out, started)
 }
 
+/// The out-of-core solve, with checkpoints in the out directory, from the one there under
+/// `--resume` (checked against the run before any work file is made).
+fn solve_out_of_core_in(
+    cmd: &SolveCommand,
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    budget: u64,
+) -> Result<crate::outcore::OocSolution, AppError> {
+    let info = source.info();
+    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
+        .map(|p| p.io_bytes as u64)
+        .unwrap_or(1 << 16);
+    let identity = Identity {
+        solver: checkpoint::Solver::OutOfCore,
+        surfels: info.count,
+        dims: info.grid.dims,
+        voxel_size: info.grid.voxel_size,
+        directions: directions.len() as u32,
+        directions_checksum: checkpoint::directions_checksum(directions),
+        // The out-of-core solver always solves three channels and does not extrapolate.
+        channels: 3,
+        accelerate: false,
+        scene_checksum: source.checksum(window).map_err(ooc_error)?,
+    };
+    let path = checkpoint::path_in(&cmd.out);
+    let resume = if cmd.checkpoint.resume && path.exists() {
+        let file = CheckpointFile::open(&path).map_err(checkpoint_error)?;
+        checkpoint::check(&path, &file.header, &identity, cmd.solve.max_iterations)
+            .map_err(checkpoint_error)?;
+        Some(file)
+    } else {
+        None
+    };
+    say_where_it_starts(cmd, &path, resume.is_some());
+    let mut saver = Saver::new(
+        &cmd.out,
+        identity,
+        true,
+        cmd.checkpoint.every,
+        1,
+        resume.as_ref().map(|f| f.header.state.iteration),
+    );
+    let checkpoints = OocCheckpoints {
+        saver: &mut saver,
+        resume,
+    };
+    solve_out_of_core_checkpointed(
+        source,
+        directions,
+        &cmd.solve,
+        budget,
+        &cmd.out,
+        checkpoints,
+    )
+    .map_err(ooc_error)
+}
+
 /// Sets the report's total time and peak RSS, and writes it into `out`.
 fn finish_report(mut report: Report, out: &Path, started: Instant) -> Result<Report, AppError> {
     report.set_total(started.elapsed().as_secs_f64());
@@ -230,6 +401,7 @@ fn finish_report(mut report: Report, out: &Path, started: Instant) -> Result<Rep
     report
         .write(out)
         .map_err(|e| AppError::Failure(e.to_string()))?;
+    checkpoint::remove_finished(out);
     Ok(report)
 }
 
@@ -285,7 +457,9 @@ fn create_out_dir(out: &Path) -> Result<(), AppError> {
 }
 
 fn ooc_error(e: OocError) -> AppError {
-    if e.is_bad_input() {
+    if let OocError::Interrupted(i) = &e {
+        AppError::Interrupted(i.to_string())
+    } else if e.is_bad_input() {
         AppError::BadInput(e.to_string())
     } else {
         AppError::Failure(e.to_string())
@@ -301,8 +475,7 @@ fn solve_out_of_core_to(
 ) -> Result<Report, AppError> {
     create_out_dir(&cmd.out)?;
     let directions = DirectionSet::with_count(cmd.solve.directions);
-    let solution =
-        solve_out_of_core(source, &directions, &cmd.solve, budget, &cmd.out).map_err(ooc_error)?;
+    let solution = solve_out_of_core_in(cmd, source, &directions, budget)?;
     let stats = &solution.stats;
     tracing::info!(
         iterations = stats.solve.iterations,

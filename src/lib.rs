@@ -10,13 +10,16 @@
 //! every array that grows with the scene in files, under a `--memory` budget. `convert` is the
 //! library of the `voxrad-shard` tool: scenes into shard sets out of core, sets verified,
 //! re-split, results exported. `study` measures what accuracy costs in time; `quality` holds
-//! the presets chosen from it.
+//! the presets chosen from it. `checkpoint` saves a solve at iteration boundaries and resumes it
+//! bit for bit; `interrupt` turns SIGTERM and SIGINT into a clean stop.
 
 pub mod app;
+pub mod checkpoint;
 pub mod convert;
 pub mod distribute;
 pub mod gen;
 pub mod geometry;
+pub mod interrupt;
 pub mod outcore;
 pub mod output;
 pub mod progress;

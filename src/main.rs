@@ -1,11 +1,12 @@
 //! The `voxrad` command line: parses arguments and dispatches to `voxrad::app`; maps errors to
-//! exit statuses (0 success, 2 bad input, 1 anything else).
+//! exit statuses (0 success, 2 bad input, 3 solve interrupted by a signal with a checkpoint to
+//! resume from, 1 anything else).
 
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use voxrad::app::{
-    run_generate, run_probe, run_render, run_solve, run_study, AppError, GenerateScene,
-    SolveCommand,
+    run_generate, run_probe, run_render, run_solve, run_study, AppError, CheckpointOptions,
+    GenerateScene, SolveCommand,
 };
 use voxrad::distribute::Mode;
 use voxrad::output::report::Report;
@@ -17,7 +18,8 @@ use voxrad::voxel::voxelize::GridSpec;
 #[command(
     name = "voxrad",
     version,
-    about = "Discrete voxel radiosity for very large scenes"
+    about = "Discrete voxel radiosity for very large scenes",
+    after_help = EXIT_STATUS
 )]
 struct Cli {
     #[command(subcommand)]
@@ -27,12 +29,21 @@ struct Cli {
     verbose: u8,
 }
 
+const EXIT_STATUS: &str = "Exit status: 0 success; 2 bad input (the message names the file); \
+3 a solve stopped by SIGTERM or SIGINT after writing a checkpoint (rerun the same command with \
+--resume); 1 anything else.";
+
 #[derive(Subcommand)]
 enum Command {
     /// Solve the radiosity of a scene (an .obj file with its .mtl) and write the results.
+    ///
+    /// Checkpoints: the solve saves its state in OUT/checkpoint.bin at iteration boundaries (at
+    /// most every --checkpoint-every seconds) and on SIGTERM or SIGINT, which stop it with exit
+    /// status 3; `--resume` continues from the checkpoint with the same result an uninterrupted
+    /// run gives. A finished solve removes its checkpoint.
     // Negative numbers are values, so `--tolerance -1` reaches the validation that names the
     // option instead of failing as an "unexpected argument '-1'".
-    #[command(allow_negative_numbers = true)]
+    #[command(allow_negative_numbers = true, after_help = EXIT_STATUS)]
     Solve {
         /// The scene: an OBJ file (Kd = reflectance, Ke = emitted radiosity), or a shard-set
         /// directory made by `voxrad-shard convert` (solved out of core).
@@ -84,6 +95,14 @@ enum Command {
         /// (several times smaller, a few ns per byte: worth it on a slow network only).
         #[arg(long, requires = "distribute")]
         compress_exchange: bool,
+        /// Continue from OUT/checkpoint.bin if there is one (left by an interrupted or killed
+        /// solve of the same scene and options); without one, start from the beginning.
+        #[arg(long)]
+        resume: bool,
+        /// Least seconds between two checkpoints (0: after every iteration). A stop signal
+        /// always saves the last completed iteration.
+        #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
+        checkpoint_every: f64,
     },
     /// Render a solved result directory to a PNG.
     Render {
@@ -185,6 +204,10 @@ fn solve_under_mpi(cmd: &SolveCommand, mode: Mode) -> Result<(Report, usize), Ap
     use voxrad::distribute::{mpi_comm::MpiComm, Comm};
     let comm = MpiComm::init()
         .ok_or_else(|| AppError::Failure("MPI could not be initialized".to_string()))?;
+    // Again after MPI's start-up, which may have set handlers of its own.
+    if let Err(e) = voxrad::interrupt::install() {
+        tracing::warn!("cannot handle SIGTERM and SIGINT ({e})");
+    }
     let report = voxrad::app::run_solve_on(cmd, &comm, mode)?;
     Ok((report, comm.rank()))
 }
@@ -246,7 +269,23 @@ fn run(cli: Cli) -> Result<(), AppError> {
             distribute,
             groups,
             compress_exchange,
+            resume,
+            checkpoint_every,
         } => {
+            let every = std::time::Duration::try_from_secs_f64(checkpoint_every).map_err(|_| {
+                AppError::BadInput(format!(
+                    "--checkpoint-every {checkpoint_every}: must be a number of seconds, 0 or more"
+                ))
+            })?;
+            // From here SIGTERM and SIGINT stop the solve at the next direction, with a
+            // checkpoint, instead of killing the process.
+            if let Err(e) = voxrad::interrupt::install() {
+                tracing::warn!("cannot handle SIGTERM and SIGINT ({e}); they will end the solve without a checkpoint");
+            }
+            voxrad::interrupt::watch_setup(format!(
+                "nothing new to save: rerun with --resume (it continues from {} if there is one)",
+                voxrad::checkpoint::path_in(&out).display()
+            ));
             let preset = match quality {
                 QualityArg::Draft => Quality::Draft,
                 QualityArg::Default => Quality::Default,
@@ -292,6 +331,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 solve,
                 image_size,
                 memory,
+                checkpoint: CheckpointOptions { resume, every },
             };
             if groups.is_some() && !matches!(distribute, Some(Distribute::Hybrid)) {
                 return Err(AppError::BadInput(

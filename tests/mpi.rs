@@ -5,8 +5,10 @@
 
 mod common;
 
+use common::process::{self, describe, Child, Ended, Rng};
 use std::path::Path;
 use std::process::{Command, Output};
+use std::time::{Duration, Instant};
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::output::results::read_results;
 use voxrad::solve::jacobi::solve_with;
@@ -281,4 +283,263 @@ fn large_sums_across_ranks_match_one_process() {
         set.surfels.len()
     );
     assert!(worst <= 1e-5, "{worst:e}");
+}
+
+/// `mpirun -n 2 voxrad solve --distribute directions` of the Cornell box into `out`, with a
+/// checkpoint after every iteration unless `extra` says otherwise (the command is not run).
+fn mpirun_solve(out: &Path, extra: &[&str]) -> Command {
+    let mut c = Command::new("mpirun");
+    c.args(["-n", "2", "--oversubscribe"])
+        .args([
+            "--mca",
+            "btl",
+            "self,vader",
+            "--mca",
+            "btl_vader_single_copy_mechanism",
+            "none",
+        ])
+        .arg(env!("CARGO_BIN_EXE_voxrad"))
+        .args(["solve", &cornell(), "--out"])
+        .arg(out)
+        .args([
+            "--resolution",
+            "32",
+            "--directions",
+            "300",
+            "--tolerance",
+            "1e-6",
+            "--threads",
+            "1",
+            "--image-size",
+            "64x48",
+            "--distribute",
+            "directions",
+        ])
+        .args(
+            ["--checkpoint-every", "0"]
+                .iter()
+                .filter(|_| !extra.contains(&"--checkpoint-every")),
+        )
+        .args(extra)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env_remove("RUST_LOG");
+    c
+}
+
+/// Runs an uninterrupted 2-rank solve into `out`; returns its wall time in seconds.
+fn mpi_reference(out: &Path, log: &Path) -> f64 {
+    let mut child = Child::spawn(mpirun_solve(out, &[]), log);
+    let status = child.wait_at_most(Duration::from_secs(120));
+    assert!(status.success(), "{}:\n{}", describe(&status), child.log());
+    child.started.elapsed().as_secs_f64()
+}
+
+/// Waits until the ranks mpirun started have ended (they notice their launcher is gone);
+/// fails if any outlives it by 30 s.
+fn ranks_end_with_their_launcher(ranks: &[i32]) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while ranks.iter().any(|&p| process::alive(p)) {
+        if Instant::now() > deadline {
+            process::kill_and_reap(ranks);
+            panic!("ranks {ranks:?} outlived mpirun by 30 s");
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Resumes with `mpirun -n 2 ... --resume`, which must succeed from a checkpoint; the results
+/// must be `reference`'s byte for byte.
+fn resume_to_the_end(out: &Path, reference: &Path, log: &Path) {
+    let mut child = Child::spawn(mpirun_solve(out, &["--resume"]), log);
+    let status = child.wait_at_most(Duration::from_secs(120));
+    let text = child.log();
+    assert!(status.success(), "{}:\n{text}", describe(&status));
+    assert!(text.contains("resumed from a checkpoint"), "{text}");
+    assert_same_results(out, reference);
+}
+
+fn assert_same_results(out: &Path, reference: &Path) {
+    let got = std::fs::read(out.join("surfels.bin")).unwrap();
+    let want = std::fs::read(reference.join("surfels.bin")).unwrap();
+    assert!(
+        got == want,
+        "resumed results differ from the uninterrupted run's"
+    );
+    assert!(!voxrad::checkpoint::path_in(out).exists());
+}
+
+#[test]
+fn directions_mode_killed_at_random_moments_resumes_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    let seconds = mpi_reference(&reference, &tmp.path().join("reference.log"));
+    let out = tmp.path().join("out");
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    let mut rng = Rng::seeded(0x5eed_0003);
+    let kills = 4;
+    let (mut killed, mut resumed) = (0, 0);
+    let mut finished = false;
+    for run in 1..=kills {
+        let mut child = Child::spawn(
+            mpirun_solve(&out, &["--resume"]),
+            &tmp.path().join(format!("run{run}.log")),
+        );
+        // The first kill after a checkpoint exists, so the resume has one to start from.
+        if run == 1 {
+            child.wait_for(Duration::from_secs(120), || ckpt.exists());
+        }
+        let delay = Duration::from_secs_f64(rng.uniform(0.05, 0.4) * seconds);
+        std::thread::sleep(delay.saturating_sub(Duration::from_millis(50)));
+        let ranks = process::children_of(child.pid());
+        let ended = child.run_or_kill_after(Duration::from_millis(50));
+        if child.log().contains("resumed from a checkpoint") {
+            resumed += 1;
+        }
+        match ended {
+            Ended::Killed => {
+                killed += 1;
+                ranks_end_with_their_launcher(&ranks);
+                println!(
+                    "run {run}: mpirun killed after {:.2} s; its {} ranks ended",
+                    child.started.elapsed().as_secs_f64(),
+                    ranks.len()
+                );
+            }
+            Ended::Exited(status) => {
+                assert!(status.success(), "{}:\n{}", describe(&status), child.log());
+                println!("run {run}: finished before its kill");
+                finished = true;
+                break;
+            }
+        }
+    }
+    if finished {
+        assert_same_results(&out, &reference);
+    } else {
+        resume_to_the_end(&out, &reference, &tmp.path().join("final.log"));
+        resumed += 1;
+    }
+    println!(
+        "{killed} kills of mpirun, {resumed} resumed runs (uninterrupted run: {seconds:.1} s)"
+    );
+    assert!(killed >= 1 && resumed >= 1);
+}
+
+#[test]
+fn a_rank_that_dies_ends_the_job_and_the_checkpoint_resumes_it() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    mpi_reference(&reference, &tmp.path().join("reference.log"));
+    let out = tmp.path().join("out");
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    let mut child = Child::spawn(mpirun_solve(&out, &[]), &tmp.path().join("run.log"));
+    assert!(
+        child.wait_for(Duration::from_secs(120), || ckpt.exists()),
+        "no checkpoint:\n{}",
+        child.log()
+    );
+    // Rank 1 is the child of mpirun whose environment says so.
+    let ranks = process::children_of(child.pid());
+    let rank1 = *ranks
+        .iter()
+        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
+        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
+    // SAFETY: kill(2) on a process this test started (through mpirun).
+    unsafe {
+        libc::kill(rank1, libc::SIGKILL);
+    }
+    let killed_at = Instant::now();
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let waited = killed_at.elapsed().as_secs_f64();
+    let text = child.log();
+    assert!(
+        !status.success(),
+        "mpirun succeeded without rank 1:\n{text}"
+    );
+    assert!(
+        text.contains("rank 1"),
+        "the message does not name rank 1:\n{text}"
+    );
+    ranks_end_with_their_launcher(&ranks);
+    println!(
+        "rank 1 (pid {rank1}) killed; mpirun ended {waited:.2} s later with {}: {}",
+        describe(&status),
+        text.lines()
+            .find(|l| l.contains("rank 1"))
+            .unwrap_or("")
+            .trim()
+    );
+    resume_to_the_end(&out, &reference, &tmp.path().join("resume.log"));
+}
+
+#[test]
+fn sigterm_to_one_rank_stops_every_rank_with_a_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    mpi_reference(&reference, &tmp.path().join("reference.log"));
+    let out = tmp.path().join("out");
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    // No periodic checkpoint: the one to resume from is written on the signal.
+    let mut child = Child::spawn(
+        mpirun_solve(&out, &["--checkpoint-every", "1000"]),
+        &tmp.path().join("run.log"),
+    );
+    let log = tmp.path().join("run.log");
+    assert!(
+        child.wait_for(Duration::from_secs(120), || {
+            std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
+        }),
+        "no iteration 2:\n{}",
+        child.log()
+    );
+    assert!(!ckpt.exists());
+    // Only rank 1 hears it (the checkpoint writer, rank 0, does not): all must stop together.
+    let ranks = process::children_of(child.pid());
+    let rank1 = *ranks
+        .iter()
+        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
+        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
+    // SAFETY: kill(2) on a process this test started (through mpirun).
+    unsafe {
+        libc::kill(rank1, libc::SIGTERM);
+    }
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+    assert!(
+        text.contains("interrupted by SIGTERM") && text.contains("--resume"),
+        "{text}"
+    );
+    ranks_end_with_their_launcher(&ranks);
+    println!(
+        "{}",
+        text.lines()
+            .find(|l| l.contains("checkpoint at"))
+            .unwrap_or("")
+    );
+    assert!(ckpt.exists(), "rank 0 wrote no checkpoint:\n{text}");
+    resume_to_the_end(&out, &reference, &tmp.path().join("resume.log"));
+}
+
+#[test]
+fn a_damaged_checkpoint_is_refused_by_every_rank_without_a_hang() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    std::fs::create_dir_all(&out).unwrap();
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    std::fs::write(&ckpt, b"VXRDCKPT\x01\0\0\0\x08\0\0\0damaged!").unwrap();
+    let mut child = Child::spawn(
+        mpirun_solve(&out, &["--resume"]),
+        &tmp.path().join("run.log"),
+    );
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(2), "{}:\n{text}", describe(&status));
+    assert!(
+        text.contains(&ckpt.display().to_string()) && text.contains("truncated checkpoint"),
+        "{text}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
+    assert!(!out.join("surfels.bin").exists());
 }

@@ -236,6 +236,7 @@ fn report_lists_the_effects_the_scene_calls_for() {
             },
             image_size: (32, 24),
             memory: None,
+            checkpoint: Default::default(),
         };
         run_solve(&cmd).unwrap()
     };

@@ -142,6 +142,12 @@ impl DirectionPass<'_> {
         let max_width = (self.plan.band_lines / frame.ni.max(1)).max(1);
         let mut j0 = 0u64;
         while j0 < frame.nj {
+            // A stop signal abandons the direction, and with it the iteration (the solver checks
+            // again after every direction and never uses this iteration's light): on a large
+            // scene one direction can take minutes, longer than a batch system waits.
+            if crate::interrupt::requested().is_some() {
+                return Ok(());
+            }
             // Widen the band while it fits.
             let mut width = 0u64;
             let mut surfels = 0u64;

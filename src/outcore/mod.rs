@@ -35,7 +35,9 @@ pub mod source;
 pub mod workset;
 
 pub use budget::{parse_bytes, MemoryPlan};
-pub use solver::{solve_out_of_core, OocSolution, OocStats};
+pub use solver::{
+    solve_out_of_core, solve_out_of_core_checkpointed, OocCheckpoints, OocSolution, OocStats,
+};
 pub use source::{InMemorySource, ShardSetSource, SurfelSource};
 
 use crate::storage::StorageError;
@@ -80,6 +82,10 @@ pub enum OocError {
     BadData { source_name: String, what: String },
     #[error("could not start {threads} worker threads: {message}")]
     Threads { threads: usize, message: String },
+    #[error(transparent)]
+    Checkpoint(#[from] crate::checkpoint::CheckpointError),
+    #[error("{0}")]
+    Interrupted(crate::checkpoint::Interruption),
 }
 
 impl OocError {
@@ -96,7 +102,11 @@ impl OocError {
         match self {
             OocError::Storage(e) => !matches!(e, StorageError::Io { .. }),
             OocError::BudgetTooSmall { .. } | OocError::BadData { .. } => true,
-            OocError::Io { .. } | OocError::Threads { .. } | OocError::DiskTooSmall { .. } => false,
+            OocError::Checkpoint(e) => e.is_bad_input(),
+            OocError::Io { .. }
+            | OocError::Threads { .. }
+            | OocError::DiskTooSmall { .. }
+            | OocError::Interrupted(_) => false,
         }
     }
 }

@@ -2,6 +2,11 @@
 //! ([`super::band`]); then the light gathered in the three copies is brought to canonical order,
 //! `B = E + rho H / S(n)` is computed there with the stopping rule of `solve::jacobi`, and the
 //! new radiosity is sent back to the copies ([`super::scatter`]).
+//!
+//! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
+//! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
+//! copies from the source, their radiosity from the canonical file). Stop signals are heard
+//! between directions, as in `solve::jacobi`.
 
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
@@ -13,6 +18,7 @@ use super::scatter::Scatter;
 use super::source::SurfelSource;
 use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
+use crate::checkpoint::{CheckpointFile, Interruption, Saver};
 use crate::geometry::directions::DirectionSet;
 use crate::solve::jacobi::Convergence;
 use crate::solve::normalize::cosine_sums;
@@ -78,6 +84,13 @@ impl OocSolution {
     }
 }
 
+/// The checkpoints of one out-of-core solve: where they go, and the one it starts from.
+pub struct OocCheckpoints<'a> {
+    pub saver: &'a mut Saver,
+    /// Opened and checked against the run already (`checkpoint::check`).
+    pub resume: Option<CheckpointFile>,
+}
+
 /// Solves `source` out of core with work files in a temporary directory under `work_parent`.
 pub fn solve_out_of_core(
     source: &dyn SurfelSource,
@@ -85,6 +98,38 @@ pub fn solve_out_of_core(
     options: &SolveOptions,
     budget_bytes: u64,
     work_parent: &Path,
+) -> Result<OocSolution, OocError> {
+    solve_in_pool(source, directions, options, budget_bytes, work_parent, None)
+}
+
+/// As [`solve_out_of_core`], saving checkpoints at iteration boundaries and starting from
+/// `checkpoints.resume` if given; stops between directions on SIGTERM or SIGINT with
+/// [`OocError::Interrupted`].
+pub fn solve_out_of_core_checkpointed(
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    budget_bytes: u64,
+    work_parent: &Path,
+    checkpoints: OocCheckpoints,
+) -> Result<OocSolution, OocError> {
+    solve_in_pool(
+        source,
+        directions,
+        options,
+        budget_bytes,
+        work_parent,
+        Some(checkpoints),
+    )
+}
+
+fn solve_in_pool(
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    budget_bytes: u64,
+    work_parent: &Path,
+    checkpoints: Option<OocCheckpoints>,
 ) -> Result<OocSolution, OocError> {
     let threads = if options.threads == 0 {
         rayon::current_num_threads()
@@ -107,6 +152,7 @@ pub fn solve_out_of_core(
             budget_bytes,
             work_parent,
             threads,
+            checkpoints,
         )
     })
 }
@@ -131,6 +177,7 @@ fn run(
     budget_bytes: u64,
     work_parent: &Path,
     threads: usize,
+    mut checkpoints: Option<OocCheckpoints>,
 ) -> Result<OocSolution, OocError> {
     let info = source.info();
     let plan = MemoryPlan::new(budget_bytes, info.grid.dims, threads)?;
@@ -182,7 +229,26 @@ fn run(
     let mut last = first;
     let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
     let mut convergence = Convergence::new();
-    for iteration in 1..=options.max_iterations {
+    let mut first_iteration = 1;
+    if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
+        let t = Instant::now();
+        restore(&file, &work, &plan, &mut io)?;
+        stats.update_seconds += t.elapsed().as_secs_f64();
+        convergence.previous_change = file.header.state.previous_change;
+        let done = file.header.state.iteration as usize;
+        stats.solve.iterations = done;
+        stats.solve.resumed_from_iteration = Some(done);
+        first_iteration = done + 1;
+        tracing::info!(
+            iteration = done,
+            path = %file.path.display(),
+            "resumed from a checkpoint"
+        );
+    }
+    if checkpoints.is_some() {
+        crate::interrupt::start_iterating();
+    }
+    for iteration in first_iteration..=options.max_iterations {
         if !any_light {
             stats.solve.converged = true;
             break;
@@ -190,12 +256,19 @@ fn run(
         progress.reset();
         progress.set_message(format!("iteration {iteration}"));
         let mut gathered_any = false;
+        let mut signal = None;
         for (m, (copy, copy_files)) in work.copies.iter().zip(&files).enumerate() {
-            if by_axis[m].is_empty() {
+            if by_axis[m].is_empty() || signal.is_some() {
                 continue;
             }
             let histogram = copy.load_histogram(&plan)?;
             for (k, &d) in by_axis[m].iter().enumerate() {
+                // Abandon the iteration on a stop signal: the canonical radiosity file still
+                // holds the last completed one (it changes only in `update`).
+                signal = crate::interrupt::requested();
+                if signal.is_some() {
+                    break;
+                }
                 let pass = DirectionPass {
                     copy,
                     files: copy_files,
@@ -206,14 +279,41 @@ fn run(
                     first: k == 0,
                 };
                 pass.run(&directions.directions[d], &mut buffers, &mut io, &mut times)?;
+                // The pass may have stopped early on a signal: its light is incomplete.
+                signal = crate::interrupt::requested();
+                if signal.is_some() {
+                    break;
+                }
                 progress.inc(1);
             }
             drop(histogram);
+            if signal.is_some() {
+                continue;
+            }
             // This axis's light joins the canonical sum before the next axis reuses the file.
             let t = Instant::now();
             fold_gathered(copy, &work, &plan, !gathered_any, &mut io)?;
             fold_seconds += t.elapsed().as_secs_f64();
             gathered_any = true;
+        }
+        if let Some(signal) = signal {
+            progress.finish_and_clear();
+            let completed = iteration - 1;
+            let interruption = match checkpoints.as_mut() {
+                Some(c) => c.saver.interrupt(signal, completed, |saver| {
+                    let state =
+                        saver.state(completed, convergence.previous_change, &Default::default());
+                    save(saver, state, &work, &plan)
+                }),
+                None => Interruption {
+                    signal,
+                    completed,
+                    checkpoint: None,
+                    failure: None,
+                    writer: true,
+                },
+            };
+            return Err(OocError::Interrupted(interruption));
         }
         stats.solve.updates += work.count * directions.len() as u64;
         let t = Instant::now();
@@ -230,6 +330,17 @@ fn run(
         last = result;
         if stop {
             break;
+        }
+        // A boundary the solve goes on from (as in `solve::jacobi`).
+        if iteration < options.max_iterations {
+            if let Some(c) = checkpoints.as_mut() {
+                c.saver.save_if_due(
+                    |saver| {
+                        saver.state(iteration, convergence.previous_change, &Default::default())
+                    },
+                    |saver, state| save(saver, state, &work, &plan),
+                );
+            }
         }
     }
     progress.finish_and_clear();
@@ -253,6 +364,50 @@ fn run(
         work,
         io_bytes: plan.io_bytes,
     })
+}
+
+/// Saves a checkpoint whose radiosity is the canonical radiosity file, streamed through the
+/// plan's I/O buffer.
+fn save(
+    saver: &mut Saver,
+    state: crate::checkpoint::State,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+) -> Result<(), crate::checkpoint::CheckpointError> {
+    saver.save(state, plan.io_bytes, |w| {
+        let mut reader = SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)
+            .map_err(std::io::Error::other)?;
+        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+            w.write_all(&record)?;
+        }
+        Ok(())
+    })
+}
+
+/// Puts a checkpoint's radiosity (the canonical order's, checked against its checksum before
+/// anything is solved from it) into the canonical radiosity file and every axis copy.
+fn restore(
+    file: &CheckpointFile,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    io: &mut IoCounters,
+) -> Result<(), OocError> {
+    // Same layout: f32 x 6 per surfel, side-major, little-endian.
+    const _: () = assert!(crate::checkpoint::file::RADIOSITY_LEN == RADIOSITY_LEN);
+    if file.header.identity.surfels != work.count {
+        return Err(OocError::BadData {
+            source_name: file.path.display().to_string(),
+            what: format!(
+                "it holds {} surfels, the scene {}",
+                file.header.identity.surfels, work.count
+            ),
+        });
+    }
+    let mut out = SeqWriter::create(&work.canonical_radiosity, plan.io_bytes)?;
+    file.read_radiosity::<OocError>(plan.io_bytes, |piece| out.write(piece))?;
+    io.written += out.finish()?;
+    io.read += work.count * RADIOSITY_LEN as u64;
+    send_to_copies(work, plan, io)
 }
 
 /// What one update of the radiosity found.
@@ -388,7 +543,14 @@ fn update(
         });
     }
     drop((h_bytes, bytes));
-    // The new radiosity to each copy, in copy order, one copy at a time.
+    send_to_copies(work, plan, io)?;
+    Ok(result)
+}
+
+/// Sends the canonical radiosity to each copy, in copy order, one copy at a time.
+fn send_to_copies(work: &WorkSet, plan: &MemoryPlan, io: &mut IoCounters) -> Result<(), OocError> {
+    let n = work.count;
+    let chunk = plan.chunk_surfels.min(n).max(1);
     let buffer = plan.bucket_buffer(n.div_ceil(chunk));
     for copy in &work.copies {
         let mut scatter = Scatter::<RADIOSITY_LEN>::new(
@@ -416,5 +578,5 @@ fn update(
         io.written += out.finish()? + reader.written;
         io.read += reader.read;
     }
-    Ok(result)
+    Ok(())
 }

@@ -32,6 +32,27 @@ pub trait SurfelSource: Sync {
     fn stream(&self, window_bytes: u64) -> Result<SurfelStream<'_>, OocError>;
     /// What to call the source in messages.
     fn describe(&self) -> String;
+    /// A CRC-32 of everything of the source that the radiosity depends on (it names the run in
+    /// a checkpoint). By default a pass over the surfels; a source that knows checksums of its
+    /// contents gives one made from them.
+    fn checksum(&self, window_bytes: u64) -> Result<u32, OocError> {
+        let info = self.info();
+        let mut failure = None;
+        let crc =
+            crate::checkpoint::scene_checksum(&info.grid, &info.normals, &info.materials, |h| {
+                let stream = match self.stream(window_bytes) {
+                    Ok(s) => s,
+                    Err(e) => return failure = Some(e),
+                };
+                for s in stream {
+                    match s {
+                        Ok(s) => crate::checkpoint::hash_surfel(h, &s),
+                        Err(e) => return failure = Some(e),
+                    }
+                }
+            });
+        failure.map_or(Ok(crc), Err)
+    }
 }
 
 /// A surfel set held in memory.
@@ -115,6 +136,25 @@ impl SurfelSource for ShardSetSource {
 
     fn describe(&self) -> String {
         format!("the shard set {}", self.dir.display())
+    }
+
+    /// From the shards' own checksums (checked against the data as it is streamed), without
+    /// reading the shards.
+    fn checksum(&self, _window_bytes: u64) -> Result<u32, OocError> {
+        let info = &self.info;
+        Ok(crate::checkpoint::scene_checksum(
+            &info.grid,
+            &info.normals,
+            &info.materials,
+            |h| {
+                for reader in &self.readers {
+                    let shard = reader.info();
+                    h.update(&(shard.order as u64).to_le_bytes());
+                    h.update(&shard.count.to_le_bytes());
+                    h.update(&shard.crc32.to_le_bytes());
+                }
+            },
+        ))
     }
 }
 

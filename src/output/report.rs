@@ -6,7 +6,8 @@
 //! `converged`, `residual`, `tolerance`, `seconds` (`total` plus one entry per phase),
 //! `peak_rss_bytes`, `voxel_direction_updates_per_second`, `effects` (`[{name, simulated, why}]`),
 //! `energy` (`emitted_power`, `absorbed_power`, `escaped_power` as RGB, and `balance`), and in
-//! data mode `exchanged_fraction` and `imbalance` (absent otherwise).
+//! data mode `exchanged_fraction` and `imbalance` (absent otherwise), and after `--resume`
+//! `resumed_from_iteration`.
 //!
 //! The file is written atomically (see [`super::atomic`]) as pretty-printed JSON.
 
@@ -121,6 +122,10 @@ pub struct Report {
     /// seconds per phase (balance, fill, exchange, merge, dispatch, propagate, reduce).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub data_distribution: Option<crate::distribute::data::DataStats>,
+    /// Present when the solve continued from a checkpoint (`--resume`): the iteration it held.
+    /// `iterations` counts from the start; the times and rates are this run's alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resumed_from_iteration: Option<usize>,
 }
 
 /// One rank's time in a distributed solve.
@@ -176,7 +181,9 @@ impl Report {
         let total = stats.normalize_seconds + stats.dispatch_seconds + stats.propagate_seconds;
         seconds.insert("total".to_string(), total);
         let iterating = stats.dispatch_seconds + stats.propagate_seconds;
-        let updates = voxels as f64 * stats.directions as f64 * stats.iterations as f64;
+        // A resumed solve iterated only since its checkpoint.
+        let iterated = stats.iterations - stats.resumed_from_iteration.unwrap_or(0);
+        let updates = voxels as f64 * stats.directions as f64 * iterated as f64;
         let rate = if iterating > 0.0 {
             updates / iterating
         } else {
@@ -215,6 +222,7 @@ impl Report {
                 .collect(),
             out_of_core: None,
             data_distribution: stats.data.clone(),
+            resumed_from_iteration: stats.resumed_from_iteration,
         }
     }
 

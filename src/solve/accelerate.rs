@@ -33,7 +33,7 @@ const NOISE_FLOOR: f64 = 1e-6;
 const RATIO_AGREEMENT: f64 = 2e-2;
 
 /// Decides when to extrapolate, from the per-iteration change norms alone.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct Extrapolation {
     /// Change norms (sum over elements of area times |d|) since the last extrapolation.
     changes: Vec<f64>,
@@ -44,6 +44,21 @@ pub struct Extrapolation {
 }
 
 impl Extrapolation {
+    /// Its whole state (change norms since the last extrapolation, count, last ratio), for a
+    /// checkpoint: a resumed solve must extrapolate exactly when the uninterrupted one would.
+    pub fn parts(&self) -> (&[f64], usize, Option<f64>) {
+        (&self.changes, self.count, self.last_ratio)
+    }
+
+    /// The state [`Extrapolation::parts`] gave.
+    pub fn from_parts(changes: Vec<f64>, count: usize, last_ratio: Option<f64>) -> Self {
+        Extrapolation {
+            changes,
+            count,
+            last_ratio,
+        }
+    }
+
     /// Records iteration `k`'s change norm `change` (absolute) and its relative change
     /// `relative` (`change / total`); returns the factor `q / (1 - q)` to extrapolate with, or
     /// `None` to iterate plainly.

@@ -10,11 +10,18 @@
 //! contraction (about the scene's reflectance). That estimate is the reported `residual`, and the
 //! solve stops when it is below the tolerance: so a scene with reflectance 0.999 runs long enough,
 //! where a bare `delta_k < tolerance` would stop about `rho / (1 - rho)` times too early.
+//!
+//! **Checkpoints and signals** ([`solve_checkpointed`]): at iteration boundaries the radiosity
+//! and the bookkeeping above are saved (see `crate::checkpoint`), and a solve can start from
+//! them; between directions the loop asks whether SIGTERM or SIGINT came (`crate::interrupt`),
+//! and all ranks agree on it once per iteration before they sum, so none waits for a rank that
+//! has stopped.
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::normalize::cosine_sums;
 use super::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
 use super::{Solution, SolveStats};
+use crate::checkpoint::{Interruption, Loaded, Saver};
 use crate::distribute::{Comm, SingleProcess};
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
@@ -60,6 +67,15 @@ pub enum SolveError {
     Threads { threads: usize, message: String },
     #[error("{ranks} ranks cannot form {groups} equal groups: give a --groups that divides the rank count")]
     Groups { groups: usize, ranks: usize },
+    #[error("{0}")]
+    Interrupted(Interruption),
+}
+
+/// The checkpoints of one solve: where they go, and the one it starts from.
+pub struct Checkpoints<'a> {
+    pub saver: &'a mut Saver,
+    /// Checked against the run already (`checkpoint::load_shared`).
+    pub resume: Option<Loaded>,
 }
 
 /// Solves the radiosity of `set` with the cube direction set closest to `options.directions`.
@@ -87,6 +103,29 @@ pub fn solve_distributed(
     options: &SolveOptions,
     comm: &dyn Comm,
 ) -> Result<Solution, SolveError> {
+    run_in_pool(set, directions, options, comm, None)
+}
+
+/// As [`solve_distributed`], saving checkpoints at iteration boundaries and starting from
+/// `checkpoints.resume` if given; stops between directions on SIGTERM or SIGINT (once
+/// `crate::interrupt::install` was called) with [`SolveError::Interrupted`].
+pub fn solve_checkpointed(
+    set: &SurfelSet,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    comm: &dyn Comm,
+    checkpoints: Checkpoints,
+) -> Result<Solution, SolveError> {
+    run_in_pool(set, directions, options, comm, Some(checkpoints))
+}
+
+fn run_in_pool(
+    set: &SurfelSet,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    comm: &dyn Comm,
+    checkpoints: Option<Checkpoints>,
+) -> Result<Solution, SolveError> {
     let threads = if options.threads == 0 {
         rayon::current_num_threads()
     } else {
@@ -99,7 +138,7 @@ pub fn solve_distributed(
             threads,
             message: e.to_string(),
         })?;
-    Ok(run(set, directions, options, threads, &pool, comm))
+    run(set, directions, options, threads, &pool, comm, checkpoints)
 }
 
 fn run(
@@ -109,7 +148,8 @@ fn run(
     threads: usize,
     pool: &rayon::ThreadPool,
     comm: &dyn Comm,
-) -> Solution {
+    mut checkpoints: Option<Checkpoints>,
+) -> Result<Solution, SolveError> {
     let n = set.surfels.len();
     let started = Instant::now();
     let cosine_sum = pool.install(|| cosine_sums(&set.normals, directions));
@@ -193,8 +233,41 @@ fn run(
     // One bar per iteration over its directions: on a large scene a single iteration is long.
     let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
     let mut convergence = Convergence::new();
+    let mut first = 1;
+    if let Some(loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
+        // The boundary the checkpoint holds, exactly as the interrupted run had it.
+        radiosity = loaded.radiosity;
+        assert_eq!(
+            radiosity.len(),
+            n,
+            "a checkpoint is checked against the scene"
+        );
+        convergence.previous_change = loaded.state.previous_change;
+        extrapolation = loaded.state.extrapolation;
+        let done = loaded.state.iteration as usize;
+        if loaded.state.ranks as usize != comm.size() {
+            // Valid, but the sums across ranks are grouped differently from here on.
+            tracing::info!(
+                "the checkpoint was written by {} rank(s), this solve has {}: the result may \
+                 differ from an uninterrupted run in the last bits",
+                loaded.state.ranks,
+                comm.size()
+            );
+        }
+        stats.iterations = done;
+        stats.resumed_from_iteration = Some(done);
+        first = done + 1;
+        tracing::info!(
+            iteration = done,
+            path = %loaded.path.display(),
+            "resumed from a checkpoint"
+        );
+    }
 
-    for iteration in 1..=options.max_iterations {
+    if checkpoints.is_some() {
+        crate::interrupt::start_iterating();
+    }
+    for iteration in first..=options.max_iterations {
         if !any_light {
             stats.converged = true;
             break;
@@ -202,7 +275,14 @@ fn run(
         acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         progress.reset();
         progress.set_message(format!("iteration {iteration}"));
+        let mut signal = 0;
         for &k in &mine {
+            // Abandon the iteration on a stop signal; `radiosity` still holds the last
+            // completed one.
+            if let Some(s) = crate::interrupt::requested() {
+                signal = s;
+                break;
+            }
             let (d, frame) = (&directions.directions[k], &frames[k]);
             let t0 = Instant::now();
             let t1 = pool.install(|| {
@@ -226,6 +306,26 @@ fn run(
             stats.dispatch_seconds += (t1 - t0).as_secs_f64();
             stats.propagate_seconds += t1.elapsed().as_secs_f64();
             progress.inc(1);
+        }
+        // Every rank takes part, signalled or not, before anyone sums: all stop or none.
+        let signal = comm.max_u64(signal as u64) as i32;
+        if signal != 0 {
+            progress.finish_and_clear();
+            let completed = iteration - 1;
+            let interruption = match checkpoints.as_mut() {
+                Some(c) => c.saver.interrupt(signal, completed, |saver| {
+                    let state = saver.state(completed, convergence.previous_change, &extrapolation);
+                    saver.save_memory(state, &radiosity)
+                }),
+                None => Interruption {
+                    signal,
+                    completed,
+                    checkpoint: None,
+                    failure: None,
+                    writer: comm.rank() == 0,
+                },
+            };
+            return Err(SolveError::Interrupted(interruption));
         }
         if comm.size() > 1 {
             let t = Instant::now();
@@ -273,6 +373,16 @@ fn run(
                 convergence.restart();
             }
         }
+        // A boundary the solve goes on from (never the last: a resumed solve must gather at
+        // least once, for its energy balance).
+        if iteration < options.max_iterations {
+            if let Some(c) = checkpoints.as_mut() {
+                c.saver.save_if_due(
+                    |saver| saver.state(iteration, convergence.previous_change, &extrapolation),
+                    |saver, state| saver.save_memory(state, &radiosity),
+                );
+            }
+        }
     }
     stats.extrapolations = extrapolation.count;
     if channels == 1 {
@@ -300,12 +410,13 @@ fn run(
         stats.per_rank_seconds = table.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
     }
     energy(set, &acc, &cosine_sum, &mut stats);
-    Solution { radiosity, stats }
+    Ok(Solution { radiosity, stats })
 }
 
 /// The stopping rule's bookkeeping, shared by the in-memory and the out-of-core loops.
 pub(crate) struct Convergence {
-    previous_change: Option<f64>,
+    /// The last relative change (kept in checkpoints).
+    pub(crate) previous_change: Option<f64>,
     started: Instant,
 }
 

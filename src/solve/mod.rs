@@ -52,4 +52,6 @@ pub struct SolveStats {
     pub extrapolations: usize,
     /// Data and hybrid modes: what the distribution moved and how balanced it was.
     pub data: Option<crate::distribute::data::DataStats>,
+    /// The iteration of the checkpoint this solve continued from (`--resume`).
+    pub resumed_from_iteration: Option<usize>,
 }

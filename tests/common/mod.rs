@@ -1,6 +1,8 @@
 //! Helpers shared by the integration tests: small scenes built in code.
 #![allow(dead_code)]
 
+pub mod process;
+
 use glam::DVec3;
 use voxrad::scene::{Material, Scene};
 use voxrad::voxel::{Surfel, SurfelSet, FRONT};

@@ -1,0 +1,560 @@
+//! The checkpoint file's byte layout, its durable writing and its checked reading.
+//!
+//! ```text
+//!  0  magic         8 bytes  "VXRDCKPT"
+//!  8  version       u32      FORMAT_VERSION
+//! 12  header_len    u32      bytes of the header body that follows
+//! 16  header body            Identity then State (see `encode_header`), little-endian
+//!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
+//!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
+//!                            back RGB), in the solver's surfel order
+//!  .  payload_crc   u32      CRC-32 of the radiosity bytes
+//! ```
+//!
+//! The header has its own checksum so that a run can be refused (wrong scene, damaged file)
+//! before anything is read or computed; the radiosity's checksum is checked before a solver
+//! uses a single value of it. The file's length is fixed by the header, so a truncated file is
+//! named as such.
+//!
+//! Writing goes to `checkpoint.bin.partial` beside the real name, is synced, renamed over the
+//! real name and the directory is synced: a kill at any moment leaves either the old checkpoint
+//! or the new one, never a mixture. (A fixed temporary name, rather than a random one, so that
+//! repeated kills do not pile up stray files; only one solve writes into an out directory.)
+
+use super::{CheckpointError, Header, Identity, Solver, State};
+use crate::solve::accelerate::Extrapolation;
+use std::fs::File;
+use std::io::{BufWriter, Read, Write};
+use std::path::{Path, PathBuf};
+
+pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
+pub const FORMAT_VERSION: u32 = 1;
+/// Bytes per surfel of the radiosity payload.
+pub const RADIOSITY_LEN: usize = 24;
+/// The fixed prefix: magic, version, header length.
+const PREFIX_LEN: usize = 16;
+/// A header never comes near this (its only variable part is a short list of change norms);
+/// a larger stated length is damage, not a reason to allocate.
+const MAX_HEADER_LEN: usize = 1 << 20;
+
+pub type Radiosity = [[f32; 3]; 2];
+
+/// Where a checkpoint is written before it is renamed to `path`.
+pub fn partial_path(path: &Path) -> PathBuf {
+    let mut name = path.as_os_str().to_owned();
+    name.push(".partial");
+    PathBuf::from(name)
+}
+
+pub fn encode_radiosity(b: &Radiosity, out: &mut [u8]) {
+    for (k, v) in b.iter().flatten().enumerate() {
+        out[4 * k..4 * k + 4].copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+pub fn decode_radiosity(bytes: &[u8]) -> Radiosity {
+    let f = |k: usize| {
+        f32::from_le_bytes([
+            bytes[4 * k],
+            bytes[4 * k + 1],
+            bytes[4 * k + 2],
+            bytes[4 * k + 3],
+        ])
+    };
+    [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
+}
+
+/// The whole length of a checkpoint file with this header length and surfel count.
+fn file_len(header_len: usize, surfels: u64) -> Option<u64> {
+    surfels
+        .checked_mul(RADIOSITY_LEN as u64)?
+        .checked_add((PREFIX_LEN + header_len + 8) as u64)
+}
+
+fn encode_header(header: &Header) -> Vec<u8> {
+    let mut b = Vec::with_capacity(128);
+    let id = &header.identity;
+    let state = &header.state;
+    let u32s = |b: &mut Vec<u8>, v: u32| b.extend_from_slice(&v.to_le_bytes());
+    let u64s = |b: &mut Vec<u8>, v: u64| b.extend_from_slice(&v.to_le_bytes());
+    let opt = |b: &mut Vec<u8>, v: Option<f64>| {
+        b.extend_from_slice(&(v.is_some() as u32).to_le_bytes());
+        b.extend_from_slice(&v.unwrap_or(0.0).to_bits().to_le_bytes());
+    };
+    u32s(&mut b, id.solver as u32);
+    u64s(&mut b, id.surfels);
+    for d in id.dims {
+        u32s(&mut b, d);
+    }
+    u64s(&mut b, id.voxel_size.to_bits());
+    u32s(&mut b, id.directions);
+    u32s(&mut b, id.directions_checksum);
+    u32s(&mut b, id.channels);
+    u32s(&mut b, id.accelerate as u32);
+    u32s(&mut b, id.scene_checksum);
+    u64s(&mut b, state.iteration);
+    u32s(&mut b, state.ranks);
+    opt(&mut b, state.previous_change);
+    let (changes, count, last_ratio) = state.extrapolation.parts();
+    u64s(&mut b, count as u64);
+    opt(&mut b, last_ratio);
+    u32s(&mut b, changes.len() as u32);
+    for c in changes {
+        u64s(&mut b, c.to_bits());
+    }
+    b
+}
+
+/// Reads little-endian fields off a byte slice; running off its end is an error.
+struct Fields<'a> {
+    bytes: &'a [u8],
+    at: usize,
+}
+
+impl Fields<'_> {
+    fn take<const N: usize>(&mut self) -> Option<[u8; N]> {
+        let end = self.at.checked_add(N)?;
+        let out = self.bytes.get(self.at..end)?.try_into().ok()?;
+        self.at = end;
+        Some(out)
+    }
+    fn u32(&mut self) -> Option<u32> {
+        self.take().map(u32::from_le_bytes)
+    }
+    fn u64(&mut self) -> Option<u64> {
+        self.take().map(u64::from_le_bytes)
+    }
+    fn f64(&mut self) -> Option<f64> {
+        self.u64().map(f64::from_bits)
+    }
+    fn opt_f64(&mut self) -> Option<Option<f64>> {
+        let present = self.u32()?;
+        let v = self.f64()?;
+        match present {
+            0 => Some(None),
+            1 => Some(Some(v)),
+            _ => None,
+        }
+    }
+}
+
+fn decode_header(body: &[u8]) -> Option<Header> {
+    let mut f = Fields { bytes: body, at: 0 };
+    let solver = match f.u32()? {
+        1 => Solver::InMemory,
+        2 => Solver::OutOfCore,
+        _ => return None,
+    };
+    let identity = Identity {
+        solver,
+        surfels: f.u64()?,
+        dims: [f.u32()?, f.u32()?, f.u32()?],
+        voxel_size: f.f64()?,
+        directions: f.u32()?,
+        directions_checksum: f.u32()?,
+        channels: f.u32()?,
+        accelerate: match f.u32()? {
+            0 => false,
+            1 => true,
+            _ => return None,
+        },
+        scene_checksum: f.u32()?,
+    };
+    let iteration = f.u64()?;
+    let ranks = f.u32()?;
+    let previous_change = f.opt_f64()?;
+    let count = f.u64()? as usize;
+    let last_ratio = f.opt_f64()?;
+    let len = f.u32()? as usize;
+    if len > body.len() / 8 {
+        return None;
+    }
+    let changes = (0..len).map(|_| f.f64()).collect::<Option<Vec<f64>>>()?;
+    if f.at != body.len() {
+        return None;
+    }
+    Some(Header {
+        identity,
+        state: State {
+            iteration,
+            ranks,
+            previous_change,
+            extrapolation: Extrapolation::from_parts(changes, count, last_ratio),
+        },
+    })
+}
+
+fn bad(path: &Path, what: impl Into<String>) -> CheckpointError {
+    CheckpointError::Bad {
+        path: path.to_path_buf(),
+        what: what.into(),
+    }
+}
+
+/// Checks the fixed prefix and the header (its checksum too); returns the header and the offset
+/// of the radiosity. `bytes` must hold at least the prefix and the header.
+fn parse_prefix(path: &Path, bytes: &[u8]) -> Result<(Header, usize), CheckpointError> {
+    if bytes.len() < PREFIX_LEN {
+        return Err(bad(
+            path,
+            format!(
+                "not a voxrad checkpoint: only {} bytes (truncated)",
+                bytes.len()
+            ),
+        ));
+    }
+    if bytes[..8] != MAGIC {
+        return Err(bad(path, "not a voxrad checkpoint (wrong magic number)"));
+    }
+    let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default());
+    if version != FORMAT_VERSION {
+        return Err(bad(
+            path,
+            format!(
+                "checkpoint format version {version}; this voxrad reads version \
+                 {FORMAT_VERSION}: finish that run with the voxrad that made it, or start afresh \
+                 without --resume"
+            ),
+        ));
+    }
+    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap_or_default()) as usize;
+    if header_len > MAX_HEADER_LEN {
+        return Err(bad(
+            path,
+            format!("damaged checkpoint: a header of {header_len} bytes"),
+        ));
+    }
+    let end = PREFIX_LEN + header_len;
+    if bytes.len() < end + 4 {
+        return Err(bad(path, "truncated checkpoint (the header is incomplete)"));
+    }
+    let stored = u32::from_le_bytes(bytes[end..end + 4].try_into().unwrap_or_default());
+    if crc32fast::hash(&bytes[..end]) != stored {
+        return Err(bad(path, "damaged checkpoint (header checksum mismatch)"));
+    }
+    let header = decode_header(&bytes[PREFIX_LEN..end])
+        .ok_or_else(|| bad(path, "damaged checkpoint (its header does not decode)"))?;
+    Ok((header, end + 4))
+}
+
+/// A checkpoint read whole into memory and checked: its header and its radiosity.
+pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Header, Vec<Radiosity>), CheckpointError> {
+    let (header, at) = parse_prefix(path, bytes)?;
+    let expected = file_len(at - PREFIX_LEN - 4, header.identity.surfels);
+    if expected != Some(bytes.len() as u64) {
+        return Err(length_error(path, expected, bytes.len() as u64));
+    }
+    let payload = &bytes[at..bytes.len() - 4];
+    let stored = u32::from_le_bytes(bytes[bytes.len() - 4..].try_into().unwrap_or_default());
+    if crc32fast::hash(payload) != stored {
+        return Err(bad(
+            path,
+            "damaged checkpoint (radiosity checksum mismatch)",
+        ));
+    }
+    let radiosity = payload
+        .chunks_exact(RADIOSITY_LEN)
+        .map(decode_radiosity)
+        .collect();
+    Ok((header, radiosity))
+}
+
+fn length_error(path: &Path, expected: Option<u64>, got: u64) -> CheckpointError {
+    match expected {
+        Some(e) if got < e => bad(
+            path,
+            format!("truncated checkpoint: {got} bytes where its header says {e}"),
+        ),
+        Some(e) => bad(
+            path,
+            format!("damaged checkpoint: {got} bytes where its header says {e}"),
+        ),
+        None => bad(path, "damaged checkpoint: an impossible surfel count"),
+    }
+}
+
+/// A checkpoint file opened for streaming (the out-of-core solver): header checked, length
+/// checked, radiosity read in pieces by [`CheckpointFile::read_radiosity`].
+pub struct CheckpointFile {
+    pub path: PathBuf,
+    pub header: Header,
+    payload_at: u64,
+}
+
+impl CheckpointFile {
+    pub fn open(path: &Path) -> Result<Self, CheckpointError> {
+        let io = |action, source| CheckpointError::Io {
+            path: path.to_path_buf(),
+            action,
+            source,
+        };
+        let mut file = File::open(path).map_err(|e| io("open", e))?;
+        let len = file.metadata().map_err(|e| io("read", e))?.len();
+        let mut prefix = vec![0u8; PREFIX_LEN.min(len as usize)];
+        file.read_exact(&mut prefix).map_err(|e| io("read", e))?;
+        if prefix.len() == PREFIX_LEN && prefix[..8] == MAGIC {
+            let header_len = u32::from_le_bytes(prefix[12..16].try_into().unwrap_or_default());
+            let want = (header_len as usize).min(MAX_HEADER_LEN) + 4;
+            let available = (len as usize).saturating_sub(PREFIX_LEN).min(want);
+            let mut rest = vec![0u8; available];
+            file.read_exact(&mut rest).map_err(|e| io("read", e))?;
+            prefix.extend_from_slice(&rest);
+        }
+        let (header, at) = parse_prefix(path, &prefix)?;
+        let expected = file_len(at - PREFIX_LEN - 4, header.identity.surfels);
+        if expected != Some(len) {
+            return Err(length_error(path, expected, len));
+        }
+        Ok(CheckpointFile {
+            path: path.to_path_buf(),
+            header,
+            payload_at: at as u64,
+        })
+    }
+
+    /// Hands the radiosity to `f` in pieces of whole surfels (at most `buffer_bytes` each, at
+    /// least one surfel), then checks the checksum: a caller must not keep what it was handed
+    /// if this returns an error.
+    pub fn read_radiosity<E: From<CheckpointError>>(
+        &self,
+        buffer_bytes: usize,
+        mut f: impl FnMut(&[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        use std::io::{Seek, SeekFrom};
+        let path = &self.path;
+        let io = |action, source| CheckpointError::Io {
+            path: path.to_path_buf(),
+            action,
+            source,
+        };
+        let mut file = File::open(path).map_err(|e| io("open", e))?;
+        file.seek(SeekFrom::Start(self.payload_at))
+            .map_err(|e| io("read", e))?;
+        let piece = (buffer_bytes / RADIOSITY_LEN).max(1) * RADIOSITY_LEN;
+        let mut buffer = vec![0u8; piece];
+        let mut left = self.header.identity.surfels * RADIOSITY_LEN as u64;
+        let mut crc = crc32fast::Hasher::new();
+        while left > 0 {
+            let len = (left as usize).min(piece);
+            file.read_exact(&mut buffer[..len])
+                .map_err(|e| io("read", e))?;
+            crc.update(&buffer[..len]);
+            f(&buffer[..len])?;
+            left -= len as u64;
+        }
+        let mut stored = [0u8; 4];
+        file.read_exact(&mut stored).map_err(|e| io("read", e))?;
+        if crc.finalize() != u32::from_le_bytes(stored) {
+            return Err(bad(path, "damaged checkpoint (radiosity checksum mismatch)").into());
+        }
+        Ok(())
+    }
+}
+
+/// A writer that checksums and counts what passes through it.
+struct Summing<'a, W: Write> {
+    inner: &'a mut W,
+    crc: crc32fast::Hasher,
+    bytes: u64,
+}
+
+impl<W: Write> Write for Summing<'_, W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.crc.update(&buf[..n]);
+        self.bytes += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
+}
+
+/// Writes a checkpoint at `path` durably (see the module header); `fill` writes the radiosity of
+/// `header.identity.surfels` surfels. On failure nothing is left under `path` but what was there.
+pub fn write(
+    path: &Path,
+    header: &Header,
+    buffer_bytes: usize,
+    fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<(), CheckpointError> {
+    let partial = partial_path(path);
+    let result = write_partial(&partial, header, buffer_bytes, fill).and_then(|()| {
+        std::fs::rename(&partial, path).map_err(|e| CheckpointError::Io {
+            path: path.to_path_buf(),
+            action: "rename a new checkpoint to",
+            source: e,
+        })
+    });
+    if result.is_err() {
+        let _ = std::fs::remove_file(&partial);
+        return result;
+    }
+    // The rename is durable only once the directory is synced. Best effort, as for the other
+    // outputs: the data itself is already on disk.
+    if let Ok(dir) = File::open(crate::output::atomic::parent_dir(path)) {
+        let _ = dir.sync_all();
+    }
+    Ok(())
+}
+
+fn write_partial(
+    partial: &Path,
+    header: &Header,
+    buffer_bytes: usize,
+    fill: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<(), CheckpointError> {
+    let io = |action, source| CheckpointError::Io {
+        path: partial.to_path_buf(),
+        action,
+        source,
+    };
+    let file = File::create(partial).map_err(|e| io("create", e))?;
+    let mut out = BufWriter::with_capacity(buffer_bytes.max(4096), file);
+    let body = encode_header(header);
+    let mut prefix = Vec::with_capacity(PREFIX_LEN + body.len());
+    prefix.extend_from_slice(&MAGIC);
+    prefix.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    prefix.extend_from_slice(&(body.len() as u32).to_le_bytes());
+    prefix.extend_from_slice(&body);
+    let written = (|| {
+        out.write_all(&prefix)?;
+        out.write_all(&crc32fast::hash(&prefix).to_le_bytes())?;
+        let mut summing = Summing {
+            inner: &mut out,
+            crc: crc32fast::Hasher::new(),
+            bytes: 0,
+        };
+        fill(&mut summing)?;
+        let (crc, bytes) = (summing.crc.finalize(), summing.bytes);
+        if bytes != header.identity.surfels * RADIOSITY_LEN as u64 {
+            return Err(std::io::Error::other(format!(
+                "internal error: {bytes} bytes of radiosity for {} surfels",
+                header.identity.surfels
+            )));
+        }
+        out.write_all(&crc.to_le_bytes())?;
+        out.flush()
+    })();
+    written.map_err(|e| io("write", e))?;
+    let file = out.into_inner().map_err(|e| io("write", e.into_error()))?;
+    file.sync_all().map_err(|e| io("sync", e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn header(surfels: u64) -> Header {
+        let mut extrapolation = Extrapolation::default();
+        extrapolation.observe(1.0, 0.5);
+        extrapolation.observe(0.5, 0.25);
+        Header {
+            identity: Identity {
+                solver: Solver::InMemory,
+                surfels,
+                dims: [4, 5, 6],
+                voxel_size: 0.25,
+                directions: 49,
+                directions_checksum: 7,
+                channels: 3,
+                accelerate: true,
+                scene_checksum: 0xdead_beef,
+            },
+            state: State {
+                iteration: 12,
+                ranks: 2,
+                previous_change: Some(0.125),
+                extrapolation,
+            },
+        }
+    }
+
+    fn radiosity(n: usize) -> Vec<Radiosity> {
+        (0..n)
+            .map(|i| [[i as f32, 0.5, -0.0], [1e-30, f32::MAX, 3.25]])
+            .collect()
+    }
+
+    fn write_one(path: &Path, header: &Header, values: &[Radiosity]) {
+        write(path, header, 64, |w| {
+            let mut bytes = [0u8; RADIOSITY_LEN];
+            for b in values {
+                encode_radiosity(b, &mut bytes);
+                w.write_all(&bytes)?;
+            }
+            Ok(())
+        })
+        .unwrap();
+    }
+
+    #[test]
+    fn round_trip_in_memory_and_streamed() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("checkpoint.bin");
+        let h = header(37);
+        let values = radiosity(37);
+        write_one(&path, &h, &values);
+        assert!(!partial_path(&path).exists());
+        let (got, r) = parse(&path, &std::fs::read(&path).unwrap()).unwrap();
+        assert_eq!(got, h);
+        let bits = |v: &[Radiosity]| -> Vec<u32> {
+            v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
+        };
+        assert_eq!(bits(&r), bits(&values));
+        let file = CheckpointFile::open(&path).unwrap();
+        assert_eq!(file.header, h);
+        let mut streamed = Vec::new();
+        file.read_radiosity::<CheckpointError>(50, |piece| {
+            assert_eq!(piece.len() % RADIOSITY_LEN, 0);
+            streamed.extend(piece.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
+            Ok(())
+        })
+        .unwrap();
+        assert_eq!(bits(&streamed), bits(&values));
+    }
+
+    #[test]
+    fn every_damage_is_named_and_never_panics() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("checkpoint.bin");
+        write_one(&path, &header(9), &radiosity(9));
+        let good = std::fs::read(&path).unwrap();
+        // Every truncation and every single-byte flip is refused, by both readers.
+        let mut cases: Vec<Vec<u8>> = (0..good.len()).map(|n| good[..n].to_vec()).collect();
+        for at in 0..good.len() {
+            let mut b = good.clone();
+            b[at] ^= 0x10;
+            cases.push(b);
+        }
+        let mut longer = good.clone();
+        longer.push(0);
+        cases.push(longer);
+        for bytes in cases {
+            let err = parse(&path, &bytes).unwrap_err().to_string();
+            assert!(err.contains("checkpoint.bin"), "{err}");
+            std::fs::write(&path, &bytes).unwrap();
+            let streamed = CheckpointFile::open(&path).and_then(|f| {
+                f.read_radiosity::<CheckpointError>(40, |_| Ok(()))?;
+                Ok(())
+            });
+            assert!(streamed.is_err(), "{} bytes accepted", bytes.len());
+        }
+    }
+
+    #[test]
+    fn a_failed_write_keeps_the_earlier_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("checkpoint.bin");
+        write_one(&path, &header(3), &radiosity(3));
+        let before = std::fs::read(&path).unwrap();
+        let err = write(&path, &header(3), 64, |w| {
+            w.write_all(&[0u8; 30])?;
+            Err(std::io::Error::other("disk full"))
+        })
+        .unwrap_err();
+        assert!(err.to_string().contains("disk full"), "{err}");
+        assert_eq!(std::fs::read(&path).unwrap(), before);
+        assert!(!partial_path(&path).exists());
+    }
+}

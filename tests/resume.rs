@@ -1,0 +1,569 @@
+//! Checkpoints and resume: a solve killed at any moment and resumed with `--resume` as often as
+//! it takes gives the same bytes as one that was never interrupted; SIGTERM and SIGINT stop a
+//! solve with a checkpoint and exit status 3; a damaged or foreign checkpoint is refused with
+//! exit status 2 and loses nothing. In memory and out of core, through the real binary; and,
+//! through the library, a resume from every single iteration boundary.
+
+mod common;
+
+use common::process::{describe, Child, Ended, Rng};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::time::{Duration, Instant};
+use voxrad::checkpoint::{self, CheckpointFile, Identity, Saver};
+use voxrad::distribute::SingleProcess;
+use voxrad::geometry::directions::DirectionSet;
+use voxrad::outcore::{solve_out_of_core_checkpointed, InMemorySource, OocCheckpoints};
+use voxrad::solve::jacobi::{solve_checkpointed, solve_with, Checkpoints};
+use voxrad::solve::SolveOptions;
+use voxrad::voxel::voxelize::{voxelize, GridSpec};
+
+fn cornell() -> String {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("examples/cornell_box.obj")
+        .display()
+        .to_string()
+}
+
+/// `voxrad solve` of the Cornell box into `out`, with the default preset's tail extrapolation
+/// and stopping rule (so the extrapolation and stopping state cross the checkpoints), a
+/// checkpoint after every iteration; an option in `extra` replaces the same one here.
+fn solve_command(out: &Path, extra: &[&str]) -> Command {
+    let base = [
+        ("--resolution", "32"),
+        ("--directions", "200"),
+        ("--tolerance", "1e-6"),
+        ("--threads", "2"),
+        ("--image-size", "64x48"),
+        ("--checkpoint-every", "0"),
+    ];
+    let mut c = Command::new(env!("CARGO_BIN_EXE_voxrad"));
+    c.args(["solve", &cornell(), "--out"]).arg(out);
+    for (flag, value) in base {
+        if !extra.contains(&flag) {
+            c.args([flag, value]);
+        }
+    }
+    c.args(extra).env_remove("RUST_LOG");
+    c
+}
+
+fn results(out: &Path) -> Vec<u8> {
+    std::fs::read(out.join("surfels.bin")).expect("results file")
+}
+
+fn report(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+}
+
+/// Runs to the end (at most two minutes); panics unless it succeeds. Returns its log and time.
+fn run_to_end(command: Command, log: &Path) -> (String, f64) {
+    let mut child = Child::spawn(command, log);
+    let status = child.wait_at_most(Duration::from_secs(120));
+    assert!(status.success(), "{}:\n{}", describe(&status), child.log());
+    (child.log(), child.started.elapsed().as_secs_f64())
+}
+
+/// Only the finished outputs are left: no checkpoint, no half-written file, no work directory.
+fn assert_clean(out: &Path) {
+    for entry in std::fs::read_dir(out).unwrap() {
+        let name = entry.unwrap().file_name().to_string_lossy().into_owned();
+        assert!(
+            ["surfels.bin", "surfels.ply", "render.png", "report.json"].contains(&name.as_str()),
+            "{} left in {}",
+            name,
+            out.display()
+        );
+    }
+}
+
+/// Kills `voxrad solve --resume` with SIGKILL at random moments (the first after a checkpoint
+/// exists, so at least one run really resumes), `kills` times unless it finishes first, then lets
+/// it finish; the results must be the uninterrupted run's, byte for byte.
+fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    let (_, seconds) = run_to_end(
+        solve_command(&reference, extra),
+        &tmp.path().join("reference.log"),
+    );
+    let out = tmp.path().join("out");
+    let mut rng = Rng::seeded(seed);
+    let (mut killed, mut resumed, mut runs) = (0, 0, 0);
+    let started = Instant::now();
+    loop {
+        runs += 1;
+        let log = tmp.path().join(format!("run{runs}.log"));
+        let mut child = Child::spawn(solve_command(&out, &[extra, &["--resume"]].concat()), &log);
+        let ended = if killed < kills {
+            if killed == 0 {
+                let ckpt = checkpoint::path_in(&out);
+                child.wait_for(Duration::from_secs(120), || ckpt.exists());
+            }
+            // Short enough that several kills land before the end: some during start-up or a
+            // checkpoint's writing, most in mid-iteration.
+            let delay = rng.uniform(0.02, 0.4) * seconds;
+            child.run_or_kill_after(Duration::from_secs_f64(delay))
+        } else {
+            Ended::Exited(child.wait_at_most(Duration::from_secs(120)))
+        };
+        let text = child.log();
+        assert!(!text.contains("panicked"), "{text}");
+        if runs == 1 {
+            assert!(
+                text.contains("no checkpoint") && text.contains("starting from the beginning"),
+                "{text}"
+            );
+        }
+        if text.contains("resumed from a checkpoint") {
+            resumed += 1;
+        }
+        match ended {
+            Ended::Killed => {
+                killed += 1;
+                let at = text
+                    .lines()
+                    .rev()
+                    .find(|l| l.contains("checkpoint written"))
+                    .and_then(|l| l.split("iteration=").nth(1))
+                    .and_then(|r| r.split_whitespace().next())
+                    .unwrap_or("none");
+                println!(
+                    "run {runs}: killed after {:.2} s (last checkpoint written in this run: \
+                     iteration {at})",
+                    child.started.elapsed().as_secs_f64()
+                );
+            }
+            Ended::Exited(status) => {
+                assert!(status.success(), "{}:\n{text}", describe(&status));
+                println!(
+                    "run {runs}: finished in {:.2} s",
+                    child.started.elapsed().as_secs_f64()
+                );
+                break;
+            }
+        }
+    }
+    println!(
+        "{killed} kills, {resumed} resumed runs, {runs} runs in {:.1} s (uninterrupted: {seconds:.1} s)",
+        started.elapsed().as_secs_f64()
+    );
+    assert!(
+        killed >= 1 && resumed >= 1,
+        "{killed} kills, {resumed} resumes"
+    );
+    assert!(
+        results(&out) == results(&reference),
+        "the resumed results differ from the uninterrupted ones"
+    );
+    let (a, b) = (report(&out), report(&reference));
+    assert_eq!(a["iterations"], b["iterations"]);
+    assert_eq!(a["residual"], b["residual"]);
+    assert_eq!(a["energy"], b["energy"]);
+    assert_clean(&out);
+}
+
+#[test]
+fn sigkill_at_random_moments_then_resume_gives_the_same_bytes_in_memory() {
+    killed_and_resumed(&[], 0x5eed_0001, 6);
+}
+
+#[test]
+fn sigkill_at_random_moments_then_resume_gives_the_same_bytes_out_of_core() {
+    // 1 MiB for about 6,700 surfels: every array in files, several bands per direction.
+    killed_and_resumed(&["--memory", "1MiB"], 0x5eed_0002, 5);
+}
+
+/// Starts a solve into `out`, sends `signal` once `ready(log)` holds, and expects exit status 3
+/// with a message naming the checkpoint (or, `in_setup`, possibly one saying that the iterations
+/// had not started); returns the log.
+fn stopped_by(
+    signal: i32,
+    out: &Path,
+    extra: &[&str],
+    log: &Path,
+    in_setup: bool,
+    ready: impl Fn(&str, &Path) -> bool,
+) -> String {
+    let mut child = Child::spawn(solve_command(out, extra), log);
+    let seen = child.wait_for(Duration::from_secs(120), || ready(&child_log(log), out));
+    assert!(seen, "never ready:\n{}", child_log(log));
+    // SAFETY: kill(2) on our own child.
+    unsafe {
+        libc::kill(child.pid(), signal);
+    }
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+    let name = voxrad::interrupt::name(signal);
+    let ckpt = checkpoint::path_in(out);
+    assert!(
+        text.contains(&format!("interrupted by {name}")) && text.contains("--resume"),
+        "{text}"
+    );
+    assert!(!text.contains("panicked"), "{text}");
+    if in_setup && text.contains("before the iterations started") {
+        assert!(!ckpt.exists(), "{text}");
+    } else {
+        assert!(
+            text.contains(&format!("checkpoint at {}", ckpt.display())),
+            "{text}"
+        );
+        assert!(ckpt.exists());
+    }
+    text
+}
+
+fn child_log(log: &Path) -> String {
+    std::fs::read_to_string(log).unwrap_or_default()
+}
+
+/// Resumes each stopped solve `(out, extra options)` and compares with `reference`.
+fn resume_each(stopped: &[(&Path, &[&str])], reference: &Path) {
+    for (dir, extra) in stopped {
+        let extra = [*extra, &["--resume"]].concat();
+        let had = checkpoint::path_in(dir).exists();
+        let (text, _) = run_to_end(
+            solve_command(dir, &extra),
+            &dir.with_extension("resume.log"),
+        );
+        assert_eq!(text.contains("resumed from a checkpoint"), had, "{text}");
+        assert!(results(dir) == results(reference), "{}", dir.display());
+        assert_eq!(report(dir)["resumed_from_iteration"].is_u64(), had);
+        assert_clean(dir);
+    }
+}
+
+/// Options under which only a stop signal writes a checkpoint (none is due in a short run).
+const ONLY_ON_SIGNAL: [&str; 2] = ["--checkpoint-every", "1000"];
+
+#[test]
+fn sigterm_and_sigint_stop_an_in_memory_solve_with_a_checkpoint_and_exit_status_3() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    run_to_end(solve_command(&reference, &[]), &tmp.path().join("ref.log"));
+
+    // SIGTERM in mid-solve, once a few iterations are done: the checkpoint is written on it.
+    let term = tmp.path().join("term");
+    let text = stopped_by(
+        libc::SIGTERM,
+        &term,
+        &ONLY_ON_SIGNAL,
+        &tmp.path().join("term.log"),
+        false,
+        |log, _| log.contains("iteration=3 "),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    assert_eq!(text.matches("checkpoint written").count(), 1, "{text}");
+    let saved = CheckpointFile::open(&checkpoint::path_in(&term)).unwrap();
+    assert!(saved.header.state.iteration >= 3);
+
+    // SIGINT just before the iterations start: at once, or with the checkpoint of iteration 0.
+    let int = tmp.path().join("int");
+    let text = stopped_by(
+        libc::SIGINT,
+        &int,
+        &ONLY_ON_SIGNAL,
+        &tmp.path().join("int.log"),
+        true,
+        |log, _| log.contains("voxelized"),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    resume_each(&[(&term, &[]), (&int, &[])], &reference);
+}
+
+#[test]
+fn sigterm_stops_an_out_of_core_solve_in_mid_iteration_or_in_its_setup() {
+    let tmp = tempfile::tempdir().unwrap();
+    let memory: &[&str] = &["--memory", "1MiB"];
+    let reference = tmp.path().join("reference");
+    run_to_end(
+        solve_command(&reference, memory),
+        &tmp.path().join("ref.log"),
+    );
+
+    // In mid-iteration: the canonical radiosity of the last completed iteration is saved.
+    let mid = tmp.path().join("mid");
+    let text = stopped_by(
+        libc::SIGTERM,
+        &mid,
+        &[memory, &ONLY_ON_SIGNAL].concat(),
+        &tmp.path().join("mid.log"),
+        false,
+        |log, _| log.contains("iteration=2 "),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    assert_eq!(text.matches("checkpoint written").count(), 1, "{text}");
+
+    // While the work files are being made: the process ends at once, nothing to save.
+    let setup = tmp.path().join("setup");
+    let text = stopped_by(
+        libc::SIGTERM,
+        &setup,
+        &[memory, &ONLY_ON_SIGNAL].concat(),
+        &tmp.path().join("setup.log"),
+        true,
+        |log, _| log.contains("out-of-core plan"),
+    );
+    println!("{}", text.lines().last().unwrap_or(""));
+    resume_each(&[(&mid, memory), (&setup, memory)], &reference);
+}
+
+#[test]
+fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A checkpoint to damage: from a solve stopped by SIGTERM.
+    let stopped = tmp.path().join("stopped");
+    stopped_by(
+        libc::SIGTERM,
+        &stopped,
+        &[],
+        &tmp.path().join("stopped.log"),
+        false,
+        |_, out| checkpoint::path_in(out).exists(),
+    );
+    let good = std::fs::read(checkpoint::path_in(&stopped)).unwrap();
+    // A finished result in the directory the bad checkpoints go into: it must survive.
+    let out = tmp.path().join("out");
+    run_to_end(solve_command(&out, &[]), &tmp.path().join("out.log"));
+    let before = results(&out);
+    let ckpt = checkpoint::path_in(&out);
+    let run = |extra: &[&str]| {
+        let o = solve_command(&out, &[extra, &["--resume"]].concat())
+            .output()
+            .unwrap();
+        (
+            o.status.code(),
+            String::from_utf8_lossy(&o.stderr).into_owned(),
+        )
+    };
+    let mut flipped = good.clone();
+    let at = flipped.len() - 100;
+    flipped[at] ^= 1;
+    let mut wrong_header = good.clone();
+    wrong_header[30] ^= 1;
+    // What is wrong, the checkpoint's bytes, options of the run, words the message must hold.
+    type Case<'a> = (&'a str, Vec<u8>, &'a [&'a str], &'a [&'a str]);
+    let cases: Vec<Case> = vec![
+        (
+            "flipped radiosity bit",
+            flipped,
+            &[],
+            &["damaged", "checksum"],
+        ),
+        (
+            "flipped header bit",
+            wrong_header,
+            &[],
+            &["damaged", "header"],
+        ),
+        (
+            "truncated",
+            good[..good.len() / 2].to_vec(),
+            &[],
+            &["truncated"],
+        ),
+        (
+            "not a checkpoint",
+            b"hello".to_vec(),
+            &[],
+            &["not a voxrad checkpoint"],
+        ),
+        (
+            "other directions",
+            good.clone(),
+            &["--directions", "100"],
+            &["another run", "directions"],
+        ),
+        (
+            "other resolution",
+            good.clone(),
+            &["--resolution", "24"],
+            &["another run", "grid"],
+        ),
+        (
+            "out of core",
+            good.clone(),
+            &["--memory", "1MiB"],
+            &["another run", "out-of-core"],
+        ),
+    ];
+    for (what, bytes, extra, needles) in cases {
+        std::fs::write(&ckpt, &bytes).unwrap();
+        let (code, text) = run(extra);
+        assert_eq!(code, Some(2), "{what}: {text}");
+        assert!(!text.contains("panicked"), "{what}: {text}");
+        assert!(text.contains(&ckpt.display().to_string()), "{what}: {text}");
+        for n in needles {
+            assert!(text.contains(n), "{what}: no {n:?} in {text}");
+        }
+        assert!(
+            results(&out) == before,
+            "{what}: the earlier results changed"
+        );
+        assert_eq!(
+            std::fs::read(&ckpt).unwrap(),
+            bytes,
+            "{what}: checkpoint touched"
+        );
+        println!("{what}: {}", text.lines().last().unwrap_or(""));
+    }
+}
+
+/// Through the library: for every iteration boundary k of a reference solve, a solve allowed
+/// k + 1 iterations leaves the checkpoint of iteration k (written at every boundary it goes on
+/// from); resuming from it with the reference's options must give the reference's bits. The
+/// default preset's extrapolation is on, so boundaries before, at and after a jump are covered.
+#[test]
+fn resuming_from_every_iteration_boundary_is_bit_identical() {
+    let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(16)).unwrap();
+    let directions = DirectionSet::with_count(49);
+    let options = SolveOptions {
+        directions: 49,
+        tolerance: Some(1e-6),
+        threads: 2,
+        accelerate: true,
+        ..SolveOptions::default()
+    };
+    let reference = solve_with(&set, &directions, &options).unwrap();
+    let total = reference.stats.iterations;
+    assert!(
+        reference.stats.extrapolations >= 1,
+        "no extrapolation to cross"
+    );
+    let bits = |r: &[[[f32; 3]; 2]]| -> Vec<u32> {
+        r.iter().flatten().flatten().map(|v| v.to_bits()).collect()
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let identity = Identity::in_memory(&set, &directions, 3, true);
+    let saver = |dir: &Path, resumed: Option<u64>| {
+        Saver::new(dir, identity.clone(), true, Duration::ZERO, 1, resumed)
+    };
+    for k in 0..total {
+        let dir = tmp.path().join(format!("k{k}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = checkpoint::path_in(&dir);
+        if k > 0 {
+            let short = SolveOptions {
+                max_iterations: k + 1,
+                ..options.clone()
+            };
+            let mut s = saver(&dir, None);
+            let c = Checkpoints {
+                saver: &mut s,
+                resume: None,
+            };
+            solve_checkpointed(&set, &directions, &short, &SingleProcess, c).unwrap();
+        } else {
+            // Iteration 0 is B = E: what a solve stopped before its first iteration leaves.
+            let mut s = saver(&dir, None);
+            let state = s.state(0, None, &Default::default());
+            let emission: Vec<[[f32; 3]; 2]> = set
+                .surfels
+                .iter()
+                .map(|x| {
+                    x.material
+                        .map(|m| set.materials[m as usize].emission.map(|e| e as f32))
+                })
+                .collect();
+            s.save_memory(state, &emission).unwrap();
+        }
+        let loaded = checkpoint::load_shared(&SingleProcess, &path, &identity, 1000)
+            .unwrap()
+            .expect("a checkpoint");
+        assert_eq!(loaded.state.iteration, k as u64);
+        let mut s = saver(&dir, Some(k as u64));
+        let c = Checkpoints {
+            saver: &mut s,
+            resume: Some(loaded),
+        };
+        let resumed = solve_checkpointed(&set, &directions, &options, &SingleProcess, c).unwrap();
+        assert_eq!(resumed.stats.iterations, total, "from {k}");
+        assert_eq!(resumed.stats.extrapolations, reference.stats.extrapolations);
+        assert_eq!(
+            resumed.stats.residual.to_bits(),
+            reference.stats.residual.to_bits()
+        );
+        assert!(
+            bits(&resumed.radiosity) == bits(&reference.radiosity),
+            "resumed from iteration {k}: different radiosity"
+        );
+    }
+    println!(
+        "{total} iterations, {} extrapolations: resumed from each of the {total} boundaries",
+        reference.stats.extrapolations
+    );
+}
+
+/// The same for the out-of-core solver (from a surfel set in memory, a budget of 256 KiB).
+#[test]
+fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
+    let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(16)).unwrap();
+    let source = InMemorySource::new(&set);
+    let directions = DirectionSet::with_count(49);
+    let options = SolveOptions {
+        directions: 49,
+        tolerance: Some(1e-6),
+        threads: 2,
+        ..SolveOptions::default()
+    };
+    let budget = 256 << 10;
+    let tmp = tempfile::tempdir().unwrap();
+    let identity = Identity {
+        solver: checkpoint::Solver::OutOfCore,
+        surfels: set.surfels.len() as u64,
+        dims: set.grid.dims,
+        voxel_size: set.grid.voxel_size,
+        directions: directions.len() as u32,
+        directions_checksum: checkpoint::directions_checksum(&directions),
+        channels: 3,
+        accelerate: false,
+        scene_checksum: 1,
+    };
+    let solve = |dir: &PathBuf, max: usize, resume: Option<CheckpointFile>| {
+        let mut s = Saver::new(
+            dir,
+            identity.clone(),
+            true,
+            Duration::ZERO,
+            1,
+            resume.as_ref().map(|f| f.header.state.iteration),
+        );
+        let o = SolveOptions {
+            max_iterations: max,
+            ..options.clone()
+        };
+        let c = OocCheckpoints {
+            saver: &mut s,
+            resume,
+        };
+        let solution =
+            solve_out_of_core_checkpointed(&source, &directions, &o, budget, dir, c).unwrap();
+        (
+            solution.radiosity().unwrap(),
+            solution.stats.solve.iterations,
+        )
+    };
+    let reference_dir = tmp.path().join("reference");
+    std::fs::create_dir_all(&reference_dir).unwrap();
+    let (reference, total) = solve(&reference_dir, 1000, None);
+    let bits = |r: &[[[f32; 3]; 2]]| -> Vec<u32> {
+        r.iter().flatten().flatten().map(|v| v.to_bits()).collect()
+    };
+    for k in 1..total {
+        let dir = tmp.path().join(format!("k{k}"));
+        std::fs::create_dir_all(&dir).unwrap();
+        solve(&dir, k + 1, None);
+        let file = CheckpointFile::open(&checkpoint::path_in(&dir)).unwrap();
+        assert_eq!(file.header.state.iteration, k as u64);
+        let (resumed, iterations) = solve(&dir, 1000, Some(file));
+        assert_eq!(iterations, total);
+        assert!(
+            bits(&resumed) == bits(&reference),
+            "resumed from iteration {k}"
+        );
+    }
+    println!("out of core: resumed from each of {} boundaries", total - 1);
+}
