@@ -112,10 +112,10 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             mode.name()
         )));
     }
-    if mode != Mode::Single && (cmd.scene.is_dir() || cmd.memory.is_some()) {
+    if mode != Mode::Single && cmd.memory.is_some() {
         return Err(AppError::BadInput(format!(
-            "{}: --distribute {} does not work out of core yet (shard sets, --memory); solve an \
-             OBJ file in memory on each rank",
+            "{}: --distribute {} does not work out of core yet (--memory); every rank solves in \
+             memory: leave --memory out, or run one process",
             cmd.scene.display(),
             mode.name()
         )));
@@ -140,33 +140,37 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
         }
         other => other,
     };
-    if cmd.scene.is_dir() {
+    if cmd.scene.is_dir() && mode == Mode::Single {
         return run_solve_shard_set(cmd, started);
     }
     if let Some(budget) = cmd.memory {
         return run_solve_obj_out_of_core(cmd, budget, started);
     }
-    let scene = load_obj(&cmd.scene).map_err(|e| {
-        if e.is_bad_input() {
-            AppError::BadInput(e.to_string())
-        } else {
-            AppError::Failure(e.to_string())
-        }
-    })?;
-    let read_seconds = started.elapsed().as_secs_f64();
-    tracing::info!(
-        triangles = scene.triangles.len(),
-        materials = scene.materials.len(),
-        "scene read"
-    );
-
-    if cmd.memory.is_none() {
+    let (set, read_seconds, voxelize_seconds) = if cmd.scene.is_dir() {
+        // Distributed: every rank reads the whole shard set (its own copy, or a shared one)
+        // into memory.
+        let set = load_shard_set(&cmd.scene)?;
+        (set, started.elapsed().as_secs_f64(), 0.0)
+    } else {
+        let scene = load_obj(&cmd.scene).map_err(|e| {
+            if e.is_bad_input() {
+                AppError::BadInput(e.to_string())
+            } else {
+                AppError::Failure(e.to_string())
+            }
+        })?;
+        let read_seconds = started.elapsed().as_secs_f64();
+        tracing::info!(
+            triangles = scene.triangles.len(),
+            materials = scene.materials.len(),
+            "scene read"
+        );
         check_memory(&scene, cmd)?;
-    }
-    let t = Instant::now();
-    let set = voxelize(&scene, cmd.grid)
-        .map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
-    let voxelize_seconds = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let set = voxelize(&scene, cmd.grid)
+            .map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
+        (set, read_seconds, t.elapsed().as_secs_f64())
+    };
     tracing::info!(
         surfels = set.surfels.len(),
         voxels = set.voxel_count(),
@@ -321,6 +325,24 @@ fn checkpoint_error(e: CheckpointError) -> AppError {
     } else {
         AppError::Failure(e.to_string())
     }
+}
+
+/// A whole shard set read into memory, in the set's own order (each shard checked as it is
+/// read).
+fn load_shard_set(dir: &Path) -> Result<SurfelSet, AppError> {
+    let source = ShardSetSource::open(dir).map_err(ooc_error)?;
+    let info = source.info().clone();
+    let mut surfels = Vec::with_capacity(info.count as usize);
+    for surfel in source.stream(64 << 20).map_err(ooc_error)? {
+        surfels.push(surfel.map_err(ooc_error)?);
+    }
+    tracing::info!(surfels = surfels.len(), set = %dir.display(), "shard set read");
+    Ok(SurfelSet {
+        grid: info.grid,
+        surfels,
+        normals: info.normals,
+        materials: info.materials,
+    })
 }
 
 /// `voxrad solve SHARDSET`: out of core, within `--memory` (default: a quarter of the memory

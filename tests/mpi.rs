@@ -543,3 +543,64 @@ fn a_damaged_checkpoint_is_refused_by_every_rank_without_a_hang() {
     assert!(!text.contains("panicked"), "{text}");
     assert!(!out.join("surfels.bin").exists());
 }
+
+#[test]
+fn shard_sets_solve_in_every_mode() {
+    // Each rank reads the whole set into memory, whatever its number of shards.
+    let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(32)).unwrap();
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("cornell.shards");
+    common::write_shard_set(&set, &dir, 3);
+    // The set's own order is the order of its results; solve that order in one process.
+    let source = voxrad::outcore::ShardSetSource::open(&dir).unwrap();
+    let ordered: Vec<_> = voxrad::outcore::SurfelSource::stream(&source, 1 << 20)
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
+    let in_set_order = voxrad::voxel::SurfelSet {
+        surfels: ordered,
+        ..set.clone()
+    };
+    let options = SolveOptions {
+        directions: 49,
+        max_iterations: 3,
+        tolerance: None,
+        threads: 1,
+        ..SolveOptions::default()
+    };
+    let reference = solve_with(&in_set_order, &DirectionSet::with_count(49), &options).unwrap();
+    for mode in ["directions", "data", "hybrid"] {
+        let out = tmp.path().join(mode);
+        let o = mpirun(
+            2,
+            &[
+                "solve",
+                dir.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--directions",
+                "49",
+                "--iterations",
+                "3",
+                "--threads",
+                "1",
+                "--distribute",
+                mode,
+            ],
+        );
+        assert!(
+            o.status.success(),
+            "{mode}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let results = read_results(&out.join("surfels.bin")).unwrap();
+        let got: Vec<_> = results.records.iter().map(|r| r.radiosity).collect();
+        let worst = common::worst_relative_difference(&got, &reference.radiosity);
+        println!("shard set, {mode}, 2 ranks: worst relative difference {worst:.2e}");
+        assert!(worst <= 1e-5, "{mode}: {worst:e}");
+        if mode == "data" {
+            assert_eq!(worst, 0.0);
+        }
+    }
+}
