@@ -104,14 +104,6 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             )));
         }
     }
-    if matches!(mode, Mode::Data { .. } | Mode::Hybrid { .. }) && cmd.checkpoint.resume {
-        return Err(AppError::BadInput(format!(
-            "--resume with --distribute {}: the data and hybrid modes write no checkpoints yet \
-             (a stop signal ends them at once with status 3); checkpoints and --resume work in \
-             one process and with --distribute directions",
-            mode.name()
-        )));
-    }
     if mode != Mode::Single && cmd.memory.is_some() {
         return Err(AppError::BadInput(format!(
             "{}: --distribute {} does not work out of core yet (--memory); every rank solves in \
@@ -184,21 +176,7 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     let shaped = analysis.shape(&cmd.solve);
     let directions = DirectionSet::with_count(shaped.directions);
     let t = Instant::now();
-    let data_failure = |e: crate::solve::jacobi::SolveError| AppError::Failure(e.to_string());
-    let solution = match mode {
-        Mode::Data { compress } => {
-            let data = DataOptions {
-                groups: 1,
-                compress,
-            };
-            solve_data(&set, &directions, &shaped, comm, data).map_err(data_failure)?
-        }
-        Mode::Hybrid { groups, compress } => {
-            let data = DataOptions { groups, compress };
-            solve_data(&set, &directions, &shaped, comm, data).map_err(data_failure)?
-        }
-        Mode::Single | Mode::Directions => solve_in_memory(cmd, &set, &directions, &shaped, comm)?,
-    };
+    let solution = solve_in_memory(cmd, &set, &directions, &shaped, comm, mode)?;
     let solve_seconds = t.elapsed().as_secs_f64();
     let stats = &solution.stats;
     tracing::info!(
@@ -261,6 +239,7 @@ fn solve_in_memory(
     directions: &DirectionSet,
     options: &SolveOptions,
     comm: &dyn Comm,
+    mode: Mode,
 ) -> Result<Solution, AppError> {
     if comm.rank() == 0 {
         create_out_dir(&cmd.out)?;
@@ -294,7 +273,29 @@ fn solve_in_memory(
         saver: &mut saver,
         resume,
     };
-    solve_checkpointed(set, directions, options, comm, checkpoints).map_err(|e| match e {
+    let data = |groups, compress| DataOptions { groups, compress };
+    match mode {
+        Mode::Data { compress } => solve_data(
+            set,
+            directions,
+            options,
+            comm,
+            data(1, compress),
+            Some(checkpoints),
+        ),
+        Mode::Hybrid { groups, compress } => solve_data(
+            set,
+            directions,
+            options,
+            comm,
+            data(groups, compress),
+            Some(checkpoints),
+        ),
+        Mode::Single | Mode::Directions => {
+            solve_checkpointed(set, directions, options, comm, checkpoints)
+        }
+    }
+    .map_err(|e| match e {
         SolveError::Interrupted(i) => AppError::Interrupted(i.to_string()),
         other => AppError::Failure(other.to_string()),
     })

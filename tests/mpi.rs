@@ -288,6 +288,11 @@ fn large_sums_across_ranks_match_one_process() {
 /// `mpirun -n 2 voxrad solve --distribute directions` of the Cornell box into `out`, with a
 /// checkpoint after every iteration unless `extra` says otherwise (the command is not run).
 fn mpirun_solve(out: &Path, extra: &[&str]) -> Command {
+    mpirun_solve_in(&["--distribute", "directions"], out, extra)
+}
+
+/// As [`mpirun_solve`] in the mode `mode` gives (`--distribute ...` and its options).
+fn mpirun_solve_in(mode: &[&str], out: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new("mpirun");
     c.args(["-n", "2", "--oversubscribe"])
         .args([
@@ -312,9 +317,8 @@ fn mpirun_solve(out: &Path, extra: &[&str]) -> Command {
             "1",
             "--image-size",
             "64x48",
-            "--distribute",
-            "directions",
         ])
+        .args(mode)
         .args(
             ["--checkpoint-every", "0"]
                 .iter()
@@ -602,5 +606,71 @@ fn shard_sets_solve_in_every_mode() {
         if mode == "data" {
             assert_eq!(worst, 0.0);
         }
+    }
+}
+
+#[test]
+fn data_and_hybrid_modes_stopped_by_sigterm_resume_to_the_same_bytes() {
+    let modes: [&[&str]; 2] = [
+        &["--distribute", "data"],
+        &["--distribute", "hybrid", "--groups", "2"],
+    ];
+    for mode in modes {
+        let tmp = tempfile::tempdir().unwrap();
+        let reference = tmp.path().join("reference");
+        let mut child = Child::spawn(
+            mpirun_solve_in(mode, &reference, &[]),
+            &tmp.path().join("reference.log"),
+        );
+        let status = child.wait_at_most(Duration::from_secs(120));
+        assert!(status.success(), "{}:\n{}", describe(&status), child.log());
+
+        let out = tmp.path().join("out");
+        let log = tmp.path().join("run.log");
+        let mut child = Child::spawn(
+            mpirun_solve_in(mode, &out, &["--checkpoint-every", "1000"]),
+            &log,
+        );
+        assert!(
+            child.wait_for(Duration::from_secs(120), || {
+                std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
+            }),
+            "{mode:?}: no iteration 2:\n{}",
+            child.log()
+        );
+        let ranks = process::children_of(child.pid());
+        let rank1 = *ranks
+            .iter()
+            .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
+            .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
+        // SAFETY: kill(2) on a process this test started (through mpirun).
+        unsafe {
+            libc::kill(rank1, libc::SIGTERM);
+        }
+        let status = child.wait_at_most(Duration::from_secs(60));
+        let text = child.log();
+        assert_eq!(
+            status.code(),
+            Some(3),
+            "{mode:?}: {}:\n{text}",
+            describe(&status)
+        );
+        ranks_end_with_their_launcher(&ranks);
+        assert!(
+            voxrad::checkpoint::path_in(&out).exists(),
+            "{mode:?}: no checkpoint:\n{text}"
+        );
+        let mut child = Child::spawn(
+            mpirun_solve_in(mode, &out, &["--resume"]),
+            &tmp.path().join("resume.log"),
+        );
+        let status = child.wait_at_most(Duration::from_secs(120));
+        let text = child.log();
+        assert!(status.success(), "{mode:?}: {}:\n{text}", describe(&status));
+        assert!(text.contains("resumed from a checkpoint"), "{text}");
+        assert_same_results(&out, &reference);
+        println!(
+            "{mode:?}: stopped by SIGTERM after iteration 2 or later, resumed to the same bytes"
+        );
     }
 }

@@ -33,11 +33,12 @@
 
 use super::balance::{self, Distribution, Projection};
 use super::Comm;
+use crate::checkpoint::Interruption;
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
 use crate::solve::dispatch::{dispatch, Lines, OrderedEntry};
-use crate::solve::jacobi::{gather_all_lines, Convergence, SolveError, SolveOptions};
+use crate::solve::jacobi::{gather_all_lines, Checkpoints, Convergence, SolveError, SolveOptions};
 use crate::solve::normalize::cosine_sums;
 use crate::solve::propagate::{DirectionInput, PropSurfel};
 use crate::solve::{Solution, SolveStats};
@@ -306,6 +307,7 @@ pub fn solve_data(
     options: &SolveOptions,
     comm: &dyn Comm,
     data: DataOptions,
+    checkpoints: Option<Checkpoints>,
 ) -> Result<Solution, SolveError> {
     let DataOptions { groups, compress } = data;
     let size = comm.size();
@@ -334,7 +336,7 @@ pub fn solve_data(
     let peers = comm.split(group_comm.rank());
     let mut solver = DataSolver::new(set, directions, options, threads, &pool, groups, group);
     solver.compress = compress;
-    Ok(solver.run(comm, group_comm.as_ref(), peers.as_ref()))
+    solver.run(comm, group_comm.as_ref(), peers.as_ref(), checkpoints)
 }
 
 /// The scene-wide tables every rank keeps, and the solve's settings.
@@ -449,7 +451,13 @@ impl<'a> DataSolver<'a> {
         ((id as usize + 1) * ranks - 1) / n.max(1)
     }
 
-    fn run(&self, world: &dyn Comm, group_comm: &dyn Comm, peers: &dyn Comm) -> Solution {
+    fn run(
+        &self,
+        world: &dyn Comm,
+        group_comm: &dyn Comm,
+        peers: &dyn Comm,
+        mut checkpoints: Option<Checkpoints>,
+    ) -> Result<Solution, SolveError> {
         let n = self.set.surfels.len();
         let d_count = self.directions.len();
         let (ranks, me) = (group_comm.size(), group_comm.rank());
@@ -487,8 +495,31 @@ impl<'a> DataSolver<'a> {
             .any(|e| e.iter().flatten().any(|&v| v > 0.0));
         let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
         let mut iterations_done = 0;
+        let mut first = 1;
+        if let Some(loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
+            // The boundary the checkpoint holds (every rank has the whole of it).
+            for e in &held.order {
+                let slot = e.index as usize;
+                held.radiosity[slot] = loaded.radiosity[held.ids[slot] as usize];
+            }
+            convergence.previous_change = loaded.state.previous_change;
+            extrapolation = loaded.state.extrapolation;
+            let done = loaded.state.iteration as usize;
+            stats.iterations = done;
+            stats.resumed_from_iteration = Some(done);
+            iterations_done = done;
+            first = done + 1;
+            tracing::info!(
+                iteration = done,
+                path = %loaded.path.display(),
+                "resumed from a checkpoint"
+            );
+        }
+        if checkpoints.is_some() {
+            crate::interrupt::start_iterating();
+        }
 
-        for iteration in 1..=self.options.max_iterations {
+        for iteration in first..=self.options.max_iterations {
             if !any_light {
                 stats.converged = true;
                 break;
@@ -496,7 +527,14 @@ impl<'a> DataSolver<'a> {
             held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
             progress.reset();
             progress.set_message(format!("iteration {iteration}"));
+            let mut signal = 0;
             for &k in &mine {
+                // The ranks of a group exchange surfels for every direction: they stop together,
+                // then (after the loop) with the other groups.
+                signal = group_comm.max_u64(crate::interrupt::requested().unwrap_or(0) as u64);
+                if signal != 0 {
+                    break;
+                }
                 let d = &self.directions.directions[k];
                 let o = order::order_of(d.vector);
                 let t = Instant::now();
@@ -522,6 +560,19 @@ impl<'a> DataSolver<'a> {
                 held_order = Some(o);
                 self.propagate(k, &mut held, &mut lines, &mut tally);
                 progress.inc(1);
+            }
+            let signal = world.max_u64(signal);
+            if signal != 0 {
+                progress.finish_and_clear();
+                return Err(self.interrupted(
+                    signal as i32,
+                    iteration - 1,
+                    &held,
+                    world,
+                    checkpoints.as_mut(),
+                    &convergence,
+                    &extrapolation,
+                ));
             }
             let t = Instant::now();
             if self.groups > 1 {
@@ -563,6 +614,22 @@ impl<'a> DataSolver<'a> {
             if stop {
                 break;
             }
+            // A boundary the solve goes on from; rank 0's clock decides for all (the radiosity
+            // is gathered from every rank).
+            if iteration < self.options.max_iterations {
+                if let Some(c) = checkpoints.as_mut() {
+                    let due = world.max_u64((world.rank() == 0 && c.saver.due()) as u64) == 1;
+                    if due {
+                        let radiosity = self.gather_radiosity(&held, world);
+                        c.saver.save_if_due(
+                            |saver| {
+                                saver.state(iteration, convergence.previous_change, &extrapolation)
+                            },
+                            |saver, state| saver.save_memory(state, &radiosity),
+                        );
+                    }
+                }
+            }
         }
         progress.finish_and_clear();
         stats.extrapolations = extrapolation.count;
@@ -574,7 +641,67 @@ impl<'a> DataSolver<'a> {
         stats.reduce_seconds = tally.seconds.reduce;
         stats.data = Some(self.summary(world, &tally, &remembered, iterations_done));
         let radiosity = self.finish(&held, world, &mut stats);
-        Solution { radiosity, stats }
+        Ok(Solution { radiosity, stats })
+    }
+
+    /// The stop after `completed` iterations on a signal: the checkpoint of that boundary (the
+    /// held radiosity is still that iteration's: the abandoned one only gathered).
+    #[allow(clippy::too_many_arguments)]
+    fn interrupted(
+        &self,
+        signal: i32,
+        completed: usize,
+        held: &Held,
+        world: &dyn Comm,
+        checkpoints: Option<&mut Checkpoints>,
+        convergence: &Convergence,
+        extrapolation: &crate::solve::accelerate::Extrapolation,
+    ) -> SolveError {
+        let interruption = match checkpoints {
+            Some(c) => {
+                // Collective: every rank gathers, rank 0 writes.
+                let radiosity = self.gather_radiosity(held, world);
+                c.saver.interrupt(signal, completed, |saver| {
+                    let state = saver.state(completed, convergence.previous_change, extrapolation);
+                    saver.save_memory(state, &radiosity)
+                })
+            }
+            None => Interruption {
+                signal,
+                completed,
+                checkpoint: None,
+                failure: None,
+                writer: world.rank() == 0,
+            },
+        };
+        SolveError::Interrupted(interruption)
+    }
+
+    /// The radiosity of every surfel by id, on every rank (group 0's surfels added over the
+    /// world; in a grey solve the one channel copied to all three, as the solver returns it).
+    fn gather_radiosity(&self, held: &Held, world: &dyn Comm) -> Vec<[[f32; 3]; 2]> {
+        let n = self.set.surfels.len();
+        let mut flat = vec![0.0f64; n * 6];
+        if self.group == 0 {
+            for e in &held.order {
+                let b = &held.radiosity[e.index as usize];
+                let id = held.ids[e.index as usize] as usize;
+                for side in 0..2 {
+                    for ch in 0..3 {
+                        flat[id * 6 + side * 3 + ch] = b[side][ch] as f64;
+                    }
+                }
+            }
+        }
+        world.sum_in_place(&mut flat);
+        flat.chunks_exact(6)
+            .map(|c| {
+                [
+                    [c[0] as f32, c[1] as f32, c[2] as f32],
+                    [c[3] as f32, c[4] as f32, c[5] as f32],
+                ]
+            })
+            .collect()
     }
 
     /// The elastic distribution of direction `k` over the group, from histograms added over
