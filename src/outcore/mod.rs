@@ -94,7 +94,7 @@ impl OocError {
     /// Whether the user can fix it by changing the input or options (exit status 2).
     pub fn is_bad_input(&self) -> bool {
         match self {
-            OocError::Storage(e) => !matches!(e, StorageError::Io { .. }),
+            OocError::Storage(e) => e.is_bad_input(),
             OocError::BudgetTooSmall { .. } | OocError::BadData { .. } => true,
             OocError::Io { .. } | OocError::Threads { .. } | OocError::DiskTooSmall { .. } => false,
         }

@@ -164,6 +164,19 @@ impl<'a> ProbeIndex<'a> {
 
 /// Reads probe points `(point, normal)` from a CSV file (see the module header).
 pub fn read_points(path: &Path) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
+    let file = File::open(path).map_err(|source| ProbeError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    read_points_from(path, BufReader::new(file))
+}
+
+/// Reads probe points from any reader (a file, standard input, bytes in memory); `path` names
+/// the source in errors.
+pub fn read_points_from(
+    path: &Path,
+    mut reader: impl BufRead,
+) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
     let io = |source| ProbeError::Io {
         path: path.to_path_buf(),
         source,
@@ -173,7 +186,6 @@ pub fn read_points(path: &Path) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
         line,
         what,
     };
-    let mut reader = BufReader::new(File::open(path).map_err(io)?);
     let mut points = Vec::new();
     let mut raw = Vec::new();
     let mut line_no = 0;
