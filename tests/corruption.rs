@@ -426,3 +426,72 @@ fn damaged_results_are_refused_by_render_and_probe() {
         damages.len()
     );
 }
+
+/// Re-checksums shard `file` of the set `dir` after an edit and lists the new checksum in the
+/// manifest (which gets its own checksum again): what a buggy or hostile writer could produce.
+fn rechecksum(dir: &Path, file: &str) {
+    let path = dir.join(file);
+    edit(&path, |b| {
+        let body = b.len() - SHARD_FOOTER;
+        let crc = crc32fast::hash(&b[..body]);
+        b[body + 8..body + 12].copy_from_slice(&crc.to_le_bytes());
+    });
+    let info = voxrad::storage::ShardReader::open(&path)
+        .unwrap()
+        .info()
+        .clone();
+    let mut m = voxrad::storage::Manifest::read_dir(dir).unwrap();
+    for e in m.shards.iter_mut().filter(|e| e.file == file) {
+        e.crc32 = info.crc32;
+    }
+    m.write(dir).unwrap();
+}
+
+/// Records whose checksums are right but whose values cannot belong to the set (an index past
+/// the manifest's tables, a voxel outside the grid, a NaN): refused with the shard's name, never
+/// an index out of bounds in the solver.
+#[test]
+fn impossible_records_with_good_checksums_are_refused() {
+    let clean = clean();
+    // Offsets inside record 5 of shard 1 (layout in `storage::record`).
+    let record = SHARD_HEADER + 5 * 80;
+    let edits: [(&str, usize, [u8; 4]); 5] = [
+        ("normal index 9999", 36, 9999u32.to_le_bytes()),
+        ("front material 77", 48, 77u32.to_le_bytes()),
+        (
+            "back material 4000000000",
+            52,
+            4_000_000_000u32.to_le_bytes(),
+        ),
+        ("voxel x = 10 (the grid is 10 wide)", 0, 10i32.to_le_bytes()),
+        ("area NaN", 44, f32::NAN.to_le_bytes()),
+    ];
+    let mut cases = Vec::new();
+    for (what, offset, value) in edits {
+        cases.push(case(
+            format!("{SHARD_1}: record 5 with {what}, checksums repaired"),
+            &[SHARD_1],
+            move |d| {
+                edit(&d.join(SHARD_1), |b| {
+                    b[record + offset..record + offset + 4].copy_from_slice(&value)
+                });
+                rechecksum(d, SHARD_1);
+            },
+        ));
+    }
+    // Solve only: `verify` checks structure, checksums and order, not values against the
+    // manifest's tables.
+    let set = clean.tmp.path().join("impossible.shards");
+    let out = clean.tmp.path().join("impossible.out");
+    for c in &cases {
+        copy_dir(&clean.set, &set);
+        (c.damage)(&set);
+        let o = solve(&set, &out);
+        assert!(!check_run(&o, &c.what, &c.files), "{}: accepted", c.what);
+        assert!(
+            !out.join("surfels.bin").exists(),
+            "{}: wrote results",
+            c.what
+        );
+    }
+}
