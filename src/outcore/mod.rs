@@ -65,8 +65,8 @@ pub enum OocError {
         what: String,
     },
     #[error(
-        "the work files need about {} on the disk of {}, which has {} free; give --out a \
-         directory on a larger disk, or free space",
+        "the work files need about {} on the disk of {}, which has {} free: no space left for \
+         them; give --out a directory on a larger disk, or free space",
         budget::format_bytes(*needed),
         path.display(),
         budget::format_bytes(*free)
