@@ -364,6 +364,9 @@ fn damaged_manifests_are_refused_naming_the_file() {
     );
 }
 
+/// A change made to the bytes of a results file.
+type Damage = dyn Fn(&mut Vec<u8>);
+
 #[test]
 fn damaged_results_are_refused_by_render_and_probe() {
     let clean = clean();
@@ -372,7 +375,7 @@ fn damaged_results_are_refused_by_render_and_probe() {
     let points = clean.tmp.path().join("points.csv");
     std::fs::write(&points, "0,-270,0,0,1,0\n0,0,0,0,0,1\n").unwrap();
     let len = clean.results.len();
-    let mut damages: Vec<(String, Box<dyn Fn(&mut Vec<u8>)>)> = Vec::new();
+    let mut damages: Vec<(String, Box<Damage>)> = Vec::new();
     // Every header field (magic, version, record length, count, grid, reserved) and footer field.
     let header = [0, 7, 8, 12, 16, 23, 24, 47, 48, 56, 67, 68, 71];
     let footer = [0, 8, 12, 19].map(|k| len - RESULTS_FOOTER + k);

@@ -66,7 +66,6 @@ impl Staging {
 mod tests {
     use super::*;
     use crate::output::atomic::write_atomically;
-    use std::io::Write;
 
     #[test]
     fn nothing_changes_until_publish_and_a_failed_run_leaves_nothing() {
