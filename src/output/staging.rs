@@ -7,7 +7,8 @@
 //! finished. Staged, a failure anywhere leaves the earlier outputs exactly as they were (the
 //! staging directory is removed when the [`Staging`] is dropped), and publishing is a series of
 //! renames inside one file system, which need no free space. A crash in the middle of
-//! publishing (a few renames) can still mix, as any multi-file update without a journal can.
+//! publishing (a few renames) can still mix, as any multi-file update without a journal can, and
+//! a killed run leaves its hidden staging directory behind (never a file under a real name).
 
 use super::OutputError;
 use std::path::{Path, PathBuf};
