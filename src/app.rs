@@ -15,6 +15,7 @@ use crate::outcore::{
 use crate::output::render::{auto_camera, render_png, Camera};
 use crate::output::report::{Effect, OutOfCoreReport, Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results, ResultsWriter};
+use crate::output::staging::Staging;
 use crate::output::{ply, probe, RENDER_FILE};
 use crate::scene::obj::load_obj;
 use crate::solve::jacobi::{solve_checkpointed, Checkpoints, SolveError};
@@ -197,10 +198,14 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     }
 
     let t = Instant::now();
-    if comm.rank() == 0 {
-        create_out_dir(&cmd.out)?;
-        write_outputs(&cmd.out, &set, &solution, cmd.image_size)?;
-    }
+    // Staged: the earlier outputs stay as they were unless every new one is written.
+    let staged = if comm.rank() == 0 {
+        let staging = stage(&cmd.out)?;
+        write_outputs(staging.path(), &set, &solution, cmd.image_size)?;
+        Some(staging)
+    } else {
+        None
+    };
     let write_seconds = t.elapsed().as_secs_f64();
 
     let resolution = set.grid.dims.iter().copied().max().unwrap_or(0);
@@ -222,10 +227,11 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     report.set_total(started.elapsed().as_secs_f64());
     // The largest peak over ranks: what a node must have.
     report.peak_rss_bytes = comm.max_u64(crate::output::report::peak_rss_bytes());
-    if comm.rank() == 0 {
+    if let Some(staging) = staged {
         report
-            .write(&cmd.out)
+            .write(staging.path())
             .map_err(|e| AppError::Failure(e.to_string()))?;
+        publish(staging)?;
         checkpoint::remove_finished(&cmd.out);
     }
     Ok(report)
@@ -355,9 +361,9 @@ fn run_solve_shard_set(cmd: &SolveCommand, started: Instant) -> Result<Report, A
         None => available_memory_bytes().map_or(1 << 30, |a| (a / 4).max(64 << 20)),
     };
     let read_seconds = started.elapsed().as_secs_f64();
-    let mut report = solve_out_of_core_to(cmd, &source, budget)?;
+    let (mut report, staged) = solve_out_of_core_to(cmd, &source, budget)?;
     report.set_phase("read", read_seconds);
-    finish_report(report, &cmd.out, started)
+    finish_report(report, staged, started)
 }
 
 /// The out-of-core solve, with checkpoints in the out directory, from the one there under
@@ -417,15 +423,34 @@ fn solve_out_of_core_in(
     .map_err(ooc_error)
 }
 
-/// Sets the report's total time and peak RSS, and writes it into `out`.
-fn finish_report(mut report: Report, out: &Path, started: Instant) -> Result<Report, AppError> {
+/// Sets the report's total time and peak RSS, writes it beside the staged outputs and moves
+/// them all into place.
+fn finish_report(
+    mut report: Report,
+    staged: Staging,
+    started: Instant,
+) -> Result<Report, AppError> {
     report.set_total(started.elapsed().as_secs_f64());
     report.refresh_peak_rss();
     report
-        .write(out)
+        .write(staged.path())
         .map_err(|e| AppError::Failure(e.to_string()))?;
-    checkpoint::remove_finished(out);
+    let out = staged.out().to_path_buf();
+    publish(staged)?;
+    checkpoint::remove_finished(&out);
     Ok(report)
+}
+
+/// A staging directory for a run's outputs inside `out` (see `output::staging`).
+fn stage(out: &Path) -> Result<Staging, AppError> {
+    Staging::new(out).map_err(|e| AppError::Failure(e.to_string()))
+}
+
+fn publish(staged: Staging) -> Result<(), AppError> {
+    staged
+        .publish()
+        .map(|_| ())
+        .map_err(|e| AppError::Failure(e.to_string()))
 }
 
 /// `voxrad solve SCENE.obj --memory SIZE`: the scene is converted to a temporary shard set (the
@@ -461,13 +486,13 @@ fn run_solve_obj_out_of_core(
     })?;
     let convert_seconds = started.elapsed().as_secs_f64();
     let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
-    let mut report = solve_out_of_core_to(cmd, &source, budget)?;
+    let (mut report, staged) = solve_out_of_core_to(cmd, &source, budget)?;
     report.set_phase("convert", convert_seconds);
     tracing::info!(
         surfels = converted.surfels,
         "solved from a temporary shard set"
     );
-    finish_report(report, &cmd.out, started)
+    finish_report(report, staged, started)
 }
 
 fn create_out_dir(out: &Path) -> Result<(), AppError> {
@@ -490,12 +515,13 @@ fn ooc_error(e: OocError) -> AppError {
 }
 
 /// Solves `source` out of core and writes the results file (and, when the results fit the
-/// budget, the PLY and the picture); returns the report, not yet written.
+/// budget, the PLY and the picture) into a staging directory; returns the report, not yet
+/// written, and the staged outputs.
 fn solve_out_of_core_to(
     cmd: &SolveCommand,
     source: &dyn SurfelSource,
     budget: u64,
-) -> Result<Report, AppError> {
+) -> Result<(Report, Staging), AppError> {
     create_out_dir(&cmd.out)?;
     let directions = DirectionSet::with_count(cmd.solve.directions);
     let solution = solve_out_of_core_in(cmd, source, &directions, budget)?;
@@ -510,7 +536,8 @@ fn solve_out_of_core_to(
     );
     let t = Instant::now();
     let info = source.info();
-    let results_path = cmd.out.join(crate::output::RESULTS_FILE);
+    let staged = stage(&cmd.out)?;
+    let results_path = staged.path().join(crate::output::RESULTS_FILE);
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count).map_err(fail)?;
     solution
@@ -530,7 +557,7 @@ fn solve_out_of_core_to(
         let results = read_results(&results_path).map_err(|e| AppError::Failure(e.to_string()))?;
         let (set, solution) = from_results(&results);
         drop(results);
-        write_previews(&cmd.out, &set, &solution, cmd.image_size)?;
+        write_previews(staged.path(), &set, &solution, cmd.image_size)?;
     } else {
         tracing::warn!(
             "{} surfels: the PLY and the picture are not written within --memory {}; use \
@@ -578,7 +605,7 @@ fn solve_out_of_core_to(
             crate::outcore::budget::format_bytes(budget)
         ),
     )];
-    Ok(report)
+    Ok((report, staged))
 }
 
 /// Bytes the in-memory solver holds per surfel (surfel set, solver arrays, voxelization pieces at

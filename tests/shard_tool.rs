@@ -140,7 +140,7 @@ fn convert_cornell_equals_the_in_memory_voxelization() {
         let o = shard_tool(&["inspect", &s(&set)]);
         assert_ok(&o, "inspect");
         let out = text(&o.stdout);
-        for needle in ["version 1", "24 x", "light (unlit side)", "shard-00000.vxs"] {
+        for needle in ["version 2", "24 x", "light (unlit side)", "shard-00000.vxs"] {
             assert!(out.contains(needle), "inspect lacks {needle:?}:\n{out}");
         }
         let total = format!("{} records", expected.surfels.len());

@@ -38,7 +38,7 @@ pub const FILE_NAME: &str = "checkpoint.bin";
 
 /// Prefixes of the work directories a solve makes inside its out directory (removed when it
 /// ends, but left behind by a process that was killed).
-pub const WORK_DIR_PREFIXES: [&str; 2] = [".voxrad-work-", ".voxrad-shards-"];
+pub const WORK_DIR_PREFIXES: [&str; 3] = [".voxrad-work-", ".voxrad-shards-", ".voxrad-new-"];
 
 /// The checkpoint path of the out directory `out`.
 pub fn path_in(out: &Path) -> PathBuf {

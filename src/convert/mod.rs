@@ -48,25 +48,10 @@ impl From<StorageError> for ConvertError {
     /// Damaged, missing or unreadable input files are the user's input; a failure to write, or a
     /// read failing for another reason (an I/O error of the device), is not.
     fn from(e: StorageError) -> Self {
-        use std::io::ErrorKind;
-        match &e {
-            StorageError::Io { action, source, .. } => {
-                let input = matches!(*action, "read" | "map")
-                    && matches!(
-                        source.kind(),
-                        ErrorKind::NotFound
-                            | ErrorKind::PermissionDenied
-                            | ErrorKind::UnexpectedEof
-                            | ErrorKind::InvalidData
-                            | ErrorKind::IsADirectory
-                    );
-                if input {
-                    ConvertError::BadInput(e.to_string())
-                } else {
-                    ConvertError::Failure(e.to_string())
-                }
-            }
-            _ => ConvertError::BadInput(e.to_string()),
+        if e.is_bad_input() {
+            ConvertError::BadInput(e.to_string())
+        } else {
+            ConvertError::Failure(e.to_string())
         }
     }
 }

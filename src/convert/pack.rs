@@ -10,13 +10,15 @@
 //!   end magic  8 bytes  "VXRPEND\0"
 //! ```
 //!
-//! Besides zstd's content checksum, every shard and the manifest carry their own, and
-//! `unpack` verifies the whole set (`shardset::verify_set`) in its staging directory before it
+//! Besides zstd's content checksum, every shard and the manifest carry their own: `pack` checks
+//! them as it copies (a damaged set is refused, not archived as if it were good), and `unpack`
+//! verifies the whole set (`shardset::verify_set`) in its staging directory before it
 //! moves it into place, so a damaged pack never becomes a shard set. Both directions stream
 //! through fixed buffers; nothing grows with the set.
 
 use super::shardset::{verify_set, Staging};
 use super::ConvertError;
+use crate::storage::shard::FOOTER_LEN;
 use crate::storage::{Manifest, MANIFEST_FILE};
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
@@ -50,7 +52,7 @@ pub struct Packed {
 /// complete).
 pub fn pack(set: &Path, out: &Path) -> Result<Packed, ConvertError> {
     let manifest = Manifest::read_dir(set)?;
-    manifest.check_shards(set)?;
+    let readers = manifest.check_shards(set)?;
     let mut names = vec![MANIFEST_FILE.to_string()];
     names.extend(manifest.shards.iter().map(|s| s.file.clone()));
     let tmp = crate::output::atomic::temp_beside(out).map_err(|e| failed(out, e))?;
@@ -66,7 +68,12 @@ pub fn pack(set: &Path, out: &Path) -> Result<Packed, ConvertError> {
         .map_err(io)?;
     let mut set_bytes = 0;
     let mut buf = vec![0u8; BUFFER];
-    for name in &names {
+    for (k, name) in names.iter().enumerate() {
+        // The manifest's checksum was checked on reading it; a shard's is checked on the bytes
+        // copied, which are all the bytes before its footer.
+        let shard = k.checked_sub(1).map(|i| &readers[i]);
+        let body = shard.map_or(0, |r| r.info().bytes - FOOTER_LEN);
+        let mut hasher = crc32fast::Hasher::new();
         let path = set.join(name);
         let mut file = File::open(&path).map_err(|e| bad(&path, format!("cannot read: {e}")))?;
         let size = file.metadata().map_err(|e| failed(&path, e))?.len();
@@ -79,8 +86,15 @@ pub fn pack(set: &Path, out: &Path) -> Result<Packed, ConvertError> {
             let n = (left as usize).min(BUFFER);
             file.read_exact(&mut buf[..n])
                 .map_err(|e| failed(&path, format!("changed while being packed: {e}")))?;
+            let offset = size - left;
+            if offset < body {
+                hasher.update(&buf[..(body - offset).min(n as u64) as usize]);
+            }
             z.write_all(&buf[..n]).map_err(io)?;
             left -= n as u64;
+        }
+        if let Some(reader) = shard {
+            reader.compare_checksum(hasher.finalize())?;
         }
         set_bytes += size;
     }

@@ -67,8 +67,8 @@ pub enum OocError {
         what: String,
     },
     #[error(
-        "the work files need about {} on the disk of {}, which has {} free; give --out a \
-         directory on a larger disk, or free space",
+        "the work files need about {} on the disk of {}, which has {} free: no space left for \
+         them; give --out a directory on a larger disk, or free space",
         budget::format_bytes(*needed),
         path.display(),
         budget::format_bytes(*free)
@@ -100,7 +100,7 @@ impl OocError {
     /// Whether the user can fix it by changing the input or options (exit status 2).
     pub fn is_bad_input(&self) -> bool {
         match self {
-            OocError::Storage(e) => !matches!(e, StorageError::Io { .. }),
+            OocError::Storage(e) => e.is_bad_input(),
             OocError::BudgetTooSmall { .. } | OocError::BadData { .. } => true,
             OocError::Checkpoint(e) => e.is_bad_input(),
             OocError::Io { .. }

@@ -124,14 +124,26 @@ impl SurfelSource for ShardSetSource {
     fn stream(&self, window_bytes: u64) -> Result<SurfelStream<'_>, OocError> {
         let mut parts = Vec::with_capacity(self.readers.len());
         for reader in &self.readers {
-            parts.push(WindowedRecords::new(reader, window_bytes)?);
+            let path = reader.path();
+            let records = WindowedRecords::new(reader, window_bytes)?;
+            // The checksum is known only at a shard's end, but the solver acts on each record as
+            // it comes: a damaged record must not reach an index or the grid first, and the
+            // message must name the file that holds it.
+            parts.push(records.enumerate().map(move |(index, r)| {
+                let s = r?;
+                match check_record(&self.info, &s) {
+                    Ok(()) => Ok(s),
+                    Err(what) => Err(OocError::BadData {
+                        source_name: path.display().to_string(),
+                        what: format!(
+                            "record {index} {what}: the file is damaged; restore it from a copy \
+                             or make the shard set again with `voxrad-shard convert`"
+                        ),
+                    }),
+                }
+            }));
         }
-        Ok(Box::new(
-            parts
-                .into_iter()
-                .flatten()
-                .map(|r| r.map_err(OocError::from)),
-        ))
+        Ok(Box::new(parts.into_iter().flatten()))
     }
 
     fn describe(&self) -> String {
@@ -156,6 +168,47 @@ impl SurfelSource for ShardSetSource {
             },
         ))
     }
+}
+
+/// Whether a record read from a shard can be used with the set's manifest: its voxel inside the
+/// grid, its normal and materials in the manifest's tables, its numbers finite. A set written by
+/// `voxrad-shard convert` always passes; a damaged or hand-made one must fail here, with a
+/// message, rather than index out of bounds or spread NaN through the solve.
+pub fn check_record(info: &SourceInfo, s: &Surfel) -> Result<(), String> {
+    let dims = info.grid.dims;
+    if !(0..3).all(|k| s.voxel[k] >= 0 && (s.voxel[k] as u64) < dims[k] as u64) {
+        return Err(format!(
+            "lies in voxel {:?}, outside the grid of {dims:?} voxels",
+            s.voxel
+        ));
+    }
+    if s.normal_id as usize >= info.normals.len() {
+        return Err(format!(
+            "has normal {} but the manifest lists {} normals",
+            s.normal_id,
+            info.normals.len()
+        ));
+    }
+    if let Some(m) = s
+        .material
+        .iter()
+        .find(|&&m| m as usize >= info.materials.len())
+    {
+        return Err(format!(
+            "has material {m} but the manifest lists {} materials",
+            info.materials.len()
+        ));
+    }
+    let floats = s
+        .point
+        .iter()
+        .chain(&s.normal)
+        .chain([&s.area])
+        .chain(s.extent.iter().flatten());
+    if !floats.into_iter().all(|v| v.is_finite()) {
+        return Err("has a number that is not finite".to_string());
+    }
+    Ok(())
 }
 
 /// Reads a stream voxel by voxel: each call to [`VoxelGroups::next_group`] fills `group` with

@@ -10,6 +10,8 @@
 //! - [`probe`]: radiosity at given points and normals, looked up in a results file.
 //! - [`atomic`]: the temp-file, sync, rename discipline every writer here uses, so a crash or a
 //!   full disk never leaves a half-written file under a real name.
+//! - [`staging`]: a run's outputs written together into a hidden directory and moved into place
+//!   only when all are complete, so a failure never mixes new files with earlier ones.
 //!
 //! Writers return [`OutputError`], which always names the file concerned. The results reader and
 //! the probe have their own error types because their callers need to tell their cases apart
@@ -21,6 +23,7 @@ pub mod probe;
 pub mod render;
 pub mod report;
 pub mod results;
+pub mod staging;
 
 pub use ply::write_ply;
 pub use probe::{probe, ProbeError, ProbeIndex, ProbeRow};

@@ -19,11 +19,13 @@ use crate::voxel::{BACK, FRONT};
 use glam::DVec3;
 use std::collections::HashMap;
 use std::fs::File;
-use std::io::{BufRead, BufReader, Write};
+use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
 
 /// Search radius around the probe point, in voxels.
 pub const PROBE_RADIUS_VOXELS: f64 = 1.5;
+/// Longest line accepted in a points file (six numbers need far less).
+pub const MAX_LINE_BYTES: usize = 4096;
 /// Smallest cosine between a surfel side's normal and the probe normal for the side to count.
 pub const MIN_NORMAL_DOT: f64 = 0.5;
 
@@ -164,6 +166,19 @@ impl<'a> ProbeIndex<'a> {
 
 /// Reads probe points `(point, normal)` from a CSV file (see the module header).
 pub fn read_points(path: &Path) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
+    let file = File::open(path).map_err(|source| ProbeError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    read_points_from(path, BufReader::new(file))
+}
+
+/// Reads probe points from any reader (a file, standard input, bytes in memory); `path` names
+/// the source in errors.
+pub fn read_points_from(
+    path: &Path,
+    mut reader: impl BufRead,
+) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
     let io = |source| ProbeError::Io {
         path: path.to_path_buf(),
         source,
@@ -173,17 +188,30 @@ pub fn read_points(path: &Path) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
         line,
         what,
     };
-    let mut reader = BufReader::new(File::open(path).map_err(io)?);
     let mut points = Vec::new();
     let mut raw = Vec::new();
     let mut line_no = 0;
     let mut seen_content = false;
     loop {
         raw.clear();
-        if reader.read_until(b'\n', &mut raw).map_err(io)? == 0 {
+        // At most one line longer than any sensible row is held: a file without line ends (or
+        // `/dev/zero`) must not be read into memory whole.
+        let limit = MAX_LINE_BYTES as u64 + 1;
+        if (&mut reader)
+            .take(limit)
+            .read_until(b'\n', &mut raw)
+            .map_err(io)?
+            == 0
+        {
             break;
         }
         line_no += 1;
+        if raw.len() > MAX_LINE_BYTES {
+            return Err(bad(
+                line_no,
+                format!("the line is longer than {MAX_LINE_BYTES} bytes; rows are x,y,z,nx,ny,nz"),
+            ));
+        }
         let text = std::str::from_utf8(&raw)
             .map_err(|_| bad(line_no, "the line is not UTF-8 text".into()))?;
         let text = text.trim_start_matches('\u{feff}').trim();

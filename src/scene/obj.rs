@@ -144,8 +144,30 @@ impl LoadError {
 fn is_user_io_error(e: &io::Error) -> bool {
     matches!(
         e.kind(),
-        io::ErrorKind::NotFound | io::ErrorKind::PermissionDenied | io::ErrorKind::IsADirectory
+        io::ErrorKind::NotFound
+            | io::ErrorKind::PermissionDenied
+            | io::ErrorKind::IsADirectory
+            | io::ErrorKind::InvalidInput
     )
+}
+
+/// Reads a whole OBJ or MTL file. Only regular files: a device or a pipe named by mistake (an
+/// `mtllib /dev/zero`) would otherwise be read until memory runs out.
+fn read_file(path: &Path) -> io::Result<Vec<u8>> {
+    let meta = std::fs::metadata(path)?;
+    if meta.is_dir() {
+        return Err(io::Error::new(
+            io::ErrorKind::IsADirectory,
+            "is a directory",
+        ));
+    }
+    if !meta.is_file() {
+        return Err(io::Error::new(
+            io::ErrorKind::InvalidInput,
+            "not a regular file (a device or a pipe)",
+        ));
+    }
+    std::fs::read(path)
 }
 
 fn io_advice(e: &io::Error) -> &'static str {
@@ -153,6 +175,7 @@ fn io_advice(e: &io::Error) -> &'static str {
         io::ErrorKind::NotFound => "check the path",
         io::ErrorKind::PermissionDenied => "check the file's permissions",
         io::ErrorKind::IsADirectory => "give the path of an .obj file, not a directory",
+        io::ErrorKind::InvalidInput => "give the path of an ordinary file",
         _ => "check the disk or file system and try again",
     }
 }
@@ -160,7 +183,7 @@ fn io_advice(e: &io::Error) -> &'static str {
 /// Reads `path` (an `.obj` file) and the MTL libraries it names into a validated [`Scene`].
 /// All objects and groups are merged into one scene; see the module header for what is read.
 pub fn load_obj(path: &Path) -> Result<Scene, LoadError> {
-    let bytes = std::fs::read(path).map_err(|source| LoadError::Read {
+    let bytes = read_file(path).map_err(|source| LoadError::Read {
         path: path.to_path_buf(),
         source,
     })?;
@@ -597,7 +620,7 @@ fn scan_obj(path: &Path, text: &str) -> Result<ObjScan, LoadError> {
                     if scan.mtl_paths.contains(&mtl) {
                         continue;
                     }
-                    let bytes = std::fs::read(&mtl).map_err(|source| LoadError::MtlRead {
+                    let bytes = read_file(&mtl).map_err(|source| LoadError::MtlRead {
                         path: path.to_path_buf(),
                         line,
                         statement: shown(raw),

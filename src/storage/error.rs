@@ -104,6 +104,27 @@ impl StorageError {
         }
     }
 
+    /// Whether the user's input is at fault (exit status 2): a damaged, missing or unreadable
+    /// input file, a budget too small. A failure to write, or a read failing for another reason
+    /// (an I/O error of the device), is not (exit status 1).
+    pub fn is_bad_input(&self) -> bool {
+        use std::io::ErrorKind;
+        match self {
+            StorageError::Io { action, source, .. } => {
+                matches!(*action, "read" | "map")
+                    && matches!(
+                        source.kind(),
+                        ErrorKind::NotFound
+                            | ErrorKind::PermissionDenied
+                            | ErrorKind::UnexpectedEof
+                            | ErrorKind::InvalidData
+                            | ErrorKind::IsADirectory
+                    )
+            }
+            _ => true,
+        }
+    }
+
     /// The file the error is about (`None` only for a budget that is too small).
     pub fn path(&self) -> Option<&Path> {
         match self {

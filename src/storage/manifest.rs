@@ -6,7 +6,7 @@
 //!
 //! ```text
 //! format          "voxrad-shardset"   (what the file is; the JSON equivalent of a magic number)
-//! format_version  1                   (this build reads MIN_VERSION..=VERSION)
+//! format_version  2                   (this build reads MIN_VERSION..=VERSION)
 //! grid            { origin: [f64; 3], voxel_size: f64, dims: [u32; 3] }  scene bounds in world units
 //! materials       [{ name, reflectance: [f64; 3] in [0, 1), emission: [f64; 3] >= 0 }]
 //!                 indexed by a record's `material`
@@ -16,7 +16,16 @@
 //!                 set's directory, its record count, its size in bytes, and its footer checksum
 //!                 (CRC-32 of everything before the shard's footer), so a shard can be matched to
 //!                 the manifest by reading its footer only
+//! manifest_crc32  (version 2) CRC-32 (IEEE) of every byte of the file before the key
+//!                 "manifest_crc32", which is the last field
 //! ```
+//!
+//! The manifest's own checksum (version 2) exists because the manifest decides the answer as much
+//! as the shards do: a flipped digit in a reflectance or in the grid would otherwise give a wrong
+//! radiosity with exit status 0. It covers the raw bytes, so any change before it is caught
+//! (whitespace included); a version 1 manifest (no checksum) is still read, unchecked, and a
+//! checksum present in any version is always checked, so one flipped byte cannot both turn a
+//! version 2 manifest into a version 1 and change a value.
 //!
 //! Written atomically (temporary file, sync, rename; `output::atomic`), readable by all like the
 //! shards, and written last when a
@@ -37,8 +46,10 @@ use std::path::{Path, PathBuf};
 
 pub const MANIFEST_FILE: &str = "manifest.json";
 pub const FORMAT: &str = "voxrad-shardset";
-/// The version this build writes.
-pub const VERSION: u32 = 1;
+/// The version this build writes (2: the manifest carries its own checksum).
+pub const VERSION: u32 = 2;
+/// The key of the manifest's own checksum, the last field of the file.
+pub const CHECKSUM_KEY: &str = "manifest_crc32";
 /// The oldest version this build reads.
 pub const MIN_VERSION: u32 = 1;
 
@@ -135,6 +146,33 @@ pub struct Manifest {
 struct Probe {
     format: Option<String>,
     format_version: Option<u32>,
+    manifest_crc32: Option<u32>,
+}
+
+/// The bytes of a manifest file for the JSON `json` (an object, as `serde_json` writes it): the
+/// object with the checksum of everything before its key appended as its last field.
+fn with_checksum(mut json: Vec<u8>) -> Vec<u8> {
+    // Pretty JSON of a struct ends with "\n}"; reopen the object after its last field.
+    while json.last().is_some_and(|b| b.is_ascii_whitespace()) {
+        json.pop();
+    }
+    debug_assert_eq!(json.last(), Some(&b'}'));
+    json.pop();
+    while json.last().is_some_and(|b| b.is_ascii_whitespace()) {
+        json.pop();
+    }
+    json.extend_from_slice(b",\n  ");
+    let crc = crc32fast::hash(&json);
+    json.extend_from_slice(format!("\"{CHECKSUM_KEY}\": {crc}\n}}\n").as_bytes());
+    json
+}
+
+/// Where the checksum's key starts in a manifest file: its last occurrence (the checksum is the
+/// last field; a key spelled the same inside an earlier string would come before it).
+fn checksum_key_at(text: &[u8]) -> Option<usize> {
+    let key = format!("\"{CHECKSUM_KEY}\"");
+    let key = key.as_bytes();
+    text.windows(key.len()).rposition(|w| w == key)
 }
 
 impl Manifest {
@@ -184,9 +222,9 @@ impl Manifest {
     pub fn write(&self, dir: &Path) -> Result<PathBuf, StorageError> {
         let path = Self::path_in(dir);
         self.validate(&path)?;
-        let mut json = serde_json::to_vec_pretty(self)
+        let json = serde_json::to_vec_pretty(self)
             .map_err(|e| StorageError::invalid(&path, format!("cannot encode it: {e}")))?;
-        json.push(b'\n');
+        let json = with_checksum(json);
         let mut tmp = shard::temp_beside_shared(&path)?;
         tmp.write_all(&json)
             .map_err(|e| StorageError::io(&path, "write", e))?;
@@ -203,11 +241,17 @@ impl Manifest {
     /// the checks).
     pub fn read(path: &Path) -> Result<Self, StorageError> {
         let text = std::fs::read(path).map_err(|e| StorageError::io(path, "read", e))?;
+        Self::parse(path, &text)
+    }
+
+    /// Parses and validates the bytes of a manifest file; `path` only names it in errors (for
+    /// manifests that did not come from a file of their own, such as one inside a pack).
+    pub fn parse(path: &Path, text: &[u8]) -> Result<Self, StorageError> {
         let json = |source| StorageError::Json {
             path: path.to_path_buf(),
             source,
         };
-        let probe: Probe = serde_json::from_slice(&text).map_err(json)?;
+        let probe: Probe = serde_json::from_slice(text).map_err(json)?;
         if probe.format.as_deref() != Some(FORMAT) {
             return Err(StorageError::BadMagic {
                 path: path.to_path_buf(),
@@ -226,7 +270,31 @@ impl Manifest {
                 max: VERSION,
             });
         }
-        let manifest: Manifest = serde_json::from_slice(&text).map_err(json)?;
+        match probe.manifest_crc32 {
+            Some(stored) => {
+                // The key was found by the JSON parser, so it is in the text.
+                let at = checksum_key_at(text).unwrap_or(text.len());
+                let computed = crc32fast::hash(&text[..at]);
+                if computed != stored {
+                    return Err(StorageError::ChecksumMismatch {
+                        path: path.to_path_buf(),
+                        stored,
+                        computed,
+                    });
+                }
+            }
+            None if version >= 2 => {
+                return Err(StorageError::BadHeader {
+                    path: path.to_path_buf(),
+                    what: format!(
+                        "format version {version} but no \"{CHECKSUM_KEY}\" field (the file was \
+                         edited or cut short)"
+                    ),
+                });
+            }
+            None => {}
+        }
+        let manifest: Manifest = serde_json::from_slice(text).map_err(json)?;
         manifest.validate(path)?;
         Ok(manifest)
     }
@@ -387,7 +455,7 @@ mod tests {
         let mut v = serde_json::to_value(sample(dir)).unwrap();
         f(&mut v);
         let path = Manifest::path_in(dir);
-        std::fs::write(&path, serde_json::to_vec(&v).unwrap()).unwrap();
+        std::fs::write(&path, with_checksum(serde_json::to_vec(&v).unwrap())).unwrap();
         path
     }
 
@@ -405,9 +473,9 @@ mod tests {
         let d = dir.path();
         let e = read_err(d, |v| v["format"] = "something-else".into());
         assert!(matches!(e, StorageError::BadMagic { .. }), "{e}");
-        let e = read_err(d, |v| v["format_version"] = 2.into());
+        let e = read_err(d, |v| v["format_version"] = 3.into());
         assert!(
-            matches!(e, StorageError::UnsupportedVersion { found: 2, .. }),
+            matches!(e, StorageError::UnsupportedVersion { found: 3, .. }),
             "{e}"
         );
         let e = read_err(d, |v| v["order"] = "x".into());
@@ -434,6 +502,40 @@ mod tests {
         let missing = tempfile::TempDir::new().unwrap();
         let e = Manifest::read_dir(missing.path()).unwrap_err();
         assert!(matches!(e, StorageError::Io { .. }), "{e}");
+    }
+
+    #[test]
+    fn the_manifest_checksum_catches_every_edit() {
+        let dir = tempfile::TempDir::new().unwrap();
+        let m = sample(dir.path());
+        let path = m.write(dir.path()).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        let text = String::from_utf8(good.clone()).unwrap();
+        assert!(text.trim_end().ends_with('}'), "{text}");
+        assert_eq!(checksum_key_at(&good), text.rfind("\"manifest_crc32\""));
+        // A value changed to another valid value: only the checksum can tell.
+        let edited = text.replacen("0.25", "0.5", 1);
+        assert_ne!(edited, text);
+        std::fs::write(&path, &edited).unwrap();
+        let e = Manifest::read(&path).unwrap_err();
+        assert!(matches!(e, StorageError::ChecksumMismatch { .. }), "{e}");
+        assert!(e.to_string().contains(MANIFEST_FILE), "{e}");
+        // The checksum removed: a version 2 manifest must have one.
+        let cut = text.rfind(",\n  \"manifest_crc32\"").unwrap();
+        std::fs::write(&path, format!("{}\n}}\n", &text[..cut])).unwrap();
+        let e = Manifest::read(&path).unwrap_err();
+        assert!(e.to_string().contains("manifest_crc32"), "{e}");
+        // Downgraded to version 1 with the checksum still there: still checked.
+        std::fs::write(
+            &path,
+            text.replace("\"format_version\": 2", "\"format_version\": 1"),
+        )
+        .unwrap();
+        let e = Manifest::read(&path).unwrap_err();
+        assert!(matches!(e, StorageError::ChecksumMismatch { .. }), "{e}");
+        // Untouched, it reads.
+        std::fs::write(&path, &good).unwrap();
+        assert_eq!(Manifest::read(&path).unwrap(), m);
     }
 
     #[test]
