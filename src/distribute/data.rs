@@ -38,7 +38,10 @@ use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
 use crate::solve::dispatch::{dispatch, Lines, OrderedEntry};
-use crate::solve::jacobi::{gather_all_lines, Checkpoints, Convergence, SolveError, SolveOptions};
+use crate::solve::jacobi::{
+    gather_all_lines, material_tables, prop_surfels, worker_pool, Checkpoints, Convergence,
+    SolveError, SolveOptions,
+};
 use crate::solve::normalize::cosine_sums;
 use crate::solve::propagate::{DirectionInput, PropSurfel};
 use crate::solve::{Solution, SolveStats};
@@ -317,18 +320,7 @@ pub fn solve_data(
             ranks: size,
         });
     }
-    let threads = if options.threads == 0 {
-        rayon::current_num_threads()
-    } else {
-        options.threads
-    };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .map_err(|e| SolveError::Threads {
-            threads,
-            message: e.to_string(),
-        })?;
+    let (threads, pool) = worker_pool(options)?;
     let per_group = size / groups;
     let group = comm.rank() / per_group;
     // Both splits are collective: every rank makes them, in this order.
@@ -379,20 +371,7 @@ impl<'a> DataSolver<'a> {
         group: usize,
     ) -> Self {
         let dims = set.grid.dims;
-        let coverage = crate::solve::coverage::coverages(set);
-        let surfels = set
-            .surfels
-            .iter()
-            .zip(&coverage)
-            .map(|(s, &coverage)| PropSurfel {
-                coverage,
-                voxel: s.voxel,
-                group: s.group,
-                point: s.point,
-                normal: s.normal,
-                extent: s.extent,
-            })
-            .collect();
+        let (emission, reflectance) = material_tables(set);
         DataSolver {
             set,
             directions,
@@ -411,20 +390,9 @@ impl<'a> DataSolver<'a> {
                 .map(|k| Projection::new(k / 3, k % 3, dims))
                 .collect(),
             cosine_sum: pool.install(|| cosine_sums(&set.normals, directions)),
-            emission: set
-                .surfels
-                .iter()
-                .map(|s| {
-                    s.material
-                        .map(|m| set.materials[m as usize].emission.map(|e| e as f32))
-                })
-                .collect(),
-            reflectance: set
-                .surfels
-                .iter()
-                .map(|s| s.material.map(|m| set.materials[m as usize].reflectance))
-                .collect(),
-            surfels,
+            emission,
+            reflectance,
+            surfels: prop_surfels(set),
             channels: if options.grey && crate::solve::effects::is_grey(set) {
                 1
             } else {

@@ -126,6 +126,14 @@ fn run_in_pool(
     comm: &dyn Comm,
     checkpoints: Option<Checkpoints>,
 ) -> Result<Solution, SolveError> {
+    let (threads, pool) = worker_pool(options)?;
+    run(set, directions, options, threads, &pool, comm, checkpoints)
+}
+
+/// The pool of `options.threads` workers (0: one per core) the directions run on.
+pub(crate) fn worker_pool(
+    options: &SolveOptions,
+) -> Result<(usize, rayon::ThreadPool), SolveError> {
     let threads = if options.threads == 0 {
         rayon::current_num_threads()
     } else {
@@ -138,7 +146,45 @@ fn run_in_pool(
             threads,
             message: e.to_string(),
         })?;
-    run(set, directions, options, threads, &pool, comm, checkpoints)
+    Ok((threads, pool))
+}
+
+/// What propagation reads of every surfel (with its open-edge coverage).
+pub(crate) fn prop_surfels(set: &SurfelSet) -> Vec<PropSurfel> {
+    let coverage = super::coverage::coverages(set);
+    set.surfels
+        .iter()
+        .zip(&coverage)
+        .map(|(s, &coverage)| PropSurfel {
+            coverage,
+            voxel: s.voxel,
+            group: s.group,
+            point: s.point,
+            normal: s.normal,
+            extent: s.extent,
+        })
+        .collect()
+}
+
+/// Emission `E` (f32, as radiosity is stored) and reflectance of every surfel, by side.
+pub(crate) type MaterialTables = (Vec<[[f32; 3]; 2]>, Vec<[[f64; 3]; 2]>);
+
+/// The [`MaterialTables`] of `set`.
+pub(crate) fn material_tables(set: &SurfelSet) -> MaterialTables {
+    let emission = set
+        .surfels
+        .iter()
+        .map(|s| {
+            s.material
+                .map(|m| set.materials[m as usize].emission.map(|e| e as f32))
+        })
+        .collect();
+    let reflectance = set
+        .surfels
+        .iter()
+        .map(|s| s.material.map(|m| set.materials[m as usize].reflectance))
+        .collect();
+    (emission, reflectance)
 }
 
 fn run(
@@ -155,20 +201,7 @@ fn run(
     let cosine_sum = pool.install(|| cosine_sums(&set.normals, directions));
     let normalize_seconds = started.elapsed().as_secs_f64();
 
-    let coverage = super::coverage::coverages(set);
-    let surfels: Vec<PropSurfel> = set
-        .surfels
-        .iter()
-        .zip(&coverage)
-        .map(|(s, &coverage)| PropSurfel {
-            coverage,
-            voxel: s.voxel,
-            group: s.group,
-            point: s.point,
-            normal: s.normal,
-            extent: s.extent,
-        })
-        .collect();
+    let surfels = prop_surfels(set);
     // The four lexicographic orders, sorted once.
     let orders: Vec<Vec<OrderedEntry>> = pool.install(|| {
         (0..4)
@@ -196,19 +229,7 @@ fn run(
         .map(|d| LineFrame::new(d.vector, set.grid.dims))
         .collect();
 
-    let emission: Vec<[[f32; 3]; 2]> = set
-        .surfels
-        .iter()
-        .map(|s| {
-            s.material
-                .map(|m| set.materials[m as usize].emission.map(|e| e as f32))
-        })
-        .collect();
-    let reflectance: Vec<[[f64; 3]; 2]> = set
-        .surfels
-        .iter()
-        .map(|s| s.material.map(|m| set.materials[m as usize].reflectance))
-        .collect();
+    let (emission, reflectance) = material_tables(set);
 
     let channels = if options.grey && super::effects::is_grey(set) {
         1
