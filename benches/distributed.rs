@@ -10,14 +10,16 @@
 //! 3. **The model**: per iteration, on `P` ranks with `n` surfels and `D` directions,
 //!    - directions: `T = c n D / P + T_sum`, where the sum of `6 n` values is a reduce-scatter and
 //!      an all-gather: `T_sum = 2 (alpha (P - 1) + 48 n (P - 1) / (P beta))`;
-//!    - data: `T = c n D imb(P) / P + D (alpha (P - 1) + f(P) (n / P) b / beta)`, `b` the bytes
+//!    - data: `T = (c + o) n D imb(P) / P + D (alpha (P - 1) + f(P) (n / P) b / beta)`, `o` the
+//!      data mode's own work per held surfel and direction (balance, fill, merge), `b` the bytes
 //!      sent per exchanged surfel (after compression), `f` the exchanged fraction, `imb` the
 //!      imbalance;
 //!    - hybrid with `G` groups of `Q = P / G` ranks: the data mode's terms on `Q` ranks for `D / G`
 //!      directions, one exchange back to the canonical distribution, and the sum across the `G`
 //!      groups of `6 n / Q` values per rank.
 //!
-//!    `c` (seconds per voxel-direction) comes from the one-process run, `beta` from the bytes and
+//!    `c` (seconds per voxel-direction) comes from the one-process run, `o` from the 2-rank data
+//!    run's phases, `beta` from the bytes and
 //!    seconds of the 2-rank data exchange (shared memory here; a cluster's network is slower, so
 //!    both are printed), `alpha` is a latency per peer per exchange (assumed, printed), `f` and
 //!    `imb` are measured up to 64 ranks and extrapolated beyond by a power law fitted to them.
@@ -258,6 +260,11 @@ fn main() {
     let c = t1 / (n * d * iters as f64);
     let phase = |r: usize, k: &str| phases[r][k].as_f64().unwrap_or(0.0);
     let exchange_seconds = (phase(0, "exchange") + phase(1, "exchange")) / 2.0;
+    let own_seconds = (0..2)
+        .map(|r| phase(r, "balance") + phase(r, "fill") + phase(r, "merge"))
+        .sum::<f64>()
+        / 2.0;
+    let o = own_seconds / (n / 2.0 * d * iters as f64);
     let bytes2 = data2["data_distribution"]["bytes_sent"]
         .as_f64()
         .unwrap_or(0.0)
@@ -285,7 +292,8 @@ fn main() {
     };
     println!("\n## Model\n");
     println!(
-        "c = {c:.3e} s per voxel-direction (one process, one thread); b = {b:.1} bytes sent per \
+        "c = {c:.3e} s per voxel-direction (one process, one thread); o = {o:.3e} s per held \
+         surfel and direction (data mode: balance, fill, merge); b = {b:.1} bytes sent per \
          exchanged surfel; beta = {:.2} GB/s measured here (shared memory), {:.2} GB/s assumed \
          for a network; alpha = {:.1} us per peer per exchange (assumed); f(P) = {fa:.4} P^{fb:.3}, \
          imbalance(P) - 1 = {ia:.4} P^{ib:.3} beyond the measured ranks.\n",
@@ -304,13 +312,13 @@ fn main() {
         };
         let directions_mode = |beta: f64| work / p + sum(p, 6.0 * big_n, beta);
         let data_mode = |q: f64, dirs: f64, beta: f64| {
-            work * (dirs / big_d) * imbalance(q) / q
+            (c + o) * big_n * dirs * imbalance(q) / q
                 + dirs * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
         };
         let g = (p.sqrt().floor()).max(1.0);
         let hybrid = |beta: f64| {
             let q = p / g;
-            work / p * imbalance(q)
+            (c + o) * big_n * big_d / p * imbalance(q)
                 + (big_d / g) * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
                 // Back to the canonical distribution, then the sum across the groups.
                 + (big_n / q) * b / beta
