@@ -187,7 +187,14 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
         directions = stats.directions,
         "solved"
     );
-    if !stats.converged {
+    if stats.stalled {
+        tracing::warn!(
+            "stopped after {} iterations: the changes no longer shrink in f32 storage, so the \
+             tolerance {:?} cannot be shown for this scene; the result is as close as it gets",
+            stats.iterations,
+            cmd.solve.tolerance
+        );
+    } else if !stats.converged {
         tracing::warn!(
             "stopped after {} iterations with an estimated relative error of {:.2e} (tolerance {:?}); \
              raise --iterations to go further",

@@ -98,6 +98,10 @@ pub struct Report {
     pub directions: usize,
     pub iterations: usize,
     pub converged: bool,
+    /// The changes stopped shrinking at the rounding of f32 storage before the tolerance was
+    /// reached: the result is as close as it gets (absent when false).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub stalled: bool,
     pub residual: f64,
     pub tolerance: f64,
     /// Wall-clock seconds: `total` and one entry per phase.
@@ -202,6 +206,7 @@ impl Report {
             directions: stats.directions,
             iterations: stats.iterations,
             converged: stats.converged,
+            stalled: stats.stalled,
             residual: stats.residual,
             tolerance: run.tolerance,
             seconds,

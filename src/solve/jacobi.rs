@@ -476,10 +476,24 @@ impl Convergence {
             seconds = format!("{:.1}", self.started.elapsed().as_secs_f64()),
             "iteration done"
         );
+        let stalled = self
+            .previous_change
+            .is_some_and(|prev| relative > 0.0 && relative >= prev && relative < STALL_LEVEL);
         self.previous_change = Some(relative);
         let stop = options.tolerance.is_some_and(|tol| estimate <= tol);
         if stop {
             stats.converged = true;
+        } else if stalled && options.tolerance.is_some() {
+            // Iterating on cannot get closer: report it and stop, not converged.
+            stats.stalled = true;
+            tracing::warn!(
+                iteration,
+                change = format!("{relative:.3e}"),
+                "the changes stopped shrinking at the rounding of the f32 radiosity: the \
+                 tolerance is below what this scene can show (its reflectance is close to 1); \
+                 stopping here"
+            );
+            return true;
         }
         stop
     }
@@ -489,6 +503,12 @@ impl Convergence {
         self.previous_change = None;
     }
 }
+
+/// A relative change below this that no longer shrinks is the rounding of the f32 radiosity
+/// (two units in the last place): iterating on only shuffles the last bits. The error left then
+/// is about that rounding times `rho / (1 - rho)` (6e-5 at `rho = 0.999`), which no tolerance
+/// below it can reach.
+const STALL_LEVEL: f64 = 2.0 * f32::EPSILON as f64;
 
 /// The relative error left after an iteration whose relative change is `relative`, given the
 /// previous iteration's change (see the module header); infinite until the changes contract.

@@ -32,6 +32,9 @@ pub struct SolveStats {
     pub residual: f64,
     /// Relative change of the last iteration.
     pub last_change: f64,
+    /// The solve stopped because the changes no longer shrank at the rounding level of f32
+    /// storage, before reaching the tolerance (see `jacobi`).
+    pub stalled: bool,
     pub threads: usize,
     /// Seconds spent in dispatch (building lines) and in propagation, summed over iterations.
     pub dispatch_seconds: f64,
