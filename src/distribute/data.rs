@@ -47,6 +47,7 @@ use crate::solve::propagate::{DirectionInput, PropSurfel};
 use crate::solve::{Solution, SolveStats};
 use crate::voxel::SurfelSet;
 use rayon::prelude::*;
+use std::cmp::Ordering;
 use std::time::Instant;
 
 /// Bytes of one surfel on the wire: id (4), propagation data (68), radiosity (24) and gathered
@@ -261,23 +262,26 @@ fn unseal(sealed: &[u8]) -> Vec<u8> {
     }
 }
 
-/// The sort key of the data mode: position in octant order `order`, then surfel id (the
-/// single-process solver breaks ties by index, which is the id).
+/// The order of the data mode: position in octant order `order`, then surfel id (the
+/// single-process solver breaks ties by index, which is the id). The ids, read by slot (a random
+/// access), are compared only between surfels of one voxel.
 #[inline]
-fn key(order: usize, voxel: [i32; 3], id: u32) -> ((i64, i64, i64), u32) {
-    (order::sort_key(order, voxel), id)
+fn compare(order: usize, ids: &[u32], x: &OrderedEntry, y: &OrderedEntry) -> Ordering {
+    order::sort_key(order, x.voxel)
+        .cmp(&order::sort_key(order, y.voxel))
+        .then_with(|| ids[x.index as usize].cmp(&ids[y.index as usize]))
 }
 
-/// Merges two runs sorted by `key` into one (ties: `a` first, never met since keys are unique).
-fn merge_two<K: Ord>(
+/// Merges two runs sorted by `cmp` into one (ties: `a` first, never met since keys are unique).
+fn merge_two(
     a: &[OrderedEntry],
     b: &[OrderedEntry],
-    key: impl Fn(&OrderedEntry) -> K,
+    cmp: impl Fn(&OrderedEntry, &OrderedEntry) -> Ordering,
 ) -> Vec<OrderedEntry> {
     let mut out = Vec::with_capacity(a.len() + b.len());
     let (mut i, mut j) = (0, 0);
     while i < a.len() && j < b.len() {
-        if key(&b[j]) < key(&a[i]) {
+        if cmp(&b[j], &a[i]) == Ordering::Less {
             out.push(b[j]);
             j += 1;
         } else {
@@ -520,7 +524,7 @@ impl<'a> DataSolver<'a> {
                 tally.seconds.balance += t.elapsed().as_secs_f64();
                 let bins = self.projection(k).lines(&self.frames[k], d.vector);
                 let table = distribution.table();
-                let owner = |voxel: [i32; 3], _id: u32| {
+                let owner = |voxel: [i32; 3], _id: &dyn Fn() -> u32| {
                     let (row, col) = bins.bin(voxel);
                     table.owner(row, col)
                 };
@@ -545,7 +549,7 @@ impl<'a> DataSolver<'a> {
             let t = Instant::now();
             if self.groups > 1 {
                 // One canonical distribution, then the peers' light added in group order.
-                let block_owner = |_: [i32; 3], id: u32| self.owner_of_id(id, ranks);
+                let block_owner = |_: [i32; 3], id: &dyn Fn() -> u32| self.owner_of_id(id(), ranks);
                 self.redistribute(
                     &mut held,
                     None,
@@ -721,7 +725,7 @@ impl<'a> DataSolver<'a> {
         group_comm: &dyn Comm,
         tally: &mut Tally,
         direction: usize,
-        owner: impl Fn([i32; 3], u32) -> usize + Sync,
+        owner: impl Fn([i32; 3], &dyn Fn() -> u32) -> usize + Sync,
     ) {
         let (ranks, me) = (group_comm.size(), group_comm.rank());
         let canonical = direction == usize::MAX;
@@ -735,7 +739,8 @@ impl<'a> DataSolver<'a> {
             let owners: Vec<u32> = self.pool.install(|| {
                 held.order
                     .par_iter()
-                    .map(|e| owner(e.voxel, held.ids[e.index as usize]) as u32)
+                    // The id only when the owner needs it: reading it is a random access.
+                    .map(|e| owner(e.voxel, &|| held.ids[e.index as usize]) as u32)
                     .collect()
             });
             let entries = std::mem::take(&mut held.order);
@@ -780,14 +785,14 @@ impl<'a> DataSolver<'a> {
             kept.sort_unstable_by_key(|e| ids[e.index as usize]);
             kept
         } else {
-            let key = |e: &OrderedEntry| key(order, e.voxel, ids[e.index as usize]);
+            let cmp = |x: &OrderedEntry, y: &OrderedEntry| compare(order, ids, x, y);
             if held_order == Some(order) {
                 // The packs are sorted runs: a stable sort merges them as runs.
-                arrived.sort_by_key(key);
-                merge_two(&kept, &arrived, key)
+                arrived.sort_by(cmp);
+                merge_two(&kept, &arrived, cmp)
             } else {
                 kept.extend_from_slice(&arrived);
-                kept.sort_unstable_by_key(key);
+                kept.sort_unstable_by(cmp);
                 kept
             }
         };
