@@ -474,18 +474,9 @@ impl<'a> DataSolver<'a> {
                 let slot = e.index as usize;
                 held.radiosity[slot] = loaded.radiosity[held.ids[slot] as usize];
             }
-            convergence.previous_change = loaded.state.previous_change;
+            first = convergence.resume(&loaded.state, &loaded.path, &mut stats);
+            iterations_done = first - 1;
             extrapolation = loaded.state.extrapolation;
-            let done = loaded.state.iteration as usize;
-            stats.iterations = done;
-            stats.resumed_from_iteration = Some(done);
-            iterations_done = done;
-            first = done + 1;
-            tracing::info!(
-                iteration = done,
-                path = %loaded.path.display(),
-                "resumed from a checkpoint"
-            );
         }
         if checkpoints.is_some() {
             crate::interrupt::start_iterating();

@@ -234,16 +234,7 @@ fn run(
         let t = Instant::now();
         restore(&file, &work, &plan, &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
-        convergence.previous_change = file.header.state.previous_change;
-        let done = file.header.state.iteration as usize;
-        stats.solve.iterations = done;
-        stats.solve.resumed_from_iteration = Some(done);
-        first_iteration = done + 1;
-        tracing::info!(
-            iteration = done,
-            path = %file.path.display(),
-            "resumed from a checkpoint"
-        );
+        first_iteration = convergence.resume(&file.header.state, &file.path, &mut stats.solve);
     }
     if checkpoints.is_some() {
         crate::interrupt::start_iterating();

@@ -263,9 +263,6 @@ fn run(
             n,
             "a checkpoint is checked against the scene"
         );
-        convergence.previous_change = loaded.state.previous_change;
-        extrapolation = loaded.state.extrapolation;
-        let done = loaded.state.iteration as usize;
         if loaded.state.ranks as usize != comm.size() {
             // Valid, but the sums across ranks are grouped differently from here on.
             tracing::info!(
@@ -275,14 +272,8 @@ fn run(
                 comm.size()
             );
         }
-        stats.iterations = done;
-        stats.resumed_from_iteration = Some(done);
-        first = done + 1;
-        tracing::info!(
-            iteration = done,
-            path = %loaded.path.display(),
-            "resumed from a checkpoint"
-        );
+        first = convergence.resume(&loaded.state, &loaded.path, &mut stats);
+        extrapolation = loaded.state.extrapolation;
     }
 
     if checkpoints.is_some() {
@@ -496,6 +487,22 @@ impl Convergence {
             return true;
         }
         stop
+    }
+
+    /// Continues from a checkpoint's `state` (read from `path`): takes its change history,
+    /// records the iterations it holds in `stats`, logs it; returns the first iteration to run.
+    pub(crate) fn resume(
+        &mut self,
+        state: &crate::checkpoint::State,
+        path: &std::path::Path,
+        stats: &mut SolveStats,
+    ) -> usize {
+        self.previous_change = state.previous_change;
+        let done = state.iteration as usize;
+        stats.iterations = done;
+        stats.resumed_from_iteration = Some(done);
+        tracing::info!(iteration = done, path = %path.display(), "resumed from a checkpoint");
+        done + 1
     }
 
     /// Forgets the change history (after a jump that was not an iteration).
