@@ -21,6 +21,9 @@
 //!
 //! About 380 runs of binaries taking 2 to 200 ms each, 3 s in all.
 
+mod common;
+
+use common::files::{copy_dir, edit};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use tempfile::TempDir;
@@ -126,23 +129,6 @@ fn clean() -> Clean {
     assert!(o.status.success(), "clean solve: {o:?}");
     let results = std::fs::read(out.join("surfels.bin")).unwrap();
     Clean { tmp, set, results }
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    if to.exists() {
-        std::fs::remove_dir_all(to).unwrap();
-    }
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
-    }
-}
-
-fn edit(path: &Path, f: impl FnOnce(&mut Vec<u8>)) {
-    let mut bytes = std::fs::read(path).unwrap();
-    f(&mut bytes);
-    std::fs::write(path, bytes).unwrap();
 }
 
 fn names(dir: &Path) -> Vec<String> {

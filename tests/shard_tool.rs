@@ -7,6 +7,9 @@
 //!
 //! Every test works in its own temporary directory.
 
+mod common;
+
+use common::files::{copy_dir, edit};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use tempfile::TempDir;
@@ -235,20 +238,6 @@ fn reshard_keeps_the_records_in_order() {
     assert_bad_input(&o, "reshard onto itself", &["input set"]);
 }
 
-fn copy_set(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        std::fs::copy(e.path(), to.join(e.file_name())).unwrap();
-    }
-}
-
-fn edit(path: &Path, f: impl FnOnce(&mut Vec<u8>)) {
-    let mut bytes = std::fs::read(path).unwrap();
-    f(&mut bytes);
-    std::fs::write(path, bytes).unwrap();
-}
-
 #[test]
 fn verify_names_every_damaged_file() {
     let tmp = TempDir::new().unwrap();
@@ -257,14 +246,14 @@ fn verify_names_every_damaged_file() {
     assert_ok(&shard_tool(&["verify", &s(&good)]), "verify the good set");
     // A stray file is mentioned, not an error.
     let stray = tmp.path().join("stray");
-    copy_set(&good, &stray);
+    copy_dir(&good, &stray);
     std::fs::write(stray.join("shard-00009.vxs"), b"left over").unwrap();
     let o = shard_tool(&["verify", &s(&stray)]);
     assert_ok(&o, "verify with a stray file");
     assert!(text(&o.stdout).contains("not part of the set: shard-00009.vxs"));
     let case = |name: &str, damage: &dyn Fn(&Path), needles: &[&str]| {
         let set = tmp.path().join(name);
-        copy_set(&good, &set);
+        copy_dir(&good, &set);
         damage(&set);
         let o = shard_tool(&["verify", &s(&set)]);
         assert_bad_input(&o, name, needles);
