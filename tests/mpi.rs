@@ -37,6 +37,34 @@ fn mpirun(ranks: usize, args: &[&str]) -> Output {
         .expect("run mpirun (is Open MPI installed?)")
 }
 
+/// `solve` of the Cornell box at resolution 32, 49 directions, 4 plain iterations, into `out`
+/// with `threads` per rank, distributed by `mode`.
+fn small_solve(out: &Path, threads: &str, mode: &str) -> Vec<String> {
+    let out = out.to_str().unwrap();
+    [
+        "solve",
+        &cornell(),
+        "--out",
+        out,
+        "--resolution",
+        "32",
+        "--directions",
+        "49",
+        "--iterations",
+        "4",
+        "--threads",
+        threads,
+        "--distribute",
+        mode,
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+fn as_strs(args: &[String]) -> Vec<&str> {
+    args.iter().map(String::as_str).collect()
+}
+
 fn cornell() -> String {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("examples/cornell_box.obj")
@@ -60,25 +88,8 @@ fn directions_mode_matches_one_process_for_1_to_4_ranks() {
     let tmp = tempfile::tempdir().unwrap();
     for ranks in 1..=4 {
         let out = tmp.path().join(format!("ranks{ranks}"));
-        let o = mpirun(
-            ranks,
-            &[
-                "solve",
-                &cornell(),
-                "--out",
-                out.to_str().unwrap(),
-                "--resolution",
-                "32",
-                "--directions",
-                "49",
-                "--iterations",
-                "4",
-                "--threads",
-                "1",
-                "--distribute",
-                "directions",
-            ],
-        );
+        let args = small_solve(&out, "1", "directions");
+        let o = mpirun(ranks, &as_strs(&args));
         assert!(
             o.status.success(),
             "{ranks} ranks: {}",
@@ -170,26 +181,10 @@ fn data_and_hybrid_modes_match_one_process_for_1_to_4_ranks() {
     for mode in ["data", "hybrid"] {
         for ranks in 1..=4 {
             let out = tmp.path().join(format!("{mode}{ranks}"));
-            let o = mpirun(
-                ranks,
-                &[
-                    "solve",
-                    &cornell(),
-                    "--out",
-                    out.to_str().unwrap(),
-                    "--resolution",
-                    "32",
-                    "--directions",
-                    "49",
-                    "--iterations",
-                    "4",
-                    "--threads",
-                    // Threads inside ranks too: the answer must not depend on them.
-                    if ranks % 2 == 0 { "1" } else { "2" },
-                    "--distribute",
-                    mode,
-                ],
-            );
+            // Threads inside ranks too: the answer must not depend on them.
+            let threads = if ranks % 2 == 0 { "1" } else { "2" };
+            let args = small_solve(&out, threads, mode);
+            let o = mpirun(ranks, &as_strs(&args));
             assert!(
                 o.status.success(),
                 "{mode}, {ranks} ranks: {}",

@@ -523,6 +523,20 @@ pub struct Interruption {
     pub writer: bool,
 }
 
+impl Interruption {
+    /// A stop with no checkpoint to point to (the solve keeps none); `writer` is whether this
+    /// process speaks for the run (rank 0).
+    pub fn without_checkpoint(signal: i32, completed: usize, writer: bool) -> Self {
+        Interruption {
+            signal,
+            completed,
+            checkpoint: None,
+            failure: None,
+            writer,
+        }
+    }
+}
+
 impl std::fmt::Display for Interruption {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let signal = crate::interrupt::name(self.signal);

@@ -629,13 +629,7 @@ impl<'a> DataSolver<'a> {
                     saver.save_memory(state, &radiosity)
                 })
             }
-            None => Interruption {
-                signal,
-                completed,
-                checkpoint: None,
-                failure: None,
-                writer: world.rank() == 0,
-            },
+            None => Interruption::without_checkpoint(signal, completed, world.rank() == 0),
         };
         SolveError::Interrupted(interruption)
     }

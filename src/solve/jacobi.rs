@@ -329,13 +329,7 @@ fn run(
                     let state = saver.state(completed, convergence.previous_change, &extrapolation);
                     saver.save_memory(state, &radiosity)
                 }),
-                None => Interruption {
-                    signal,
-                    completed,
-                    checkpoint: None,
-                    failure: None,
-                    writer: comm.rank() == 0,
-                },
+                None => Interruption::without_checkpoint(signal, completed, comm.rank() == 0),
             };
             return Err(SolveError::Interrupted(interruption));
         }
