@@ -8,8 +8,10 @@
 //! whose piece covers only part of the voxel's slice of its plane gets a coverage below 1, and
 //! propagation lets that share of a ray's light come from it and the rest from what lies behind.
 //!
-//! A voxel holding one plane twice (a sheet modelled back to back) counts as holding one plane.
-//! Where several planes meet in one voxel (edges and corners of closed objects) the pieces bound
+//! A voxel holding one plane twice (a sheet modelled back to back) counts as holding one plane,
+//! and a plane parallel to the piece's (a lamp hanging less than a voxel above a floor) cannot
+//! bound it, so it does not count either; propagation then lets the rest of a ray go on to the
+//! other plane in the same voxel. Where several planes meet in one voxel (edges and corners of closed objects) the pieces bound
 //! each other and propagation decides which one a ray crosses, so their coverage stays 1; a
 //! voxel that a plane only touches (zero area, no slice) keeps 1 too, because tunnel-freeness
 //! depends on such voxels blocking.
@@ -17,6 +19,9 @@
 use crate::voxel::voxelize::{clip_to_unit_cube, polygon_area_centroid};
 use crate::voxel::{Surfel, SurfelSet};
 use glam::DVec3;
+
+/// `|n . n'|` from which two planes count as parallel (normals are stored in f32).
+const PARALLEL: f64 = 1.0 - 1e-6;
 
 /// Smallest slice area (voxel-size squared) for which a coverage is computed at all.
 const MIN_SLICE: f64 = 0.05;
@@ -59,12 +64,19 @@ pub fn coverages(set: &SurfelSet) -> Vec<f32> {
 /// Coverage of `mates[k]`, where `mates` are all the surfels of one voxel.
 pub fn coverage_in_voxel(mates: &[Surfel], k: usize) -> f32 {
     let s = &mates[k];
-    // Alone in its voxel, or sharing it only with its own plane (a sheet modelled twice, back to
-    // back).
-    if mates.iter().any(|m| m.group != s.group) {
+    let normal = DVec3::new(s.normal[0] as f64, s.normal[1] as f64, s.normal[2] as f64);
+    // Alone in its voxel, sharing it only with its own plane (a sheet modelled twice, back to
+    // back), or only with planes parallel to its own (a lamp hanging less than a voxel above a
+    // floor): no other plane can bound the piece inside the voxel, so its open edge is open.
+    let bounded = mates.iter().any(|m| {
+        m.group != s.group && {
+            let n = DVec3::new(m.normal[0] as f64, m.normal[1] as f64, m.normal[2] as f64);
+            n.dot(normal).abs() < PARALLEL
+        }
+    });
+    if bounded {
         return 1.0;
     }
-    let normal = DVec3::new(s.normal[0] as f64, s.normal[1] as f64, s.normal[2] as f64);
     let point = DVec3::new(s.point[0] as f64, s.point[1] as f64, s.point[2] as f64);
     let slice = slice_area(normal, point);
     let area = s.area as f64;

@@ -95,14 +95,20 @@ fn facing<const RECEIVER_BEHIND: bool>(r: &Local, c: &Local) -> Option<f32> {
     }
     let d = offset(r, c);
     let (rd, cd) = (r.normal.dot(d), c.normal.dot(d));
+    // In one voxel the bounding box says too little: the box of a piece tilted in its own plane
+    // (a slab's end face under its tilted top) reaches past the receiver's plane even where the
+    // piece stops at it, so a voxel-mate must also have its surface point in front.
+    let mate = r.voxel == c.voxel;
     if RECEIVER_BEHIND {
         // Crossing ahead: the receiver r lies in front of c's side facing it.
-        if cd * c.sgn <= EPS || reach(r.normal * r.sgn, r, c) <= EPS {
+        let front = r.normal * r.sgn;
+        if cd * c.sgn <= EPS || reach(front, r, c) <= EPS || mate && front.dot(d) <= EPS {
             return None;
         }
         Some(cd / c.ns)
     } else {
-        if rd * r.sgn <= EPS || reach(-c.normal * c.sgn, c, r) <= EPS {
+        let front = -c.normal * c.sgn;
+        if rd * r.sgn <= EPS || reach(front, c, r) <= EPS || mate && front.dot(-d) <= EPS {
             return None;
         }
         Some(rd / r.ns)
@@ -428,15 +434,34 @@ impl LineView<'_> {
         }
         let mut missed = Missed::default();
         let mut left = 1.0f32;
-        if self.single[g] == u32::MAX {
-            if let Some(found) = self.best_in::<FORWARD>(g, k, dir, &mut missed) {
+        let group_count = self.groups.len() - 1;
+        let mut g2 = g;
+        // The receiver's own voxel is searched first when it holds other surfels; a voxel is
+        // searched again after an open edge in it let part of the ray through (a lamp piece
+        // hanging above a floor piece in the same voxel).
+        let mut search_here = self.single[g] == u32::MAX;
+        loop {
+            if search_here {
+                search_here = false;
+                let Some(found) = self.best_in::<FORWARD>(g2, k, dir, &mut missed) else {
+                    continue;
+                };
+                let candidate = &self.locals[found];
+                if candidate.coverage < 1.0 && (chain.len as usize) < MAX_CHAIN - 1 {
+                    // An open edge sharing its voxel: it sends its share, its plane is now
+                    // crossed, and the rest of the ray may still meet another plane here.
+                    chain.push(found, left * candidate.coverage);
+                    left *= 1.0 - candidate.coverage;
+                    missed.insert(candidate.group);
+                    if left <= 1e-3 {
+                        return chain;
+                    }
+                    search_here = true;
+                    continue;
+                }
                 chain.push(found, left);
                 return chain;
             }
-        }
-        let group_count = self.groups.len() - 1;
-        let mut g2 = g;
-        loop {
             if FORWARD {
                 g2 += 1;
                 if g2 >= group_count {
@@ -476,20 +501,8 @@ impl LineView<'_> {
                     chain.push(c, left);
                     return chain;
                 }
-            } else if let Some(found) = self.best_in::<FORWARD>(g2, k, dir, &mut missed) {
-                let candidate = &self.locals[found];
-                if candidate.coverage < 1.0 && (chain.len as usize) < MAX_CHAIN - 1 {
-                    // The open edge of a sheet modelled twice, back to back (see above).
-                    chain.push(found, left * candidate.coverage);
-                    left *= 1.0 - candidate.coverage;
-                    missed.insert(candidate.group);
-                    if left <= 1e-3 {
-                        return chain;
-                    }
-                    continue;
-                }
-                chain.push(found, left);
-                return chain;
+            } else {
+                search_here = true;
             }
         }
     }
