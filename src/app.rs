@@ -375,10 +375,52 @@ fn run_solve_shard_set(cmd: &SolveCommand, started: Instant) -> Result<Report, A
 
 /// The out-of-core solve, with checkpoints in the out directory, from the one there under
 /// `--resume` (checked against the run before any work file is made).
+/// [`crate::solve::effects::analyse_sides`] of the surfels `source` streams.
+fn analyse_source(
+    source: &dyn SurfelSource,
+    budget: u64,
+) -> Result<crate::solve::effects::Analysis, AppError> {
+    let info = source.info();
+    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
+        .map(|p| p.io_bytes as u64)
+        .unwrap_or(1 << 16);
+    let mut sides = Vec::new();
+    let mut failure = None;
+    let stream = source.stream(window).map_err(ooc_error)?;
+    // Materials are few: collect the distinct pairs, not one entry per surfel.
+    let mut seen = std::collections::HashSet::new();
+    let mut emitting_surfels = 0usize;
+    for item in stream {
+        match item {
+            Ok(s) => {
+                emitting_surfels += s.material.iter().any(|&m| {
+                    info.materials
+                        .get(m as usize)
+                        .is_some_and(|m| m.is_emitter())
+                }) as usize;
+                if seen.insert(s.material) {
+                    sides.push(s.material);
+                }
+            }
+            Err(e) => {
+                failure = Some(e);
+                break;
+            }
+        }
+    }
+    if let Some(e) = failure {
+        return Err(ooc_error(e));
+    }
+    let mut analysis = crate::solve::effects::analyse_sides(&info.materials, sides.into_iter());
+    analysis.emitting_surfels = emitting_surfels;
+    Ok(analysis)
+}
+
 fn solve_out_of_core_in(
     cmd: &SolveCommand,
     source: &dyn SurfelSource,
     directions: &DirectionSet,
+    options: &SolveOptions,
     budget: u64,
 ) -> Result<crate::outcore::OocSolution, AppError> {
     let info = source.info();
@@ -392,15 +434,16 @@ fn solve_out_of_core_in(
         voxel_size: info.grid.voxel_size,
         directions: directions.len() as u32,
         directions_checksum: checkpoint::directions_checksum(directions),
-        // The out-of-core solver always solves three channels and does not extrapolate.
-        channels: 3,
-        accelerate: false,
+        // As the solver decides it: one channel for a grey scene (the analysis saw the same
+        // materials the solver checks).
+        channels: if options.grey { 1 } else { 3 },
+        accelerate: options.accelerate,
         scene_checksum: source.checksum(window).map_err(ooc_error)?,
     };
     let path = checkpoint::path_in(&cmd.out);
     let resume = if cmd.checkpoint.resume && path.exists() {
         let file = CheckpointFile::open(&path).map_err(checkpoint_error)?;
-        checkpoint::check(&path, &file.header, &identity, cmd.solve.max_iterations)
+        checkpoint::check(&path, &file.header, &identity, options.max_iterations)
             .map_err(checkpoint_error)?;
         Some(file)
     } else {
@@ -419,15 +462,8 @@ fn solve_out_of_core_in(
         saver: &mut saver,
         resume,
     };
-    solve_out_of_core_checkpointed(
-        source,
-        directions,
-        &cmd.solve,
-        budget,
-        &cmd.out,
-        checkpoints,
-    )
-    .map_err(ooc_error)
+    solve_out_of_core_checkpointed(source, directions, options, budget, &cmd.out, checkpoints)
+        .map_err(ooc_error)
 }
 
 /// Sets the report's total time and peak RSS, writes it beside the staged outputs and moves
@@ -530,8 +566,11 @@ fn solve_out_of_core_to(
     budget: u64,
 ) -> Result<(Report, Staging), AppError> {
     create_out_dir(&cmd.out)?;
-    let directions = DirectionSet::with_count(cmd.solve.directions);
-    let solution = solve_out_of_core_in(cmd, source, &directions, budget)?;
+    // Simulate only what the scene calls for, as in memory (one streaming pass over the source).
+    let analysis = analyse_source(source, budget)?;
+    let shaped = analysis.shape(&cmd.solve);
+    let directions = DirectionSet::with_count(shaped.directions);
+    let solution = solve_out_of_core_in(cmd, source, &directions, &shaped, budget)?;
     let stats = &solution.stats;
     tracing::info!(
         iterations = stats.solve.iterations,
@@ -604,14 +643,15 @@ fn solve_out_of_core_to(
         bytes_written_per_voxel_direction: stats.bytes_written as f64 / updates,
         bands: stats.bands,
     });
-    report.effects = vec![Effect::new(
+    report.effects = analysis.effects(&cmd.solve, &stats.solve);
+    report.effects.push(Effect::new(
         "out of core",
         true,
         &format!(
             "surfels kept in files; everything that grows with the scene held within {}",
             crate::outcore::budget::format_bytes(budget)
         ),
-    )];
+    ));
     Ok((report, staged))
 }
 

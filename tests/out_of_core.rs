@@ -96,3 +96,56 @@ fn furnished_room_matches_the_in_memory_solver() {
         &[2],
     );
 }
+
+/// The out-of-core solver simulates what the in-memory one does: a grey scene is solved in one
+/// channel and the geometric tail is extrapolated. A furnace with `rho = 0.99` (about 900 plain
+/// iterations to 1e-4) must land on `E / (1 - rho)` within a few iterations, out of core under a
+/// small budget exactly as in memory.
+#[test]
+fn grey_extrapolated_furnace_out_of_core() {
+    let (e, rho) = (1.0, 0.99);
+    let scene = common::furnace(e, rho);
+    let set = voxelize(&scene, GridSpec::Resolution(12)).expect("voxelize");
+    let directions = DirectionSet::with_count(49);
+    let options = SolveOptions {
+        directions: 49,
+        tolerance: Some(1e-4),
+        threads: 2,
+        grey: true,
+        accelerate: true,
+        ..Default::default()
+    };
+    let reference = solve_with(&set, &directions, &options).expect("solve");
+    let work = tempfile::tempdir().expect("tempdir");
+    let source = InMemorySource::new(&set);
+    let solution = solve_out_of_core(&source, &directions, &options, 200 << 10, work.path())
+        .expect("out-of-core solve");
+    let stats = &solution.stats.solve;
+    let radiosity = solution.radiosity().expect("read radiosity");
+    let expected = e / (1.0 - rho);
+    let mut worst = 0.0f64;
+    for (s, b) in set.surfels.iter().zip(&radiosity) {
+        for &v in &b[common::inner_side(s, &set)] {
+            worst = worst.max((v as f64 - expected).abs() / expected);
+        }
+    }
+    println!(
+        "furnace rho {rho} out of core: {} iterations, {} extrapolations, {} channel(s), worst \
+         error {worst:.2e} (in memory: {} iterations)",
+        stats.iterations, stats.extrapolations, stats.channels, reference.stats.iterations
+    );
+    assert_eq!(stats.channels, 1);
+    assert!(stats.extrapolations >= 1);
+    assert!(stats.iterations <= 10, "{} iterations", stats.iterations);
+    assert!(worst < 1e-4, "worst error {worst}");
+    assert_eq!(stats.iterations, reference.stats.iterations);
+    let apart = common::worst_relative_difference(&radiosity, &reference.radiosity);
+    assert!(
+        apart <= 1e-5,
+        "out of core and in memory differ by {apart:e}"
+    );
+    // Every channel carries the solved one.
+    assert!(radiosity
+        .iter()
+        .all(|b| b.iter().all(|s| s[0] == s[1] && s[1] == s[2])));
+}

@@ -98,6 +98,8 @@ pub struct DirectionPass<'a> {
     pub dims: [u32; 3],
     pub plan: &'a MemoryPlan,
     pub threads: usize,
+    /// Channels to gather (1 for a grey scene, see `solve::jacobi`).
+    pub channels: usize,
     /// First direction of this copy in this iteration: the gathered file is overwritten, not
     /// added to.
     pub first: bool,
@@ -389,8 +391,7 @@ impl DirectionPass<'_> {
             weight,
             surfels: &buffers.props,
             radiosity: &buffers.radiosity,
-            // All three channels (one-channel grey solves are an in-memory option so far).
-            channels: 3,
+            channels: self.channels,
         };
         gather_all_lines(&buffers.lines, &input, &mut buffers.gathered, self.threads);
         let t3 = Instant::now();

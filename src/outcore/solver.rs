@@ -20,6 +20,7 @@ use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
 use crate::checkpoint::{CheckpointFile, Interruption, Saver};
 use crate::geometry::directions::DirectionSet;
+use crate::solve::accelerate::Extrapolation;
 use crate::solve::jacobi::Convergence;
 use crate::solve::normalize::cosine_sums;
 use crate::solve::{SolveOptions, SolveStats};
@@ -206,10 +207,23 @@ fn run(
 
     // B = E to start with; tells whether anything emits.
     let t = Instant::now();
-    let first = update(source, &work, &plan, &cosine_sum, false, &mut io)?;
+    let first = update(source, &work, &plan, &cosine_sum, false, 3, None, &mut io)?;
+    send_to_copies(&work, &plan, &mut io)?;
     let mut fold_seconds = 0.0;
     stats.update_seconds += t.elapsed().as_secs_f64();
     let any_light = first.emitted.iter().any(|&e| e > 0.0);
+    // As `solve::jacobi`: one channel for a grey scene, checked here on the materials used.
+    let channels = if options.grey && first.grey { 1 } else { 3 };
+    stats.solve.channels = channels;
+    // The radiosity an update replaces, for the tail extrapolation.
+    let previous = if options.accelerate {
+        let path = work.dir.path().join("radiosity-previous.bin");
+        RecordFile::create(&path)?.set_len(work.count * RADIOSITY_LEN as u64)?;
+        Some(path)
+    } else {
+        None
+    };
+    let mut extrapolation = Extrapolation::default();
 
     // Directions by main axis, in set order within an axis.
     let by_axis: Vec<Vec<usize>> = (0..3)
@@ -235,6 +249,7 @@ fn run(
         restore(&file, &work, &plan, &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         first_iteration = convergence.resume(&file.header.state, &file.path, &mut stats.solve);
+        extrapolation = file.header.state.extrapolation.clone();
     }
     if checkpoints.is_some() {
         crate::interrupt::start_iterating();
@@ -267,6 +282,7 @@ fn run(
                     dims: info.grid.dims,
                     plan: &plan,
                     threads,
+                    channels,
                     first: k == 0,
                 };
                 pass.run(&directions.directions[d], &mut buffers, &mut io, &mut times)?;
@@ -292,8 +308,7 @@ fn run(
             let completed = iteration - 1;
             let interruption = match checkpoints.as_mut() {
                 Some(c) => c.saver.interrupt(signal, completed, |saver| {
-                    let state =
-                        saver.state(completed, convergence.previous_change, &Default::default());
+                    let state = saver.state(completed, convergence.previous_change, &extrapolation);
                     save(saver, state, &work, &plan)
                 }),
                 None => Interruption {
@@ -308,27 +323,44 @@ fn run(
         }
         stats.solve.updates += work.count * directions.len() as u64;
         let t = Instant::now();
-        let result = update(source, &work, &plan, &cosine_sum, gathered_any, &mut io)?;
-        stats.update_seconds += t.elapsed().as_secs_f64();
+        let result = update(
+            source,
+            &work,
+            &plan,
+            &cosine_sum,
+            gathered_any,
+            channels,
+            previous.as_deref(),
+            &mut io,
+        )?;
+        // Right after an extrapolation the change history starts again (see `accelerate`).
         let stop = convergence.record(
             iteration,
             result.change,
             result.total,
             options,
             &mut stats.solve,
-            |_| None,
+            |relative| extrapolation.error_estimate(relative),
         );
         last = result;
         if stop {
+            stats.update_seconds += t.elapsed().as_secs_f64();
             break;
         }
+        if let Some(path) = &previous {
+            if let Some(factor) = extrapolation.observe(result.change, stats.solve.last_change) {
+                extrapolate_canonical(source, &work, &plan, path, factor, &mut io)?;
+                // The jump is not an iteration's change: the stopping rule starts again.
+                convergence.restart();
+            }
+        }
+        send_to_copies(&work, &plan, &mut io)?;
+        stats.update_seconds += t.elapsed().as_secs_f64();
         // A boundary the solve goes on from (as in `solve::jacobi`).
         if iteration < options.max_iterations {
             if let Some(c) = checkpoints.as_mut() {
                 c.saver.save_if_due(
-                    |saver| {
-                        saver.state(iteration, convergence.previous_change, &Default::default())
-                    },
+                    |saver| saver.state(iteration, convergence.previous_change, &extrapolation),
                     |saver, state| save(saver, state, &work, &plan),
                 );
             }
@@ -339,6 +371,7 @@ fn run(
         stats.solve.converged =
             stats.solve.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
     }
+    stats.solve.extrapolations = extrapolation.count;
     stats.solve.emitted_power = last.emitted;
     stats.solve.absorbed_power = last.absorbed;
     stats.solve.dispatch_seconds = times.dispatch;
@@ -408,6 +441,8 @@ struct Update {
     total: f64,
     emitted: [f64; 3],
     absorbed: [f64; 3],
+    /// Every material on a surfel side has three equal channels (see `solve::effects`).
+    grey: bool,
 }
 
 /// Adds the light gathered in `copy`'s order (the shared gathered file) to the canonical sum,
@@ -464,15 +499,24 @@ fn fold_gathered(
 
 /// `B = E + rho H / S(n)` in canonical order, `H` the canonical sum of gathered light (none
 /// gathered yet: `H = 0`); then the new `B` is sent to every copy, one copy at a time.
+///
+/// `channels` is 1 when only the first channel was gathered (a grey scene): the other two are
+/// the same numbers. With `previous`, the radiosity it replaces is kept there (for the tail
+/// extrapolation). The caller sends the new radiosity to the copies ([`send_to_copies`]).
+#[allow(clippy::too_many_arguments)]
 fn update(
     source: &dyn SurfelSource,
     work: &WorkSet,
     plan: &MemoryPlan,
     cosine_sum: &[f64],
     gathered: bool,
+    channels: usize,
+    previous: Option<&Path>,
     io: &mut IoCounters,
 ) -> Result<Update, OocError> {
     let info = source.info();
+    let kept = previous.map(RecordFile::open).transpose()?;
+    let mut used = vec![false; info.materials.len()];
     let n = work.count;
     let chunk = plan.chunk_surfels.min(n).max(1);
     let canonical = RecordFile::open(&work.canonical_radiosity)?;
@@ -482,6 +526,8 @@ fn update(
     let mut result = Update::default();
     let mut h_bytes = vec![0u8; chunk as usize * GATHER_LEN];
     let mut bytes = vec![0u8; chunk as usize * RADIOSITY_LEN];
+    // The replaced radiosity of a chunk, when it is kept.
+    let mut old = Vec::with_capacity(if kept.is_some() { bytes.len() } else { 0 });
     let mut start = 0u64;
     while start < n {
         let len = chunk.min(n - start);
@@ -493,6 +539,10 @@ fn update(
         }
         let prev = &mut bytes[..len as usize * RADIOSITY_LEN];
         canonical.read_at(start * RADIOSITY_LEN as u64, prev, io)?;
+        if kept.is_some() {
+            old.clear();
+            old.extend_from_slice(prev);
+        }
         for (slot, h_slot) in prev
             .chunks_exact_mut(RADIOSITY_LEN)
             .zip(h_slots.chunks_exact(GATHER_LEN))
@@ -501,12 +551,18 @@ fn update(
                 source_name: source.describe(),
                 what: "it ended before its stated count of surfels".to_string(),
             })??;
-            let h = decode_gathered(h_slot);
+            let mut h = decode_gathered(h_slot);
+            if channels == 1 {
+                for side in &mut h {
+                    *side = [side[0]; 3];
+                }
+            }
             let previous = decode_radiosity(slot);
             let norm = cosine_sum[s.normal_id as usize];
             let area = s.area as f64;
             let mut b_new: Radiosity = [[0.0; 3]; 2];
             for side in 0..2 {
+                used[s.material[side] as usize] = true;
                 let m = &info.materials[s.material[side] as usize];
                 for ch in 0..3 {
                     let e = m.emission[ch] as f32 as f64;
@@ -521,6 +577,9 @@ fn update(
             }
             encode_radiosity(&b_new, slot);
         }
+        if let Some(kept) = &kept {
+            kept.write_at(start * RADIOSITY_LEN as u64, &old, io)?;
+        }
         canonical.write_at(start * RADIOSITY_LEN as u64, prev, io)?;
         io.read += len * crate::storage::RECORD_LEN as u64;
         start += len;
@@ -533,9 +592,77 @@ fn update(
             what: "it holds more surfels than its stated count".to_string(),
         });
     }
-    drop((h_bytes, bytes));
-    send_to_copies(work, plan, io)?;
+    let equal = |v: &[f64; 3]| v[0] == v[1] && v[1] == v[2];
+    result.grey = info
+        .materials
+        .iter()
+        .zip(&used)
+        .all(|(m, &u)| !u || equal(&m.reflectance) && equal(&m.emission));
     Ok(result)
+}
+
+/// Adds the geometric tail `factor * (B - B_previous)` to the canonical radiosity, chunk by
+/// chunk, with `accelerate::extrapolate`'s rules (never below `E`, never lowering a rising
+/// value); `previous` holds the radiosity the last update replaced.
+fn extrapolate_canonical(
+    source: &dyn SurfelSource,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    previous: &Path,
+    factor: f64,
+    io: &mut IoCounters,
+) -> Result<(), OocError> {
+    let info = source.info();
+    let n = work.count;
+    // Five radiosity-sized arrays per surfel of a chunk (bytes and decoded, now and before, and
+    // the emission), inside the permutation chunk's share of the budget.
+    let per_surfel = 5 * RADIOSITY_LEN as u64;
+    let chunk = (plan.chunk_surfels * super::budget::CHUNK_BYTES_PER_SURFEL / per_surfel)
+        .min(n)
+        .max(1) as usize;
+    let canonical = RecordFile::open(&work.canonical_radiosity)?;
+    let kept = RecordFile::open(previous)?;
+    let mut stream = source.stream(plan.io_bytes as u64)?;
+    let mut bytes = vec![0u8; chunk * RADIOSITY_LEN];
+    let mut old_bytes = vec![0u8; chunk * RADIOSITY_LEN];
+    let (mut current, mut old, mut emission) = (
+        Vec::with_capacity(chunk),
+        Vec::with_capacity(chunk),
+        Vec::with_capacity(chunk),
+    );
+    let mut start = 0u64;
+    while start < n {
+        let len = (chunk as u64).min(n - start) as usize;
+        let (now, was) = (
+            &mut bytes[..len * RADIOSITY_LEN],
+            &mut old_bytes[..len * RADIOSITY_LEN],
+        );
+        canonical.read_at(start * RADIOSITY_LEN as u64, now, io)?;
+        kept.read_at(start * RADIOSITY_LEN as u64, was, io)?;
+        current.clear();
+        current.extend(now.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
+        old.clear();
+        old.extend(was.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
+        emission.clear();
+        for _ in 0..len {
+            let s = stream.next().ok_or_else(|| OocError::BadData {
+                source_name: source.describe(),
+                what: "it ended before its stated count of surfels".to_string(),
+            })??;
+            emission.push(
+                s.material
+                    .map(|m| info.materials[m as usize].emission.map(|e| e as f32)),
+            );
+        }
+        crate::solve::accelerate::extrapolate(&mut current, &old, &emission, factor);
+        for (b, slot) in current.iter().zip(now.chunks_exact_mut(RADIOSITY_LEN)) {
+            encode_radiosity(b, slot);
+        }
+        canonical.write_at(start * RADIOSITY_LEN as u64, now, io)?;
+        io.read += len as u64 * crate::storage::RECORD_LEN as u64;
+        start += len as u64;
+    }
+    Ok(())
 }
 
 /// Sends the canonical radiosity to each copy, in copy order, one copy at a time.

@@ -35,20 +35,28 @@ pub struct Analysis {
 
 /// Analyses the materials on the surfels' sides.
 pub fn analyse(set: &SurfelSet) -> Analysis {
-    let mut used = vec![false; set.materials.len()];
+    analyse_sides(&set.materials, set.surfels.iter().map(|s| s.material))
+}
+
+/// Analyses the materials a stream of surfels carries on their sides (`sides`: each surfel's
+/// front and back material index into `materials`), for solvers that never hold the surfels.
+pub fn analyse_sides(
+    materials: &[crate::scene::Material],
+    sides: impl Iterator<Item = [u32; 2]>,
+) -> Analysis {
+    let mut used = vec![false; materials.len()];
     let mut emitting_surfels = 0;
-    for s in &set.surfels {
+    for pair in sides {
         let mut emits = false;
-        for &m in &s.material {
+        for m in pair {
             if let Some(u) = used.get_mut(m as usize) {
                 *u = true;
-                emits |= set.materials[m as usize].is_emitter();
+                emits |= materials[m as usize].is_emitter();
             }
         }
         emitting_surfels += emits as usize;
     }
-    let used: Vec<&crate::scene::Material> = set
-        .materials
+    let used: Vec<&crate::scene::Material> = materials
         .iter()
         .zip(&used)
         .filter(|(_, &u)| u)
