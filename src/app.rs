@@ -281,7 +281,10 @@ fn solve_in_memory(
         cmd.checkpoint.every,
         comm.size(),
         resume.as_ref().map(|l| l.state.iteration),
-    );
+    )
+    // Inside iterations too where each rank's sums are whole arrays (see `checkpoint`); the
+    // data and hybrid modes save their boundaries only.
+    .within(matches!(mode, Mode::Single | Mode::Directions));
     let checkpoints = Checkpoints {
         saver: &mut saver,
         resume,

@@ -296,13 +296,7 @@ fn run(
                         saver.state(completed, convergence.previous_change, &Default::default());
                     save(saver, state, &work, &plan)
                 }),
-                None => Interruption {
-                    signal,
-                    completed,
-                    checkpoint: None,
-                    failure: None,
-                    writer: true,
-                },
+                None => Interruption::without_checkpoint(signal, completed, true),
             };
             return Err(OocError::Interrupted(interruption));
         }
