@@ -561,7 +561,10 @@ mod tests {
         (0..n)
             .map(|i| {
                 let x = (i + 1) as f64 / 3.0 + rank as f64;
-                [[x, x * 1e-300, 0.0], [x.next_up(), 1e300, f64::MIN_POSITIVE]]
+                [
+                    [x, x * 1e-300, 0.0],
+                    [x.next_up(), 1e300, f64::MIN_POSITIVE],
+                ]
             })
             .collect()
     }

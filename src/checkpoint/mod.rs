@@ -334,7 +334,11 @@ impl Loaded {
                      that iteration starts from its beginning",
                     self.state.iteration + 1,
                     self.state.ranks,
-                    if usable { "" } else { ", a mode that distributes the data" }
+                    if usable {
+                        ""
+                    } else {
+                        ", a mode that distributes the data"
+                    }
                 );
                 None
             }
@@ -588,7 +592,10 @@ impl Saver {
             let (from, piece) = (1 + k / pieces, k % pieces);
             let mut outgoing = vec![Vec::new(); comm.size()];
             if comm.rank() == from {
-                outgoing[0] = encode_sums(&acc[piece * GATHER_PIECE..][..GATHER_PIECE.min(acc.len() - piece * GATHER_PIECE)]);
+                outgoing[0] = encode_sums(
+                    &acc[piece * GATHER_PIECE..]
+                        [..GATHER_PIECE.min(acc.len() - piece * GATHER_PIECE)],
+                );
             }
             comm.exchange(outgoing).swap_remove(from)
         };
@@ -674,7 +681,10 @@ impl Saver {
 fn write_radiosity(w: &mut dyn std::io::Write, radiosity: &[Radiosity]) -> std::io::Result<()> {
     let mut bytes = vec![0u8; file::RADIOSITY_LEN * 4096];
     for piece in radiosity.chunks(4096) {
-        for (b, out) in piece.iter().zip(bytes.chunks_exact_mut(file::RADIOSITY_LEN)) {
+        for (b, out) in piece
+            .iter()
+            .zip(bytes.chunks_exact_mut(file::RADIOSITY_LEN))
+        {
             file::encode_radiosity(b, out);
         }
         w.write_all(&bytes[..piece.len() * file::RADIOSITY_LEN])?;

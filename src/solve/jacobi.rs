@@ -382,11 +382,8 @@ fn run(
                     let done = stopped_at as u64;
                     c.saver
                         .interrupt_at(signal, completed, Some(done), |saver| {
-                            let state = saver.state(
-                                completed,
-                                convergence.previous_change,
-                                &extrapolation,
-                            );
+                            let state =
+                                saver.state(completed, convergence.previous_change, &extrapolation);
                             saver.save_within(comm, state, done, &radiosity, &acc)
                         })
                 }
