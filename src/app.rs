@@ -417,7 +417,9 @@ fn solve_out_of_core_in(
         cmd.checkpoint.every,
         1,
         resume.as_ref().map(|f| f.header.state.iteration),
-    );
+    )
+    // Between two main axes too (see `outcore::solver`).
+    .within(true);
     let checkpoints = OocCheckpoints {
         saver: &mut saver,
         resume,

@@ -261,27 +261,34 @@ fn resume_each(stopped: &[(&Path, &[&str])], reference: &Path) {
 /// Options under which only a stop signal writes a checkpoint (none is due in a short run).
 const ONLY_ON_SIGNAL: [&str; 2] = ["--checkpoint-every", "1000"];
 
-/// A solve of [`LONG_ITERATIONS`] into `tmp/name` stopped by SIGTERM inside its second
-/// iteration (0.1 s after the first ended); retried (a few times at most) if the signal came
-/// between two iterations instead. Returns the out directory and the checkpoint's position.
-fn stopped_inside_an_iteration(tmp: &Path, name: &str) -> (PathBuf, u64) {
+/// A solve into `tmp/name` (options `extra`, checkpoints only on the signal) stopped by SIGTERM
+/// inside its second iteration (0.1 s after the first ended); retried (a few times at most) if
+/// the signal came between two iterations instead. Returns the out directory and the
+/// checkpoint's position.
+fn stopped_inside_an_iteration(tmp: &Path, name: &str, extra: &[&str]) -> (PathBuf, u64) {
+    let seen = std::cell::Cell::new(None::<Instant>);
+    stopped_inside_when(tmp, name, &[extra, &ONLY_ON_SIGNAL].concat(), |log| {
+        if seen.get().is_none() && log.contains("iteration=1 ") {
+            seen.set(Some(Instant::now()));
+        }
+        seen.get()
+            .is_some_and(|t| t.elapsed() > Duration::from_millis(100))
+    })
+}
+
+/// Solves into `tmp/name` with `extra` and sends SIGTERM once `ready(log)`, until (four times at
+/// most) the checkpoint it leaves is inside an iteration; returns the out directory and the
+/// checkpoint's position.
+fn stopped_inside_when(
+    tmp: &Path,
+    name: &str,
+    extra: &[&str],
+    ready: impl Fn(&str) -> bool,
+) -> (PathBuf, u64) {
     for attempt in 1..=4 {
         let out = tmp.join(format!("{name}{attempt}"));
-        let seen = std::cell::Cell::new(None::<Instant>);
-        let text = stopped_by(
-            libc::SIGTERM,
-            &out,
-            &[&LONG_ITERATIONS[..], &ONLY_ON_SIGNAL].concat(),
-            &tmp.join(format!("{name}{attempt}.log")),
-            false,
-            |log, _| {
-                if seen.get().is_none() && log.contains("iteration=1 ") {
-                    seen.set(Some(Instant::now()));
-                }
-                seen.get()
-                    .is_some_and(|t| t.elapsed() > Duration::from_millis(100))
-            },
-        );
+        let log = tmp.join(format!("{name}{attempt}.log"));
+        let text = stopped_by(libc::SIGTERM, &out, extra, &log, false, |log, _| ready(log));
         let saved = CheckpointFile::open(&checkpoint::path_in(&out)).unwrap();
         if let Some(done) = saved.header.state.within {
             assert!(text.contains("directions of the next"), "{text}");
@@ -336,9 +343,44 @@ fn sigterm_inside_an_iteration_saves_its_partial_sums_and_resumes_to_the_same_by
         solve_command(&reference, &LONG_ITERATIONS),
         &tmp.path().join("ref.log"),
     );
-    let (out, done) = stopped_inside_an_iteration(tmp.path(), "term");
+    let (out, done) = stopped_inside_an_iteration(tmp.path(), "term", &LONG_ITERATIONS);
     let (text, _) = run_to_end(
         solve_command(&out, &[&LONG_ITERATIONS[..], &["--resume"]].concat()),
+        &tmp.path().join("resume.log"),
+    );
+    assert!(
+        text.contains(CONTINUED_INSIDE) && text.contains(&format!("within={done}")),
+        "{text}"
+    );
+    assert!(results(&out) == results(&reference));
+    assert_eq!(report(&out)["energy"], report(&reference)["energy"]);
+    assert_clean(&out);
+}
+
+#[test]
+fn out_of_core_stopped_between_two_main_axes_resumes_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let options = [
+        "--memory",
+        "1MiB",
+        "--directions",
+        "600",
+        "--checkpoint-every",
+        "0",
+    ];
+    let reference = tmp.path().join("reference");
+    run_to_end(
+        solve_command(&reference, &options),
+        &tmp.path().join("ref.log"),
+    );
+    // Once a checkpoint between two axes is written, SIGTERM: the next axis is abandoned, the
+    // checkpoint keeps the axes done.
+    let (out, done) = stopped_inside_when(tmp.path(), "ooc", &options, |log| {
+        log.lines()
+            .any(|l| l.contains("checkpoint written") && !l.contains("within=0 "))
+    });
+    let (text, _) = run_to_end(
+        solve_command(&out, &[&options[..], &["--resume"]].concat()),
         &tmp.path().join("resume.log"),
     );
     assert!(
@@ -402,7 +444,7 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
     );
     let good = std::fs::read(checkpoint::path_in(&stopped)).unwrap();
     // And one inside an iteration: its last bytes are the partial sums.
-    let (inside, _) = stopped_inside_an_iteration(tmp.path(), "inside");
+    let (inside, _) = stopped_inside_an_iteration(tmp.path(), "inside", &LONG_ITERATIONS);
     let mid = std::fs::read(checkpoint::path_in(&inside)).unwrap();
     let mut mid_flipped = mid.clone();
     let at = mid.len() - 100;

@@ -379,13 +379,23 @@ impl CheckpointFile {
     }
 
     /// Hands the radiosity to `f` in pieces of whole surfels (at most `buffer_bytes` each, at
-    /// least one surfel), then checks the checksum (reading through any partial sums, which the
-    /// out-of-core solver never writes): a caller must not keep what it was handed if this
-    /// returns an error.
+    /// least one surfel), then checks the checksum (reading through any partial sums): a caller
+    /// must not keep what it was handed if this returns an error.
     pub fn read_radiosity<E: From<CheckpointError>>(
         &self,
         buffer_bytes: usize,
-        mut f: impl FnMut(&[u8]) -> Result<(), E>,
+        f: impl FnMut(&[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.read_payload(buffer_bytes, f, |_| Ok(()))
+    }
+
+    /// As [`CheckpointFile::read_radiosity`], and then the partial sums to `sums` in pieces of
+    /// whole surfels (every rank's in turn; the out-of-core solver writes one).
+    pub fn read_payload<E: From<CheckpointError>>(
+        &self,
+        buffer_bytes: usize,
+        mut radiosity: impl FnMut(&[u8]) -> Result<(), E>,
+        mut sums: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
         use std::io::{Seek, SeekFrom};
         let path = &self.path;
@@ -397,26 +407,28 @@ impl CheckpointFile {
         let mut file = File::open(path).map_err(|e| io("open", e))?;
         file.seek(SeekFrom::Start(self.payload_at))
             .map_err(|e| io("read", e))?;
-        let piece = (buffer_bytes / RADIOSITY_LEN).max(1) * RADIOSITY_LEN;
-        let mut buffer = vec![0u8; piece];
-        let mut left = self.header.identity.surfels * RADIOSITY_LEN as u64;
         let mut crc = crc32fast::Hasher::new();
-        while left > 0 {
-            let len = (left as usize).min(piece);
-            file.read_exact(&mut buffer[..len])
-                .map_err(|e| io("read", e))?;
-            crc.update(&buffer[..len]);
-            f(&buffer[..len])?;
-            left -= len as u64;
-        }
-        let mut sums = payload_len(&self.header).unwrap_or(0)
-            - self.header.identity.surfels * RADIOSITY_LEN as u64;
-        while sums > 0 {
-            let len = (sums as usize).min(piece);
-            file.read_exact(&mut buffer[..len])
-                .map_err(|e| io("read", e))?;
-            crc.update(&buffer[..len]);
-            sums -= len as u64;
+        let surfels = self.header.identity.surfels;
+        let parts: [(usize, u64, &mut dyn FnMut(&[u8]) -> Result<(), E>); 2] = [
+            (RADIOSITY_LEN, surfels, &mut radiosity),
+            (
+                PARTIAL_LEN,
+                surfels * self.header.partial_ranks() as u64,
+                &mut sums,
+            ),
+        ];
+        for (record, count, f) in parts {
+            let piece = (buffer_bytes / record).max(1) * record;
+            let mut buffer = vec![0u8; piece];
+            let mut left = count * record as u64;
+            while left > 0 {
+                let len = (left as usize).min(piece);
+                file.read_exact(&mut buffer[..len])
+                    .map_err(|e| io("read", e))?;
+                crc.update(&buffer[..len]);
+                f(&buffer[..len])?;
+                left -= len as u64;
+            }
         }
         let mut stored = [0u8; 4];
         file.read_exact(&mut stored).map_err(|e| io("read", e))?;
