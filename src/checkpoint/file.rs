@@ -409,15 +409,8 @@ impl CheckpointFile {
             .map_err(|e| io("read", e))?;
         let mut crc = crc32fast::Hasher::new();
         let surfels = self.header.identity.surfels;
-        let parts: [(usize, u64, &mut dyn FnMut(&[u8]) -> Result<(), E>); 2] = [
-            (RADIOSITY_LEN, surfels, &mut radiosity),
-            (
-                PARTIAL_LEN,
-                surfels * self.header.partial_ranks() as u64,
-                &mut sums,
-            ),
-        ];
-        for (record, count, f) in parts {
+        let sums_count = surfels * self.header.partial_ranks() as u64;
+        let mut read = |record: usize, count: u64, f: &mut dyn FnMut(&[u8]) -> Result<(), E>| {
             let piece = (buffer_bytes / record).max(1) * record;
             let mut buffer = vec![0u8; piece];
             let mut left = count * record as u64;
@@ -429,7 +422,10 @@ impl CheckpointFile {
                 f(&buffer[..len])?;
                 left -= len as u64;
             }
-        }
+            Ok::<(), E>(())
+        };
+        read(RADIOSITY_LEN, surfels, &mut radiosity)?;
+        read(PARTIAL_LEN, sums_count, &mut sums)?;
         let mut stored = [0u8; 4];
         file.read_exact(&mut stored).map_err(|e| io("read", e))?;
         if crc.finalize() != u32::from_le_bytes(stored) {
