@@ -294,6 +294,22 @@ pub fn check(
             ),
         });
     }
+    // A position is a count of one rank's directions, never all of them (that is the next
+    // boundary): more is damage that a checksum cannot see (a file written so).
+    if header
+        .state
+        .within
+        .is_some_and(|done| done >= this.directions as u64)
+    {
+        return Err(CheckpointError::Bad {
+            path: path.to_path_buf(),
+            what: format!(
+                "damaged checkpoint: {} directions into an iteration of {}",
+                header.state.within.unwrap_or(0),
+                this.directions
+            ),
+        });
+    }
     if header.state.iteration >= max_iterations as u64 {
         return Err(CheckpointError::Bad {
             path: path.to_path_buf(),
@@ -394,6 +410,19 @@ pub fn load_shared(
     let parsed = file::parse(path, &bytes, comm.rank())?;
     drop(bytes);
     check(path, &parsed.header, this, max_iterations)?;
+    let steps = (this.directions as u64).div_ceil(comm.size() as u64);
+    if let Some(done) = parsed.header.state.within {
+        if parsed.header.state.ranks as usize == comm.size() && done >= steps {
+            return Err(CheckpointError::Bad {
+                path: path.to_path_buf(),
+                what: format!(
+                    "damaged checkpoint: {done} directions per rank into an iteration of \
+                     {steps} for {} ranks",
+                    comm.size()
+                ),
+            });
+        }
+    }
     Ok(Some(Loaded {
         path: path.to_path_buf(),
         state: parsed.header.state,
@@ -851,6 +880,62 @@ mod tests {
             load_shared(&SingleProcess, &dir.path().join("none"), &this, 10)
                 .unwrap()
                 .is_none()
+        );
+    }
+
+    #[test]
+    fn a_mid_iteration_checkpoint_hands_back_its_sums_or_restarts_the_iteration() {
+        let set = crate::voxel::voxelize::voxelize(
+            &crate::gen::furnace(1.0, 0.5),
+            crate::voxel::voxelize::GridSpec::Resolution(6),
+        )
+        .unwrap();
+        let directions = DirectionSet::with_count(13);
+        let this = Identity::in_memory(&set, &directions, 3, false);
+        let dir = tempfile::tempdir().unwrap();
+        let n = set.surfels.len();
+        let mut saver =
+            Saver::new(dir.path(), this.clone(), true, Duration::ZERO, 1, None).within(true);
+        let radiosity = vec![[[0.5f32; 3]; 2]; n];
+        let acc: Vec<Gathered> = (0..n)
+            .map(|i| [[i as f64 / 7.0, 1e-310, 0.0], [3.0, 2.0, 1.0]])
+            .collect();
+        let state = saver.state(2, Some(0.25), &Extrapolation::default());
+        saver
+            .save_within(&SingleProcess, state, 5, &radiosity, &acc)
+            .unwrap();
+        let path = path_in(dir.path());
+        let mut loaded = load_shared(&SingleProcess, &path, &this, 10)
+            .unwrap()
+            .unwrap();
+        assert_eq!((loaded.state.iteration, loaded.state.within), (2, Some(5)));
+        let mut other = loaded.clone();
+        let (done, sums) = loaded.take_within(true, 1).unwrap();
+        assert_eq!(done, 5);
+        let bits = |v: &[Gathered]| -> Vec<u64> {
+            v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
+        };
+        assert_eq!(bits(&sums), bits(&acc));
+        // Another rank count or a mode that cannot use them: the iteration starts again.
+        assert!(other.clone().take_within(true, 2).is_none());
+        assert!(other.take_within(false, 1).is_none());
+        // Its interruption message names the position.
+        let i = saver.interrupt_at(libc::SIGTERM, 2, Some(5), |_| unreachable!("on disk"));
+        let text = i.to_string();
+        assert!(
+            text.contains("after iteration 2 and 5 directions of the next")
+                && text.contains("5 directions into the next"),
+            "{text}"
+        );
+        // A position past the iteration's end is refused.
+        let state = saver.state(2, None, &Extrapolation::default());
+        saver
+            .save_within(&SingleProcess, state, 13, &radiosity, &acc)
+            .unwrap();
+        let err = load_shared(&SingleProcess, &path, &this, 10).unwrap_err();
+        assert!(
+            err.is_bad_input() && err.to_string().contains("damaged"),
+            "{err}"
         );
     }
 
