@@ -21,7 +21,8 @@
 //! ranks agree between directions on whether to write one ([`Saver::agree_within`]), and rank 0
 //! gathers the other ranks' sums in bounded pieces ([`Saver::save_within`]). A resume on another
 //! rank count, or in the data or hybrid modes, starts that iteration from its beginning (the
-//! radiosity it starts from is in the file) and says so.
+//! radiosity it starts from is in the file) and says so. The out-of-core solver writes the same
+//! layout between two main axes, with its canonical sum as the one rank's (`outcore::solver`).
 //!
 //! A checkpoint names the run it belongs to ([`Identity`]: solver, grid, surfels, directions,
 //! channels, extrapolation, and a checksum of the voxelized scene or of the shard set): one from
