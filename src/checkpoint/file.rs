@@ -325,6 +325,48 @@ pub fn parse(path: &Path, bytes: &[u8], rank: usize) -> Result<Parsed, Checkpoin
     })
 }
 
+/// The file of a checked checkpoint up to the end of its radiosity (what [`parse_head`] reads).
+pub fn head<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
+    &bytes[..radiosity_end(bytes, header)]
+}
+
+/// The partial sums of a checked checkpoint (every rank's, rank 0 first); empty at a boundary.
+pub fn sums<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
+    if bytes.is_empty() {
+        return bytes;
+    }
+    &bytes[radiosity_end(bytes, header)..bytes.len() - 4]
+}
+
+fn radiosity_end(bytes: &[u8], header: &Header) -> usize {
+    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap_or_default()) as usize;
+    PREFIX_LEN + header_len + 4 + header.identity.surfels as usize * RADIOSITY_LEN
+}
+
+/// The [`head`] of a checkpoint that rank 0 checked whole (its payload checksum too): the prefix
+/// and the header are checked again, the radiosity decoded; no partial sums.
+pub fn parse_head(path: &Path, head: &[u8]) -> Result<Parsed, CheckpointError> {
+    let (header, at) = parse_prefix(path, head)?;
+    let expected = (header.identity.surfels as usize)
+        .checked_mul(RADIOSITY_LEN)
+        .and_then(|r| r.checked_add(at));
+    if expected != Some(head.len()) {
+        return Err(bad(
+            path,
+            "checkpoint damaged between the ranks (its length)",
+        ));
+    }
+    let radiosity = head[at..]
+        .chunks_exact(RADIOSITY_LEN)
+        .map(decode_radiosity)
+        .collect();
+    Ok(Parsed {
+        header,
+        radiosity,
+        partial: None,
+    })
+}
+
 fn length_error(path: &Path, expected: Option<u64>, got: u64) -> CheckpointError {
     match expected {
         Some(e) if got < e => bad(

@@ -402,14 +402,11 @@ pub fn load_shared(
         }
         _ => {}
     }
-    if comm.size() > 1 {
-        bytes = broadcast_bytes(comm, bytes);
-    }
-    // Every rank checks the same bytes against the same identity: the same verdict everywhere.
-    // (Each keeps only its own partial sums; the whole file crosses to every rank, which is
-    // bounded by the ranks' sums a mid-iteration checkpoint holds.)
-    let parsed = file::parse(path, &bytes, comm.rank())?;
-    drop(bytes);
+    let parsed = if comm.size() == 1 {
+        file::parse(path, &bytes, 0)?
+    } else {
+        share(comm, path, bytes)?
+    };
     check(path, &parsed.header, this, max_iterations)?;
     let steps = (this.directions as u64).div_ceil(comm.size() as u64);
     if let Some(done) = parsed.header.state.within {
@@ -430,6 +427,76 @@ pub fn load_shared(
         radiosity: parsed.radiosity,
         partial: parsed.partial,
     }))
+}
+
+/// The checkpoint file `bytes` read on rank 0, checked there whole (every checksum), then
+/// handed out: its header and radiosity to every rank (which checks the header's own checksum
+/// again), and each rank's partial sums to that rank only, in pieces of [`GATHER_PIECE`]
+/// surfels; so a rank holds the radiosity and its own sums, whatever the rank count. Every rank
+/// returns the same verdict.
+fn share(comm: &dyn Comm, path: &Path, bytes: Vec<u8>) -> Result<file::Parsed, CheckpointError> {
+    let mut own = None;
+    let mut failure = None;
+    let mut head = Vec::new();
+    if comm.rank() == 0 {
+        match file::parse(path, &bytes, 0) {
+            Ok(parsed) => {
+                head = file::head(&bytes, &parsed.header).to_vec();
+                own = Some(parsed);
+            }
+            Err(e) => failure = Some(e),
+        }
+    }
+    if comm.max_u64(failure.is_some() as u64) == 1 {
+        return Err(failure.unwrap_or_else(|| CheckpointError::Bad {
+            path: path.to_path_buf(),
+            what: "rank 0 refused it (see rank 0's message)".to_string(),
+        }));
+    }
+    let head = broadcast_bytes(comm, head);
+    let mut parsed = match own {
+        Some(parsed) => parsed,
+        None => file::parse_head(path, &head)?,
+    };
+    drop(head);
+    let surfels = parsed.header.identity.surfels as usize;
+    if parsed.header.partial_ranks() as usize != comm.size() {
+        // Sums of another rank count are of no use here (the iteration starts again).
+        parsed.partial = None;
+        return Ok(parsed);
+    }
+    let sums = file::sums(&bytes, &parsed.header);
+    let pieces = surfels.div_ceil(GATHER_PIECE);
+    let mut mine = Vec::with_capacity(if comm.rank() > 0 { surfels } else { 0 });
+    for to in 1..comm.size() {
+        for piece in 0..pieces {
+            let first = piece * GATHER_PIECE;
+            let len = GATHER_PIECE.min(surfels - first);
+            let mut outgoing = vec![Vec::new(); comm.size()];
+            if comm.rank() == 0 {
+                let at = (to * surfels + first) * file::PARTIAL_LEN;
+                outgoing[to] = sums[at..at + len * file::PARTIAL_LEN].to_vec();
+            }
+            let incoming = comm.exchange(outgoing).swap_remove(0);
+            if comm.rank() == to {
+                if incoming.len() != len * file::PARTIAL_LEN {
+                    return Err(CheckpointError::Bad {
+                        path: path.to_path_buf(),
+                        what: "rank 0 sent partial sums of the wrong length".to_string(),
+                    });
+                }
+                mine.extend(
+                    incoming
+                        .chunks_exact(file::PARTIAL_LEN)
+                        .map(file::decode_gathered),
+                );
+            }
+        }
+    }
+    if comm.rank() > 0 {
+        parsed.partial = Some(mine);
+    }
+    Ok(parsed)
 }
 
 /// Rank 0's `bytes` on every rank, through the solver's only collectives (`max_u64` and the sum
