@@ -364,7 +364,7 @@ fn out_of_core_stopped_between_two_main_axes_resumes_to_the_same_bytes() {
         "--memory",
         "1MiB",
         "--directions",
-        "600",
+        "300",
         "--checkpoint-every",
         "0",
     ];
