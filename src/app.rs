@@ -281,7 +281,10 @@ fn solve_in_memory(
         cmd.checkpoint.every,
         comm.size(),
         resume.as_ref().map(|l| l.state.iteration),
-    );
+    )
+    // Inside iterations too where each rank's sums are whole arrays (see `checkpoint`); the
+    // data and hybrid modes save their boundaries only.
+    .within(matches!(mode, Mode::Single | Mode::Directions));
     let checkpoints = Checkpoints {
         saver: &mut saver,
         resume,
@@ -457,7 +460,9 @@ fn solve_out_of_core_in(
         cmd.checkpoint.every,
         1,
         resume.as_ref().map(|f| f.header.state.iteration),
-    );
+    )
+    // Between two main axes too (see `outcore::solver`).
+    .within(true);
     let checkpoints = OocCheckpoints {
         saver: &mut saver,
         resume,

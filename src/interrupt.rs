@@ -1,8 +1,8 @@
 //! SIGTERM and SIGINT as a request to stop: the handler only records the signal in an atomic,
-//! and the iteration loops ask [`requested`] between directions, abandon the iteration they are
-//! in, keep the checkpoint of the last completed one and return (`solve::jacobi` and
-//! `outcore::solver`); the command then exits with status 3 (see the README, "Checkpoints and
-//! signals").
+//! and the iteration loops ask [`requested`] between directions, save what they have done (the
+//! directions of the iteration in progress where they keep mid-iteration checkpoints, else the
+//! last completed iteration) and return (`solve::jacobi` and `outcore::solver`); the command
+//! then exits with status 3 (see the README, "Checkpoints and signals").
 //!
 //! Before the iterations start (reading, voxelizing, converting, making the out-of-core work
 //! files: work a resumed run does again anyway, and that can take minutes on a large scene, longer

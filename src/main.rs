@@ -37,10 +37,11 @@ const EXIT_STATUS: &str = "Exit status: 0 success; 2 bad input (the message name
 enum Command {
     /// Solve the radiosity of a scene (an .obj file with its .mtl) and write the results.
     ///
-    /// Checkpoints: the solve saves its state in OUT/checkpoint.bin at iteration boundaries (at
-    /// most every --checkpoint-every seconds) and on SIGTERM or SIGINT, which stop it with exit
-    /// status 3; `--resume` continues from the checkpoint with the same result an uninterrupted
-    /// run gives. A finished solve removes its checkpoint.
+    /// Checkpoints: the solve saves its state in OUT/checkpoint.bin at iteration boundaries and
+    /// inside long iterations between directions (at most every --checkpoint-every seconds), and
+    /// on SIGTERM or SIGINT, which stop it with exit status 3; `--resume` continues from the
+    /// checkpoint with the same result an uninterrupted run gives. A finished solve removes its
+    /// checkpoint.
     // Negative numbers are values, so `--tolerance -1` reaches the validation that names the
     // option instead of failing as an "unexpected argument '-1'".
     #[command(allow_negative_numbers = true, after_help = EXIT_STATUS)]
@@ -96,11 +97,16 @@ enum Command {
         #[arg(long, requires = "distribute")]
         compress_exchange: bool,
         /// Continue from OUT/checkpoint.bin if there is one (left by an interrupted or killed
-        /// solve of the same scene and options); without one, start from the beginning.
+        /// solve of the same scene and options), at the iteration or the direction it holds;
+        /// without one, start from the beginning. A checkpoint written inside an iteration by
+        /// another rank count, or resumed in the data or hybrid modes, restarts that iteration.
         #[arg(long)]
         resume: bool,
-        /// Least seconds between two checkpoints (0: after every iteration). A stop signal
-        /// always saves the last completed iteration.
+        /// Least seconds between two checkpoints, written after an iteration or, inside one,
+        /// between directions (in one process and --distribute directions; out of core between
+        /// main axes; data and hybrid modes: after iterations only). 0: after every iteration,
+        /// and inside iterations as often as their writing time allows (at most a fifth of the
+        /// time). A stop signal always saves what is done.
         #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
         checkpoint_every: f64,
     },

@@ -299,32 +299,45 @@ fn mpirun_solve_in(mode: &[&str], out: &Path, extra: &[&str]) -> Command {
             "none",
         ])
         .arg(env!("CARGO_BIN_EXE_voxrad"))
-        .args(["solve", &cornell(), "--out"])
-        .arg(out)
-        .args([
-            "--resolution",
-            "32",
-            "--directions",
-            "300",
-            "--tolerance",
-            "1e-6",
-            "--threads",
-            "1",
-            "--image-size",
-            "64x48",
-        ])
+        .args(solve_args(out, extra))
         .args(mode)
-        .args(
-            ["--checkpoint-every", "0"]
-                .iter()
-                .filter(|_| !extra.contains(&"--checkpoint-every")),
-        )
         .args(extra)
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env_remove("RUST_LOG");
     c
 }
+
+/// `solve` of the Cornell box into `out` (a checkpoint whenever one can be written); an option
+/// in `extra` replaces the same one here (`extra` itself is not included).
+fn solve_args(out: &Path, extra: &[&str]) -> Vec<String> {
+    let base = [
+        ("--resolution", "32"),
+        ("--directions", "300"),
+        ("--tolerance", "1e-6"),
+        ("--threads", "1"),
+        ("--image-size", "64x48"),
+        ("--checkpoint-every", "0"),
+    ];
+    let mut args = vec![
+        "solve".to_string(),
+        cornell(),
+        "--out".to_string(),
+        out.display().to_string(),
+    ];
+    for (flag, value) in base {
+        if !extra.contains(&flag) {
+            args.extend([flag.to_string(), value.to_string()]);
+        }
+    }
+    args
+}
+
+/// A scene whose single iteration is long: 2,000 directions on the Cornell box at resolution 16.
+const LONG_ITERATIONS: [&str; 4] = ["--resolution", "16", "--directions", "2000"];
+
+/// What a resumed run's log says when it continues inside an iteration.
+const CONTINUED_INSIDE: &str = "continuing inside an iteration";
 
 /// Runs an uninterrupted 2-rank solve into `out`; returns its wall time in seconds.
 fn mpi_reference(out: &Path, log: &Path) -> f64 {
@@ -350,12 +363,18 @@ fn ranks_end_with_their_launcher(ranks: &[i32]) {
 /// Resumes with `mpirun -n 2 ... --resume`, which must succeed from a checkpoint; the results
 /// must be `reference`'s byte for byte.
 fn resume_to_the_end(out: &Path, reference: &Path, log: &Path) {
-    let mut child = Child::spawn(mpirun_solve(out, &["--resume"]), log);
+    resume_to_the_end_with(&[], out, reference, log);
+}
+
+/// As [`resume_to_the_end`] with the options `extra`; returns the log.
+fn resume_to_the_end_with(extra: &[&str], out: &Path, reference: &Path, log: &Path) -> String {
+    let mut child = Child::spawn(mpirun_solve(out, &[extra, &["--resume"]].concat()), log);
     let status = child.wait_at_most(Duration::from_secs(120));
     let text = child.log();
     assert!(status.success(), "{}:\n{text}", describe(&status));
     assert!(text.contains("resumed from a checkpoint"), "{text}");
     assert_same_results(out, reference);
+    text
 }
 
 fn assert_same_results(out: &Path, reference: &Path) {
@@ -370,30 +389,58 @@ fn assert_same_results(out: &Path, reference: &Path) {
 
 #[test]
 fn directions_mode_killed_at_random_moments_resumes_to_the_same_bytes() {
+    killed_under_mpirun(&[], 0x5eed_0003, 4, 0.4);
+}
+
+#[test]
+fn directions_mode_killed_inside_long_iterations_resumes_to_the_same_bytes() {
+    // A checkpoint every 50 ms, several inside each iteration; short runs, so that most kills
+    // land in the first iterations.
+    let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "0.05"]].concat();
+    let inside = killed_under_mpirun(&options, 0x5eed_0005, 6, 0.2);
+    assert!(inside >= 1, "no run continued inside an iteration");
+}
+
+/// Kills `mpirun -n 2 voxrad solve ... --resume` (options `extra`) at random moments, up to
+/// `longest` of the uninterrupted run's time, `kills` times unless it finishes first, then lets
+/// it finish: the results must be the uninterrupted run's, byte for byte. Returns how many runs
+/// continued inside an iteration.
+fn killed_under_mpirun(extra: &[&str], seed: u64, kills: usize, longest: f64) -> usize {
     let tmp = tempfile::tempdir().unwrap();
     let reference = tmp.path().join("reference");
-    let seconds = mpi_reference(&reference, &tmp.path().join("reference.log"));
+    let mut child = Child::spawn(
+        mpirun_solve(&reference, extra),
+        &tmp.path().join("reference.log"),
+    );
+    let status = child.wait_at_most(Duration::from_secs(120));
+    assert!(status.success(), "{}:\n{}", describe(&status), child.log());
+    let seconds = child.started.elapsed().as_secs_f64();
     let out = tmp.path().join("out");
     let ckpt = voxrad::checkpoint::path_in(&out);
-    let mut rng = Rng::seeded(0x5eed_0003);
-    let kills = 4;
-    let (mut killed, mut resumed) = (0, 0);
+    let mut rng = Rng::seeded(seed);
+    let (mut killed, mut resumed, mut inside) = (0, 0, 0);
     let mut finished = false;
+    let resume = [extra, &["--resume"]].concat();
     for run in 1..=kills {
         let mut child = Child::spawn(
-            mpirun_solve(&out, &["--resume"]),
+            mpirun_solve(&out, &resume),
             &tmp.path().join(format!("run{run}.log")),
         );
         // The first kill after a checkpoint exists, so the resume has one to start from.
         if run == 1 {
             child.wait_for(Duration::from_secs(120), || ckpt.exists());
         }
-        let delay = Duration::from_secs_f64(rng.uniform(0.05, 0.4) * seconds);
+        let delay = Duration::from_secs_f64(rng.uniform(0.05, longest) * seconds);
         std::thread::sleep(delay.saturating_sub(Duration::from_millis(50)));
         let ranks = process::children_of(child.pid());
         let ended = child.run_or_kill_after(Duration::from_millis(50));
-        if child.log().contains("resumed from a checkpoint") {
+        let text = child.log();
+        assert!(!text.contains("panicked"), "{text}");
+        if text.contains("resumed from a checkpoint") {
             resumed += 1;
+        }
+        if text.contains(CONTINUED_INSIDE) {
+            inside += 1;
         }
         match ended {
             Ended::Killed => {
@@ -406,7 +453,7 @@ fn directions_mode_killed_at_random_moments_resumes_to_the_same_bytes() {
                 );
             }
             Ended::Exited(status) => {
-                assert!(status.success(), "{}:\n{}", describe(&status), child.log());
+                assert!(status.success(), "{}:\n{text}", describe(&status));
                 println!("run {run}: finished before its kill");
                 finished = true;
                 break;
@@ -416,13 +463,121 @@ fn directions_mode_killed_at_random_moments_resumes_to_the_same_bytes() {
     if finished {
         assert_same_results(&out, &reference);
     } else {
-        resume_to_the_end(&out, &reference, &tmp.path().join("final.log"));
+        let text = resume_to_the_end_with(extra, &out, &reference, &tmp.path().join("final.log"));
         resumed += 1;
+        if text.contains(CONTINUED_INSIDE) {
+            inside += 1;
+        }
     }
     println!(
-        "{killed} kills of mpirun, {resumed} resumed runs (uninterrupted run: {seconds:.1} s)"
+        "{killed} kills of mpirun, {resumed} resumed runs ({inside} inside an iteration; \
+         uninterrupted run: {seconds:.1} s)"
     );
     assert!(killed >= 1 && resumed >= 1);
+    inside
+}
+
+/// Sends SIGTERM to rank 1 of a 2-rank directions-mode solve of [`LONG_ITERATIONS`] into `out`
+/// 0.1 s after its first iteration ended (no periodic checkpoint); expects exit status 3 and
+/// returns the log.
+fn sigterm_rank_1_in_iteration_2(out: &Path, log: &Path) -> String {
+    let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "1000"]].concat();
+    let mut child = Child::spawn(mpirun_solve(out, &options), log);
+    assert!(
+        child.wait_for(Duration::from_secs(120), || {
+            std::fs::read_to_string(log).is_ok_and(|t| t.contains("iteration=1 "))
+        }),
+        "no iteration 1:\n{}",
+        child.log()
+    );
+    std::thread::sleep(Duration::from_millis(100));
+    let ranks = process::children_of(child.pid());
+    let rank1 = *ranks
+        .iter()
+        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
+        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
+    // SAFETY: kill(2) on a process this test started (through mpirun).
+    unsafe {
+        libc::kill(rank1, libc::SIGTERM);
+    }
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+    ranks_end_with_their_launcher(&ranks);
+    text
+}
+
+#[test]
+fn directions_mode_sigterm_inside_an_iteration_resumes_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    let mut child = Child::spawn(
+        mpirun_solve(&reference, &LONG_ITERATIONS),
+        &tmp.path().join("reference.log"),
+    );
+    assert!(child.wait_at_most(Duration::from_secs(120)).success());
+    // Retried (a few times at most) if the signal came between two iterations instead.
+    let (out, done) = (1..=4)
+        .find_map(|attempt| {
+            let out = tmp.path().join(format!("out{attempt}"));
+            let log = tmp.path().join(format!("run{attempt}.log"));
+            let text = sigterm_rank_1_in_iteration_2(&out, &log);
+            let file = voxrad::checkpoint::CheckpointFile::open(&voxrad::checkpoint::path_in(&out))
+                .unwrap();
+            let within = file.header.state.within;
+            match within {
+                Some(done) => {
+                    assert!(text.contains("directions of the next"), "{text}");
+                    assert_eq!(file.header.state.ranks, 2);
+                    println!(
+                        "{}",
+                        text.lines()
+                            .find(|l| l.contains("checkpoint at"))
+                            .unwrap_or("")
+                    );
+                    Some((out, done))
+                }
+                None => {
+                    println!("attempt {attempt}: stopped between two iterations, again");
+                    None
+                }
+            }
+        })
+        .expect("four SIGTERMs, none inside an iteration");
+
+    // One process cannot continue inside the 2-rank iteration: it starts it again, and says so.
+    let single = tmp.path().join("single");
+    std::fs::create_dir_all(&single).unwrap();
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    std::fs::copy(&ckpt, voxrad::checkpoint::path_in(&single)).unwrap();
+    let args = solve_args(&single, &LONG_ITERATIONS);
+    let one = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(&args)
+        .args(LONG_ITERATIONS)
+        .arg("--resume")
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&one.stderr);
+    assert!(one.status.success(), "{text}");
+    assert!(
+        text.contains("resumed from a checkpoint")
+            && text.contains("that iteration starts from its beginning")
+            && !text.contains(CONTINUED_INSIDE),
+        "{text}"
+    );
+
+    // Two ranks continue inside it, from each rank's sums, to the uninterrupted run's bytes.
+    let text = resume_to_the_end_with(
+        &LONG_ITERATIONS,
+        &out,
+        &reference,
+        &tmp.path().join("resume.log"),
+    );
+    assert!(
+        text.contains(CONTINUED_INSIDE) && text.contains(&format!("within={done}")),
+        "{text}"
+    );
 }
 
 #[test]

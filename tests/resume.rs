@@ -77,10 +77,19 @@ fn assert_clean(out: &Path) {
     }
 }
 
+/// A scene whose single iteration is long: 2,000 directions on the Cornell box at resolution 16
+/// (1,777 surfels, about 0.25 s an iteration on two threads).
+const LONG_ITERATIONS: [&str; 4] = ["--resolution", "16", "--directions", "2000"];
+
+/// What a resumed run's log says when it continues inside an iteration.
+const CONTINUED_INSIDE: &str = "continuing inside an iteration";
+
 /// Kills `voxrad solve --resume` with SIGKILL at random moments (the first after a checkpoint
 /// exists, so at least one run really resumes), `kills` times unless it finishes first, then lets
-/// it finish; the results must be the uninterrupted run's, byte for byte.
-fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
+/// it finish; the results must be the uninterrupted run's, byte for byte. A run is killed after
+/// a random part of the uninterrupted run's time, up to `longest`. Returns how many runs
+/// continued inside an iteration (from a mid-iteration checkpoint).
+fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize, longest: f64) -> usize {
     let tmp = tempfile::tempdir().unwrap();
     let reference = tmp.path().join("reference");
     let (_, seconds) = run_to_end(
@@ -89,7 +98,7 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
     );
     let out = tmp.path().join("out");
     let mut rng = Rng::seeded(seed);
-    let (mut killed, mut resumed, mut runs) = (0, 0, 0);
+    let (mut killed, mut resumed, mut runs, mut inside) = (0, 0, 0, 0);
     let started = Instant::now();
     loop {
         runs += 1;
@@ -102,7 +111,7 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
             }
             // Short enough that several kills land before the end: some during start-up or a
             // checkpoint's writing, most in mid-iteration.
-            let delay = rng.uniform(0.02, 0.4) * seconds;
+            let delay = rng.uniform(0.02, longest) * seconds;
             child.run_or_kill_after(Duration::from_secs_f64(delay))
         } else {
             Ended::Exited(child.wait_at_most(Duration::from_secs(120)))
@@ -118,6 +127,9 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
         if text.contains("resumed from a checkpoint") {
             resumed += 1;
         }
+        if text.contains(CONTINUED_INSIDE) {
+            inside += 1;
+        }
         match ended {
             Ended::Killed => {
                 killed += 1;
@@ -126,7 +138,7 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
                     .rev()
                     .find(|l| l.contains("checkpoint written"))
                     .and_then(|l| l.split("iteration=").nth(1))
-                    .and_then(|r| r.split_whitespace().next())
+                    .map(|r| r.split(" path").next().unwrap_or(r))
                     .unwrap_or("none");
                 println!(
                     "run {runs}: killed after {:.2} s (last checkpoint written in this run: \
@@ -145,7 +157,8 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
         }
     }
     println!(
-        "{killed} kills, {resumed} resumed runs, {runs} runs in {:.1} s (uninterrupted: {seconds:.1} s)",
+        "{killed} kills, {resumed} resumed runs ({inside} inside an iteration), {runs} runs in \
+         {:.1} s (uninterrupted: {seconds:.1} s)",
         started.elapsed().as_secs_f64()
     );
     assert!(
@@ -161,17 +174,28 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize) {
     assert_eq!(a["residual"], b["residual"]);
     assert_eq!(a["energy"], b["energy"]);
     assert_clean(&out);
+    inside
 }
 
 #[test]
 fn sigkill_at_random_moments_then_resume_gives_the_same_bytes_in_memory() {
-    killed_and_resumed(&[], 0x5eed_0001, 6);
+    killed_and_resumed(&[], 0x5eed_0001, 6, 0.4);
+}
+
+#[test]
+fn sigkill_inside_long_iterations_then_resume_gives_the_same_bytes() {
+    // A checkpoint every 50 ms: several inside each iteration, so most kills resume from one.
+    let every = ["--checkpoint-every", "0.05"];
+    // Short runs, so that most kills land in the first iterations.
+    let options = [&LONG_ITERATIONS[..], &every].concat();
+    let inside = killed_and_resumed(&options, 0x5eed_0004, 8, 0.15);
+    assert!(inside >= 1, "no run continued inside an iteration");
 }
 
 #[test]
 fn sigkill_at_random_moments_then_resume_gives_the_same_bytes_out_of_core() {
     // 1 MiB for about 6,700 surfels: every array in files, several bands per direction.
-    killed_and_resumed(&["--memory", "1MiB"], 0x5eed_0002, 5);
+    killed_and_resumed(&["--memory", "1MiB"], 0x5eed_0002, 5, 0.4);
 }
 
 /// Starts a solve into `out`, sends `signal` once `ready(log)` holds, and expects exit status 3
@@ -237,6 +261,45 @@ fn resume_each(stopped: &[(&Path, &[&str])], reference: &Path) {
 /// Options under which only a stop signal writes a checkpoint (none is due in a short run).
 const ONLY_ON_SIGNAL: [&str; 2] = ["--checkpoint-every", "1000"];
 
+/// A solve into `tmp/name` (options `extra`, checkpoints only on the signal) stopped by SIGTERM
+/// inside its second iteration (0.1 s after the first ended); retried (a few times at most) if
+/// the signal came between two iterations instead. Returns the out directory and the
+/// checkpoint's position.
+fn stopped_inside_an_iteration(tmp: &Path, name: &str, extra: &[&str]) -> (PathBuf, u64) {
+    let seen = std::cell::Cell::new(None::<Instant>);
+    stopped_inside_when(tmp, name, &[extra, &ONLY_ON_SIGNAL].concat(), |log| {
+        if seen.get().is_none() && log.contains("iteration=1 ") {
+            seen.set(Some(Instant::now()));
+        }
+        seen.get()
+            .is_some_and(|t| t.elapsed() > Duration::from_millis(100))
+    })
+}
+
+/// Solves into `tmp/name` with `extra` and sends SIGTERM once `ready(log)`, until (four times at
+/// most) the checkpoint it leaves is inside an iteration; returns the out directory and the
+/// checkpoint's position.
+fn stopped_inside_when(
+    tmp: &Path,
+    name: &str,
+    extra: &[&str],
+    ready: impl Fn(&str) -> bool,
+) -> (PathBuf, u64) {
+    for attempt in 1..=4 {
+        let out = tmp.join(format!("{name}{attempt}"));
+        let log = tmp.join(format!("{name}{attempt}.log"));
+        let text = stopped_by(libc::SIGTERM, &out, extra, &log, false, |log, _| ready(log));
+        let saved = CheckpointFile::open(&checkpoint::path_in(&out)).unwrap();
+        if let Some(done) = saved.header.state.within {
+            assert!(text.contains("directions of the next"), "{text}");
+            println!("{}", text.lines().last().unwrap_or(""));
+            return (out, done);
+        }
+        println!("attempt {attempt}: stopped between two iterations, again");
+    }
+    panic!("four SIGTERMs, none inside an iteration");
+}
+
 #[test]
 fn sigterm_and_sigint_stop_an_in_memory_solve_with_a_checkpoint_and_exit_status_3() {
     let tmp = tempfile::tempdir().unwrap();
@@ -270,6 +333,63 @@ fn sigterm_and_sigint_stop_an_in_memory_solve_with_a_checkpoint_and_exit_status_
     );
     println!("{}", text.lines().last().unwrap_or(""));
     resume_each(&[(&term, &[]), (&int, &[])], &reference);
+}
+
+#[test]
+fn sigterm_inside_an_iteration_saves_its_partial_sums_and_resumes_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    run_to_end(
+        solve_command(&reference, &LONG_ITERATIONS),
+        &tmp.path().join("ref.log"),
+    );
+    let (out, done) = stopped_inside_an_iteration(tmp.path(), "term", &LONG_ITERATIONS);
+    let (text, _) = run_to_end(
+        solve_command(&out, &[&LONG_ITERATIONS[..], &["--resume"]].concat()),
+        &tmp.path().join("resume.log"),
+    );
+    assert!(
+        text.contains(CONTINUED_INSIDE) && text.contains(&format!("within={done}")),
+        "{text}"
+    );
+    assert!(results(&out) == results(&reference));
+    assert_eq!(report(&out)["energy"], report(&reference)["energy"]);
+    assert_clean(&out);
+}
+
+#[test]
+fn out_of_core_stopped_between_two_main_axes_resumes_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let options = [
+        "--memory",
+        "1MiB",
+        "--directions",
+        "300",
+        "--checkpoint-every",
+        "0",
+    ];
+    let reference = tmp.path().join("reference");
+    run_to_end(
+        solve_command(&reference, &options),
+        &tmp.path().join("ref.log"),
+    );
+    // Once a checkpoint between two axes is written, SIGTERM: the next axis is abandoned, the
+    // checkpoint keeps the axes done.
+    let (out, done) = stopped_inside_when(tmp.path(), "ooc", &options, |log| {
+        log.lines()
+            .any(|l| l.contains("checkpoint written") && !l.contains("within=0 "))
+    });
+    let (text, _) = run_to_end(
+        solve_command(&out, &[&options[..], &["--resume"]].concat()),
+        &tmp.path().join("resume.log"),
+    );
+    assert!(
+        text.contains(CONTINUED_INSIDE) && text.contains(&format!("within={done}")),
+        "{text}"
+    );
+    assert!(results(&out) == results(&reference));
+    assert_eq!(report(&out)["energy"], report(&reference)["energy"]);
+    assert_clean(&out);
 }
 
 #[test]
@@ -323,6 +443,14 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
         |_, out| checkpoint::path_in(out).exists(),
     );
     let good = std::fs::read(checkpoint::path_in(&stopped)).unwrap();
+    // And one inside an iteration: its last bytes are the partial sums.
+    let (inside, _) = stopped_inside_an_iteration(tmp.path(), "inside", &LONG_ITERATIONS);
+    let mid = std::fs::read(checkpoint::path_in(&inside)).unwrap();
+    let mut mid_flipped = mid.clone();
+    let at = mid.len() - 100;
+    mid_flipped[at] ^= 0x40;
+    let mut version_3 = mid.clone();
+    version_3[8] = 3;
     // A finished result in the directory the bad checkpoints go into: it must survive.
     let out = tmp.path().join("out");
     run_to_end(solve_command(&out, &[]), &tmp.path().join("out.log"));
@@ -368,6 +496,24 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
             b"hello".to_vec(),
             &[],
             &["not a voxrad checkpoint"],
+        ),
+        (
+            "flipped partial-sum bit",
+            mid_flipped,
+            &[],
+            &["damaged", "checksum"],
+        ),
+        (
+            "partial sums truncated",
+            mid[..mid.len() - 1000].to_vec(),
+            &[],
+            &["truncated"],
+        ),
+        (
+            "a format version this voxrad does not know",
+            version_3,
+            &[],
+            &["version 3"],
         ),
         (
             "other directions",

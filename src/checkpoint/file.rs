@@ -2,19 +2,22 @@
 //!
 //! ```text
 //!  0  magic         8 bytes  "VXRDCKPT"
-//!  8  version       u32      FORMAT_VERSION
+//!  8  version       u32      FORMAT_VERSION (2; version 1 is still read)
 //! 12  header_len    u32      bytes of the header body that follows
-//! 16  header body            Identity then State (see `encode_header`), little-endian
+//! 16  header body            Identity then State (see `encode_header`), little-endian;
+//!                            version 2 ends it with the mid-iteration position
 //!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
 //!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
 //!                            back RGB), in the solver's surfel order
-//!  .  payload_crc   u32      CRC-32 of the radiosity bytes
+//!  .  partial sums           only in mid-iteration: ranks x surfels x 48 bytes, the light each
+//!                            rank had gathered (f64 x 6 per surfel, side-major), rank 0 first
+//!  .  payload_crc   u32      CRC-32 of the radiosity and partial-sum bytes
 //! ```
 //!
 //! The header has its own checksum so that a run can be refused (wrong scene, damaged file)
-//! before anything is read or computed; the radiosity's checksum is checked before a solver
-//! uses a single value of it. The file's length is fixed by the header, so a truncated file is
-//! named as such.
+//! before anything is read or computed; the payload's checksum is checked before a solver uses a
+//! single value of it. The file's length is fixed by the header, so a truncated file is named as
+//! such.
 //!
 //! Writing goes to `checkpoint.bin.partial` beside the real name, is synced, renamed over the
 //! real name and the directory is synced: a kill at any moment leaves either the old checkpoint
@@ -28,9 +31,14 @@ use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
-pub const FORMAT_VERSION: u32 = 1;
+/// The version written; [`OLDEST_VERSION`] up to it are read.
+pub const FORMAT_VERSION: u32 = 2;
+/// Version 1: iteration boundaries only (no position, no partial sums).
+pub const OLDEST_VERSION: u32 = 1;
 /// Bytes per surfel of the radiosity payload.
 pub const RADIOSITY_LEN: usize = 24;
+/// Bytes per surfel of one rank's partial sums.
+pub const PARTIAL_LEN: usize = 48;
 /// The fixed prefix: magic, version, header length.
 const PREFIX_LEN: usize = 16;
 /// A header never comes near this (its only variable part is a short list of change norms);
@@ -38,6 +46,8 @@ const PREFIX_LEN: usize = 16;
 const MAX_HEADER_LEN: usize = 1 << 20;
 
 pub type Radiosity = [[f32; 3]; 2];
+/// The light gathered for one surfel, by side and channel, as the solver accumulates it.
+pub type Gathered = [[f64; 3]; 2];
 
 /// Where a checkpoint is written before it is renamed to `path`.
 pub fn partial_path(path: &Path) -> PathBuf {
@@ -64,11 +74,30 @@ pub fn decode_radiosity(bytes: &[u8]) -> Radiosity {
     [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
 }
 
-/// The whole length of a checkpoint file with this header length and surfel count.
-fn file_len(header_len: usize, surfels: u64) -> Option<u64> {
-    surfels
-        .checked_mul(RADIOSITY_LEN as u64)?
-        .checked_add((PREFIX_LEN + header_len + 8) as u64)
+pub fn encode_gathered(g: &Gathered, out: &mut [u8]) {
+    for (k, v) in g.iter().flatten().enumerate() {
+        out[8 * k..8 * k + 8].copy_from_slice(&v.to_bits().to_le_bytes());
+    }
+}
+
+pub fn decode_gathered(bytes: &[u8]) -> Gathered {
+    let f = |k: usize| {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&bytes[8 * k..8 * k + 8]);
+        f64::from_bits(u64::from_le_bytes(b))
+    };
+    [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
+}
+
+/// Bytes of the payload (radiosity and partial sums) of a checkpoint with this header.
+fn payload_len(header: &Header) -> Option<u64> {
+    let per_surfel = RADIOSITY_LEN as u64 + header.partial_ranks() as u64 * PARTIAL_LEN as u64;
+    header.identity.surfels.checked_mul(per_surfel)
+}
+
+/// The whole length of a checkpoint file with this header length and header.
+fn file_len(header_len: usize, header: &Header) -> Option<u64> {
+    payload_len(header)?.checked_add((PREFIX_LEN + header_len + 8) as u64)
 }
 
 fn encode_header(header: &Header) -> Vec<u8> {
@@ -102,6 +131,9 @@ fn encode_header(header: &Header) -> Vec<u8> {
     for c in changes {
         u64s(&mut b, c.to_bits());
     }
+    // Version 2: the mid-iteration position (present flag, directions done).
+    u32s(&mut b, state.within.is_some() as u32);
+    u64s(&mut b, state.within.unwrap_or(0));
     b
 }
 
@@ -138,7 +170,7 @@ impl Fields<'_> {
     }
 }
 
-fn decode_header(body: &[u8]) -> Option<Header> {
+fn decode_header(body: &[u8], version: u32) -> Option<Header> {
     let mut f = Fields { bytes: body, at: 0 };
     let solver = match f.u32()? {
         1 => Solver::InMemory,
@@ -170,6 +202,18 @@ fn decode_header(body: &[u8]) -> Option<Header> {
         return None;
     }
     let changes = (0..len).map(|_| f.f64()).collect::<Option<Vec<f64>>>()?;
+    let within = if version >= 2 {
+        let present = f.u32()?;
+        let done = f.u64()?;
+        match present {
+            0 if done == 0 => None,
+            // A position is never 0 (that is the boundary) and needs the ranks' sums.
+            1 if done > 0 && ranks > 0 => Some(done),
+            _ => return None,
+        }
+    } else {
+        None
+    };
     if f.at != body.len() {
         return None;
     }
@@ -180,6 +224,7 @@ fn decode_header(body: &[u8]) -> Option<Header> {
             ranks,
             previous_change,
             extrapolation: Extrapolation::from_parts(changes, count, last_ratio),
+            within,
         },
     })
 }
@@ -207,13 +252,13 @@ fn parse_prefix(path: &Path, bytes: &[u8]) -> Result<(Header, usize), Checkpoint
         return Err(bad(path, "not a voxrad checkpoint (wrong magic number)"));
     }
     let version = u32::from_le_bytes(bytes[8..12].try_into().unwrap_or_default());
-    if version != FORMAT_VERSION {
+    if !(OLDEST_VERSION..=FORMAT_VERSION).contains(&version) {
         return Err(bad(
             path,
             format!(
-                "checkpoint format version {version}; this voxrad reads version \
-                 {FORMAT_VERSION}: finish that run with the voxrad that made it, or start afresh \
-                 without --resume"
+                "checkpoint format version {version}; this voxrad reads versions \
+                 {OLDEST_VERSION} to {FORMAT_VERSION}: finish that run with the voxrad that made \
+                 it, or start afresh without --resume"
             ),
         ));
     }
@@ -232,31 +277,94 @@ fn parse_prefix(path: &Path, bytes: &[u8]) -> Result<(Header, usize), Checkpoint
     if crc32fast::hash(&bytes[..end]) != stored {
         return Err(bad(path, "damaged checkpoint (header checksum mismatch)"));
     }
-    let header = decode_header(&bytes[PREFIX_LEN..end])
+    let header = decode_header(&bytes[PREFIX_LEN..end], version)
         .ok_or_else(|| bad(path, "damaged checkpoint (its header does not decode)"))?;
     Ok((header, end + 4))
 }
 
-/// A checkpoint read whole into memory and checked: its header and its radiosity.
-pub fn parse(path: &Path, bytes: &[u8]) -> Result<(Header, Vec<Radiosity>), CheckpointError> {
+/// What a checkpoint read whole into memory holds: its header, its radiosity and, in
+/// mid-iteration, the partial sums of one rank.
+#[derive(Debug)]
+pub struct Parsed {
+    pub header: Header,
+    pub radiosity: Vec<Radiosity>,
+    /// The partial sums of the rank asked for (`None` at a boundary, or if the checkpoint has no
+    /// sums for that rank).
+    pub partial: Option<Vec<Gathered>>,
+}
+
+/// A checkpoint read whole into memory and checked; the partial sums of rank `rank` are kept.
+pub fn parse(path: &Path, bytes: &[u8], rank: usize) -> Result<Parsed, CheckpointError> {
     let (header, at) = parse_prefix(path, bytes)?;
-    let expected = file_len(at - PREFIX_LEN - 4, header.identity.surfels);
+    let expected = file_len(at - PREFIX_LEN - 4, &header);
     if expected != Some(bytes.len() as u64) {
         return Err(length_error(path, expected, bytes.len() as u64));
     }
     let payload = &bytes[at..bytes.len() - 4];
     let stored = u32::from_le_bytes(bytes[bytes.len() - 4..].try_into().unwrap_or_default());
     if crc32fast::hash(payload) != stored {
-        return Err(bad(
-            path,
-            "damaged checkpoint (radiosity checksum mismatch)",
-        ));
+        return Err(bad(path, "damaged checkpoint (payload checksum mismatch)"));
     }
-    let radiosity = payload
+    let surfels = header.identity.surfels as usize;
+    let (radiosity, sums) = payload.split_at(surfels * RADIOSITY_LEN);
+    let radiosity = radiosity
         .chunks_exact(RADIOSITY_LEN)
         .map(decode_radiosity)
         .collect();
-    Ok((header, radiosity))
+    let partial = (rank < header.partial_ranks() as usize).then(|| {
+        let one = surfels * PARTIAL_LEN;
+        sums[rank * one..(rank + 1) * one]
+            .chunks_exact(PARTIAL_LEN)
+            .map(decode_gathered)
+            .collect()
+    });
+    Ok(Parsed {
+        header,
+        radiosity,
+        partial,
+    })
+}
+
+/// The file of a checked checkpoint up to the end of its radiosity (what [`parse_head`] reads).
+pub fn head<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
+    &bytes[..radiosity_end(bytes, header)]
+}
+
+/// The partial sums of a checked checkpoint (every rank's, rank 0 first); empty at a boundary.
+pub fn sums<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
+    if bytes.is_empty() {
+        return bytes;
+    }
+    &bytes[radiosity_end(bytes, header)..bytes.len() - 4]
+}
+
+fn radiosity_end(bytes: &[u8], header: &Header) -> usize {
+    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap_or_default()) as usize;
+    PREFIX_LEN + header_len + 4 + header.identity.surfels as usize * RADIOSITY_LEN
+}
+
+/// The [`head`] of a checkpoint that rank 0 checked whole (its payload checksum too): the prefix
+/// and the header are checked again, the radiosity decoded; no partial sums.
+pub fn parse_head(path: &Path, head: &[u8]) -> Result<Parsed, CheckpointError> {
+    let (header, at) = parse_prefix(path, head)?;
+    let expected = (header.identity.surfels as usize)
+        .checked_mul(RADIOSITY_LEN)
+        .and_then(|r| r.checked_add(at));
+    if expected != Some(head.len()) {
+        return Err(bad(
+            path,
+            "checkpoint damaged between the ranks (its length)",
+        ));
+    }
+    let radiosity = head[at..]
+        .chunks_exact(RADIOSITY_LEN)
+        .map(decode_radiosity)
+        .collect();
+    Ok(Parsed {
+        header,
+        radiosity,
+        partial: None,
+    })
 }
 
 fn length_error(path: &Path, expected: Option<u64>, got: u64) -> CheckpointError {
@@ -301,7 +409,7 @@ impl CheckpointFile {
             prefix.extend_from_slice(&rest);
         }
         let (header, at) = parse_prefix(path, &prefix)?;
-        let expected = file_len(at - PREFIX_LEN - 4, header.identity.surfels);
+        let expected = file_len(at - PREFIX_LEN - 4, &header);
         if expected != Some(len) {
             return Err(length_error(path, expected, len));
         }
@@ -313,12 +421,23 @@ impl CheckpointFile {
     }
 
     /// Hands the radiosity to `f` in pieces of whole surfels (at most `buffer_bytes` each, at
-    /// least one surfel), then checks the checksum: a caller must not keep what it was handed
-    /// if this returns an error.
+    /// least one surfel), then checks the checksum (reading through any partial sums): a caller
+    /// must not keep what it was handed if this returns an error.
     pub fn read_radiosity<E: From<CheckpointError>>(
         &self,
         buffer_bytes: usize,
-        mut f: impl FnMut(&[u8]) -> Result<(), E>,
+        f: impl FnMut(&[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.read_payload(buffer_bytes, f, |_| Ok(()))
+    }
+
+    /// As [`CheckpointFile::read_radiosity`], and then the partial sums to `sums` in pieces of
+    /// whole surfels (every rank's in turn; the out-of-core solver writes one).
+    pub fn read_payload<E: From<CheckpointError>>(
+        &self,
+        buffer_bytes: usize,
+        mut radiosity: impl FnMut(&[u8]) -> Result<(), E>,
+        mut sums: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
         use std::io::{Seek, SeekFrom};
         let path = &self.path;
@@ -330,22 +449,29 @@ impl CheckpointFile {
         let mut file = File::open(path).map_err(|e| io("open", e))?;
         file.seek(SeekFrom::Start(self.payload_at))
             .map_err(|e| io("read", e))?;
-        let piece = (buffer_bytes / RADIOSITY_LEN).max(1) * RADIOSITY_LEN;
-        let mut buffer = vec![0u8; piece];
-        let mut left = self.header.identity.surfels * RADIOSITY_LEN as u64;
         let mut crc = crc32fast::Hasher::new();
-        while left > 0 {
-            let len = (left as usize).min(piece);
-            file.read_exact(&mut buffer[..len])
-                .map_err(|e| io("read", e))?;
-            crc.update(&buffer[..len]);
-            f(&buffer[..len])?;
-            left -= len as u64;
-        }
+        let surfels = self.header.identity.surfels;
+        let sums_count = surfels * self.header.partial_ranks() as u64;
+        let mut read = |record: usize, count: u64, f: &mut dyn FnMut(&[u8]) -> Result<(), E>| {
+            let piece = (buffer_bytes / record).max(1) * record;
+            let mut buffer = vec![0u8; piece];
+            let mut left = count * record as u64;
+            while left > 0 {
+                let len = (left as usize).min(piece);
+                file.read_exact(&mut buffer[..len])
+                    .map_err(|e| io("read", e))?;
+                crc.update(&buffer[..len]);
+                f(&buffer[..len])?;
+                left -= len as u64;
+            }
+            Ok::<(), E>(())
+        };
+        read(RADIOSITY_LEN, surfels, &mut radiosity)?;
+        read(PARTIAL_LEN, sums_count, &mut sums)?;
         let mut stored = [0u8; 4];
         file.read_exact(&mut stored).map_err(|e| io("read", e))?;
         if crc.finalize() != u32::from_le_bytes(stored) {
-            return Err(bad(path, "damaged checkpoint (radiosity checksum mismatch)").into());
+            return Err(bad(path, "damaged checkpoint (payload checksum mismatch)").into());
         }
         Ok(())
     }
@@ -370,8 +496,9 @@ impl<W: Write> Write for Summing<'_, W> {
     }
 }
 
-/// Writes a checkpoint at `path` durably (see the module header); `fill` writes the radiosity of
-/// `header.identity.surfels` surfels. On failure nothing is left under `path` but what was there.
+/// Writes a checkpoint at `path` durably (see the module header); `fill` writes the payload: the
+/// radiosity of `header.identity.surfels` surfels, then in mid-iteration the partial sums of
+/// every rank. On failure nothing is left under `path` but what was there.
 pub fn write(
     path: &Path,
     header: &Header,
@@ -427,10 +554,12 @@ fn write_partial(
         };
         fill(&mut summing)?;
         let (crc, bytes) = (summing.crc.finalize(), summing.bytes);
-        if bytes != header.identity.surfels * RADIOSITY_LEN as u64 {
+        if Some(bytes) != payload_len(header) {
             return Err(std::io::Error::other(format!(
-                "internal error: {bytes} bytes of radiosity for {} surfels",
-                header.identity.surfels
+                "internal error: {bytes} bytes of payload for {} surfels and {} rank(s) of \
+                 partial sums",
+                header.identity.surfels,
+                header.partial_ranks()
             )));
         }
         out.write_all(&crc.to_le_bytes())?;
@@ -445,7 +574,7 @@ fn write_partial(
 mod tests {
     use super::*;
 
-    fn header(surfels: u64) -> Header {
+    fn header(surfels: u64, within: Option<u64>) -> Header {
         let mut extrapolation = Extrapolation::default();
         extrapolation.observe(1.0, 0.5);
         extrapolation.observe(0.5, 0.25);
@@ -466,6 +595,7 @@ mod tests {
                 ranks: 2,
                 previous_change: Some(0.125),
                 extrapolation,
+                within,
             },
         }
     }
@@ -476,6 +606,19 @@ mod tests {
             .collect()
     }
 
+    /// Partial sums of rank `rank`: values whose every bit matters.
+    fn sums(n: usize, rank: usize) -> Vec<Gathered> {
+        (0..n)
+            .map(|i| {
+                let x = (i + 1) as f64 / 3.0 + rank as f64;
+                [
+                    [x, x * 1e-300, 0.0],
+                    [x.next_up(), 1e300, f64::MIN_POSITIVE],
+                ]
+            })
+            .collect()
+    }
+
     fn write_one(path: &Path, header: &Header, values: &[Radiosity]) {
         write(path, header, 64, |w| {
             let mut bytes = [0u8; RADIOSITY_LEN];
@@ -483,62 +626,122 @@ mod tests {
                 encode_radiosity(b, &mut bytes);
                 w.write_all(&bytes)?;
             }
+            let mut bytes = [0u8; PARTIAL_LEN];
+            for rank in 0..header.partial_ranks() as usize {
+                for g in sums(values.len(), rank) {
+                    encode_gathered(&g, &mut bytes);
+                    w.write_all(&bytes)?;
+                }
+            }
             Ok(())
         })
         .unwrap();
+    }
+
+    fn bits(v: &[Radiosity]) -> Vec<u32> {
+        v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
+    }
+
+    fn sum_bits(v: &[Gathered]) -> Vec<u64> {
+        v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
     }
 
     #[test]
     fn round_trip_in_memory_and_streamed() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
-        let h = header(37);
-        let values = radiosity(37);
-        write_one(&path, &h, &values);
-        assert!(!partial_path(&path).exists());
-        let (got, r) = parse(&path, &std::fs::read(&path).unwrap()).unwrap();
-        assert_eq!(got, h);
-        let bits = |v: &[Radiosity]| -> Vec<u32> {
-            v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
-        };
-        assert_eq!(bits(&r), bits(&values));
-        let file = CheckpointFile::open(&path).unwrap();
-        assert_eq!(file.header, h);
-        let mut streamed = Vec::new();
-        file.read_radiosity::<CheckpointError>(50, |piece| {
-            assert_eq!(piece.len() % RADIOSITY_LEN, 0);
-            streamed.extend(piece.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
-            Ok(())
-        })
-        .unwrap();
-        assert_eq!(bits(&streamed), bits(&values));
+        for within in [None, Some(17)] {
+            let h = header(37, within);
+            let values = radiosity(37);
+            write_one(&path, &h, &values);
+            assert!(!partial_path(&path).exists());
+            let bytes = std::fs::read(&path).unwrap();
+            for rank in 0..3 {
+                let got = parse(&path, &bytes, rank).unwrap();
+                assert_eq!(got.header, h);
+                assert_eq!(bits(&got.radiosity), bits(&values));
+                let want = (within.is_some() && rank < 2).then(|| sum_bits(&sums(37, rank)));
+                assert_eq!(got.partial.as_deref().map(sum_bits), want);
+            }
+            let file = CheckpointFile::open(&path).unwrap();
+            assert_eq!(file.header, h);
+            let mut streamed = Vec::new();
+            file.read_radiosity::<CheckpointError>(50, |piece| {
+                assert_eq!(piece.len() % RADIOSITY_LEN, 0);
+                streamed.extend(piece.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
+                Ok(())
+            })
+            .unwrap();
+            assert_eq!(bits(&streamed), bits(&values));
+        }
+    }
+
+    /// A version 1 file (the layout before mid-iteration checkpoints) made from a version 2
+    /// boundary one: the version, without the position at the header's end, checksum redone.
+    fn as_version_1(v2: &[u8]) -> Vec<u8> {
+        let header_len = u32::from_le_bytes(v2[12..16].try_into().unwrap()) as usize;
+        let end = PREFIX_LEN + header_len;
+        let mut v1 = v2[..end - 12].to_vec();
+        v1[8..12].copy_from_slice(&1u32.to_le_bytes());
+        v1[12..16].copy_from_slice(&((header_len - 12) as u32).to_le_bytes());
+        let crc = crc32fast::hash(&v1);
+        v1.extend_from_slice(&crc.to_le_bytes());
+        v1.extend_from_slice(&v2[end + 4..]);
+        v1
+    }
+
+    #[test]
+    fn version_1_is_read_and_an_unknown_version_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("checkpoint.bin");
+        let h = header(5, None);
+        write_one(&path, &h, &radiosity(5));
+        let v1 = as_version_1(&std::fs::read(&path).unwrap());
+        let got = parse(&path, &v1, 0).unwrap();
+        assert_eq!(got.header, h);
+        assert_eq!(bits(&got.radiosity), bits(&radiosity(5)));
+        std::fs::write(&path, &v1).unwrap();
+        assert_eq!(CheckpointFile::open(&path).unwrap().header, h);
+        for version in [0u32, 3, 99] {
+            let mut b = v1.clone();
+            b[8..12].copy_from_slice(&version.to_le_bytes());
+            let err = parse(&path, &b, 0).unwrap_err();
+            assert!(err.is_bad_input());
+            let text = err.to_string();
+            assert!(
+                text.contains("checkpoint.bin") && text.contains(&format!("version {version}")),
+                "{text}"
+            );
+        }
     }
 
     #[test]
     fn every_damage_is_named_and_never_panics() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
-        write_one(&path, &header(9), &radiosity(9));
-        let good = std::fs::read(&path).unwrap();
-        // Every truncation and every single-byte flip is refused, by both readers.
-        let mut cases: Vec<Vec<u8>> = (0..good.len()).map(|n| good[..n].to_vec()).collect();
-        for at in 0..good.len() {
-            let mut b = good.clone();
-            b[at] ^= 0x10;
-            cases.push(b);
-        }
-        let mut longer = good.clone();
-        longer.push(0);
-        cases.push(longer);
-        for bytes in cases {
-            let err = parse(&path, &bytes).unwrap_err().to_string();
-            assert!(err.contains("checkpoint.bin"), "{err}");
-            std::fs::write(&path, &bytes).unwrap();
-            let streamed = CheckpointFile::open(&path).and_then(|f| {
-                f.read_radiosity::<CheckpointError>(40, |_| Ok(()))?;
-                Ok(())
-            });
-            assert!(streamed.is_err(), "{} bytes accepted", bytes.len());
+        for within in [None, Some(3)] {
+            write_one(&path, &header(9, within), &radiosity(9));
+            let good = std::fs::read(&path).unwrap();
+            // Every truncation and every single-byte flip is refused, by both readers.
+            let mut cases: Vec<Vec<u8>> = (0..good.len()).map(|n| good[..n].to_vec()).collect();
+            for at in 0..good.len() {
+                let mut b = good.clone();
+                b[at] ^= 0x10;
+                cases.push(b);
+            }
+            let mut longer = good.clone();
+            longer.push(0);
+            cases.push(longer);
+            for bytes in cases {
+                let err = parse(&path, &bytes, 1).unwrap_err().to_string();
+                assert!(err.contains("checkpoint.bin"), "{err}");
+                std::fs::write(&path, &bytes).unwrap();
+                let streamed = CheckpointFile::open(&path).and_then(|f| {
+                    f.read_radiosity::<CheckpointError>(40, |_| Ok(()))?;
+                    Ok(())
+                });
+                assert!(streamed.is_err(), "{} bytes accepted", bytes.len());
+            }
         }
     }
 
@@ -546,9 +749,9 @@ mod tests {
     fn a_failed_write_keeps_the_earlier_checkpoint() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
-        write_one(&path, &header(3), &radiosity(3));
+        write_one(&path, &header(3, None), &radiosity(3));
         let before = std::fs::read(&path).unwrap();
-        let err = write(&path, &header(3), 64, |w| {
+        let err = write(&path, &header(3, Some(1)), 64, |w| {
             w.write_all(&[0u8; 30])?;
             Err(std::io::Error::other("disk full"))
         })

@@ -11,6 +11,19 @@
 //! stops at), so a resumed solve always runs at least one iteration and its last gather (the
 //! energy balance) is its own.
 //!
+//! **Inside an iteration** (the in-memory solver, one process or `--distribute directions`):
+//! between two directions the state is the radiosity of the last completed iteration, how many
+//! directions of the next one are done, and the light gathered from them (`acc`, f64 exactly as
+//! held, one array per rank, since each rank gathers its own directions and the arrays are added
+//! in rank order at the end of the iteration). Continuing from that direction with those sums
+//! gives the uninterrupted run's bits. Such a checkpoint is written when one is due between two
+//! directions (see [`Saver::due_within`]) and on a stop signal in mid-iteration; under MPI the
+//! ranks agree between directions on whether to write one ([`Saver::agree_within`]), and rank 0
+//! gathers the other ranks' sums in bounded pieces ([`Saver::save_within`]). A resume on another
+//! rank count, or in the data or hybrid modes, starts that iteration from its beginning (the
+//! radiosity it starts from is in the file) and says so. The out-of-core solver writes the same
+//! layout between two main axes, with its canonical sum as the one rank's (`outcore::solver`).
+//!
 //! A checkpoint names the run it belongs to ([`Identity`]: solver, grid, surfels, directions,
 //! channels, extrapolation, and a checksum of the voxelized scene or of the shard set): one from
 //! another run is refused with what differs, never used. The tolerance, the iteration limit and
@@ -23,7 +36,7 @@
 
 pub mod file;
 
-pub use file::{CheckpointFile, Radiosity};
+pub use file::{CheckpointFile, Gathered, Radiosity};
 
 use crate::distribute::Comm;
 use crate::geometry::directions::DirectionSet;
@@ -222,6 +235,10 @@ pub struct State {
     /// The stopping rule's last relative change (`jacobi::Convergence`).
     pub previous_change: Option<f64>,
     pub extrapolation: Extrapolation,
+    /// In mid-iteration: how many of this rank's directions (the same count on every rank, see
+    /// `jacobi`) of iteration `iteration + 1` are gathered; the file then holds every rank's
+    /// partial sums. `None` at an iteration boundary.
+    pub within: Option<u64>,
 }
 
 /// Everything in a checkpoint but the radiosity.
@@ -229,6 +246,17 @@ pub struct State {
 pub struct Header {
     pub identity: Identity,
     pub state: State,
+}
+
+impl Header {
+    /// Ranks whose partial sums the file holds (none at an iteration boundary).
+    pub fn partial_ranks(&self) -> u32 {
+        if self.state.within.is_some() {
+            self.state.ranks
+        } else {
+            0
+        }
+    }
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -267,6 +295,22 @@ pub fn check(
             ),
         });
     }
+    // A position is a count of one rank's directions, never all of them (that is the next
+    // boundary): more is damage that a checksum cannot see (a file written so).
+    if header
+        .state
+        .within
+        .is_some_and(|done| done >= this.directions as u64)
+    {
+        return Err(CheckpointError::Bad {
+            path: path.to_path_buf(),
+            what: format!(
+                "damaged checkpoint: {} directions into an iteration of {}",
+                header.state.within.unwrap_or(0),
+                this.directions
+            ),
+        });
+    }
     if header.state.iteration >= max_iterations as u64 {
         return Err(CheckpointError::Bad {
             path: path.to_path_buf(),
@@ -286,6 +330,37 @@ pub struct Loaded {
     pub path: PathBuf,
     pub state: State,
     pub radiosity: Vec<Radiosity>,
+    /// In mid-iteration, written by as many ranks as this run has: this rank's partial sums.
+    pub partial: Option<Vec<Gathered>>,
+}
+
+impl Loaded {
+    /// The mid-iteration position and this rank's sums to continue from, or `None` (and, if the
+    /// checkpoint is a mid-iteration one, a log line saying that its iteration starts again)
+    /// when `usable` is false (a mode that cannot continue inside an iteration) or the rank
+    /// counts differ.
+    pub fn take_within(&mut self, usable: bool, ranks: usize) -> Option<(u64, Vec<Gathered>)> {
+        let done = self.state.within?;
+        let partial = self.partial.take();
+        match partial {
+            Some(acc) if usable && self.state.ranks as usize == ranks => Some((done, acc)),
+            _ => {
+                tracing::info!(
+                    "the checkpoint is {done} directions into iteration {} (written by {} \
+                     rank(s)); this solve ({ranks} rank(s){}) cannot continue inside it, so \
+                     that iteration starts from its beginning",
+                    self.state.iteration + 1,
+                    self.state.ranks,
+                    if usable {
+                        ""
+                    } else {
+                        ", a mode that distributes the data"
+                    }
+                );
+                None
+            }
+        }
+    }
 }
 
 /// Reads the checkpoint at `path` on rank 0 and hands it to every rank of `comm` (the ranks need
@@ -327,18 +402,101 @@ pub fn load_shared(
         }
         _ => {}
     }
-    if comm.size() > 1 {
-        bytes = broadcast_bytes(comm, bytes);
+    let parsed = if comm.size() == 1 {
+        file::parse(path, &bytes, 0)?
+    } else {
+        share(comm, path, bytes)?
+    };
+    check(path, &parsed.header, this, max_iterations)?;
+    let steps = (this.directions as u64).div_ceil(comm.size() as u64);
+    if let Some(done) = parsed.header.state.within {
+        if parsed.header.state.ranks as usize == comm.size() && done >= steps {
+            return Err(CheckpointError::Bad {
+                path: path.to_path_buf(),
+                what: format!(
+                    "damaged checkpoint: {done} directions per rank into an iteration of \
+                     {steps} for {} ranks",
+                    comm.size()
+                ),
+            });
+        }
     }
-    // Every rank checks the same bytes against the same identity: the same verdict everywhere.
-    let (header, radiosity) = file::parse(path, &bytes)?;
-    drop(bytes);
-    check(path, &header, this, max_iterations)?;
     Ok(Some(Loaded {
         path: path.to_path_buf(),
-        state: header.state,
-        radiosity,
+        state: parsed.header.state,
+        radiosity: parsed.radiosity,
+        partial: parsed.partial,
     }))
+}
+
+/// The checkpoint file `bytes` read on rank 0, checked there whole (every checksum), then
+/// handed out: its header and radiosity to every rank (which checks the header's own checksum
+/// again), and each rank's partial sums to that rank only, in pieces of [`GATHER_PIECE`]
+/// surfels; so a rank holds the radiosity and its own sums, whatever the rank count. Every rank
+/// returns the same verdict.
+fn share(comm: &dyn Comm, path: &Path, bytes: Vec<u8>) -> Result<file::Parsed, CheckpointError> {
+    let mut own = None;
+    let mut failure = None;
+    let mut head = Vec::new();
+    if comm.rank() == 0 {
+        match file::parse(path, &bytes, 0) {
+            Ok(parsed) => {
+                head = file::head(&bytes, &parsed.header).to_vec();
+                own = Some(parsed);
+            }
+            Err(e) => failure = Some(e),
+        }
+    }
+    if comm.max_u64(failure.is_some() as u64) == 1 {
+        return Err(failure.unwrap_or_else(|| CheckpointError::Bad {
+            path: path.to_path_buf(),
+            what: "rank 0 refused it (see rank 0's message)".to_string(),
+        }));
+    }
+    let head = broadcast_bytes(comm, head);
+    let mut parsed = match own {
+        Some(parsed) => parsed,
+        None => file::parse_head(path, &head)?,
+    };
+    drop(head);
+    let surfels = parsed.header.identity.surfels as usize;
+    if parsed.header.partial_ranks() as usize != comm.size() {
+        // Sums of another rank count are of no use here (the iteration starts again).
+        parsed.partial = None;
+        return Ok(parsed);
+    }
+    let sums = file::sums(&bytes, &parsed.header);
+    let pieces = surfels.div_ceil(GATHER_PIECE);
+    let mut mine = Vec::with_capacity(if comm.rank() > 0 { surfels } else { 0 });
+    for to in 1..comm.size() {
+        for piece in 0..pieces {
+            let first = piece * GATHER_PIECE;
+            let len = GATHER_PIECE.min(surfels - first);
+            let mut outgoing = vec![Vec::new(); comm.size()];
+            if comm.rank() == 0 {
+                let at = (to * surfels + first) * file::PARTIAL_LEN;
+                outgoing[to] = sums[at..at + len * file::PARTIAL_LEN].to_vec();
+            }
+            let incoming = comm.exchange(outgoing).swap_remove(0);
+            if comm.rank() == to {
+                if incoming.len() != len * file::PARTIAL_LEN {
+                    return Err(CheckpointError::Bad {
+                        path: path.to_path_buf(),
+                        what: "rank 0 sent partial sums of the wrong length".to_string(),
+                    });
+                }
+                mine.extend(
+                    incoming
+                        .chunks_exact(file::PARTIAL_LEN)
+                        .map(file::decode_gathered),
+                );
+            }
+        }
+    }
+    if comm.rank() > 0 {
+        parsed.partial = Some(mine);
+    }
+    Ok(parsed)
 }
 
 /// Rank 0's `bytes` on every rank, through the solver's only collectives (`max_u64` and the sum
@@ -372,10 +530,23 @@ pub struct Saver {
     /// Least time between two checkpoints (zero: at every iteration).
     every: Duration,
     last: Instant,
-    /// Iteration of the checkpoint on disk for this run, if any.
-    saved: Option<u64>,
+    /// How long the last checkpoint took to write (it spaces the mid-iteration ones).
+    last_write: Duration,
+    /// The checkpoint on disk for this run, if any: its iteration and mid-iteration position.
+    saved: Option<(u64, Option<u64>)>,
     ranks: u32,
+    /// Whether checkpoints are also written between two directions (see [`Saver::within`]).
+    within: bool,
 }
+
+/// A mid-iteration checkpoint is due only once the time since the last one is this many times
+/// what that one took to write: so a short `--checkpoint-every` (zero included) never spends
+/// more than about a fifth of the solve writing checkpoints inside iterations.
+const WRITE_TIME_FACTOR: u32 = 4;
+
+/// Surfels of partial sums gathered to rank 0 per exchange (3 MiB): the memory a mid-iteration
+/// checkpoint needs beyond the solver's own, on every rank.
+const GATHER_PIECE: usize = 1 << 16;
 
 impl Saver {
     /// A saver for `out`'s checkpoint; `resumed` is the iteration of the checkpoint this run
@@ -394,9 +565,23 @@ impl Saver {
             writes,
             every,
             last: Instant::now(),
-            saved: resumed,
+            last_write: Duration::ZERO,
+            saved: resumed.map(|i| (i, None)),
             ranks: ranks as u32,
+            within: false,
         }
+    }
+
+    /// Also writes checkpoints inside iterations, between two directions (the in-memory solver
+    /// in one process or with `--distribute directions`; the other loops save boundaries only).
+    pub fn within(mut self, on: bool) -> Self {
+        self.within = on;
+        self
+    }
+
+    /// Whether this saver writes mid-iteration checkpoints.
+    pub fn saves_within(&self) -> bool {
+        self.within
     }
 
     pub fn path(&self) -> &Path {
@@ -406,6 +591,23 @@ impl Saver {
     /// Whether the time since the last checkpoint calls for another.
     pub fn due(&self) -> bool {
         self.last.elapsed() >= self.every
+    }
+
+    /// Whether a checkpoint is due between two directions: as [`Saver::due`], and no sooner than
+    /// [`WRITE_TIME_FACTOR`] times the last one's writing time.
+    pub fn due_within(&self) -> bool {
+        self.within && self.last.elapsed() >= self.every.max(self.last_write * WRITE_TIME_FACTOR)
+    }
+
+    /// What every rank of `comm` does between two directions: agrees on the stop signal any
+    /// rank received (`signal`, 0 for none) and on whether rank 0 finds a checkpoint due. One
+    /// `max_u64` (a stop signal outranks the due flag; a stop saves anyway). Returns the signal
+    /// (0 for none) and whether to save.
+    pub fn agree_within(&self, comm: &dyn Comm, signal: i32) -> (i32, bool) {
+        let due = comm.rank() == 0 && self.due_within();
+        let agreed = comm.max_u64(((signal.max(0) as u64) << 1) | due as u64);
+        let signal = (agreed >> 1) as i32;
+        (signal, signal != 0 || agreed & 1 == 1)
     }
 
     /// The state to save after `iteration` iterations.
@@ -420,10 +622,11 @@ impl Saver {
             ranks: self.ranks,
             previous_change,
             extrapolation: extrapolation.clone(),
+            within: None,
         }
     }
 
-    /// Writes a checkpoint of `state` whose radiosity `fill` writes (`buffer_bytes` of write
+    /// Writes a checkpoint of `state` whose payload `fill` writes (`buffer_bytes` of write
     /// buffer). A failure keeps the earlier checkpoint and is returned for the caller to report.
     pub fn save(
         &mut self,
@@ -431,22 +634,24 @@ impl Saver {
         buffer_bytes: usize,
         fill: impl FnOnce(&mut dyn std::io::Write) -> std::io::Result<()>,
     ) -> Result<(), CheckpointError> {
-        let iteration = state.iteration;
+        let at = (state.iteration, state.within);
+        let t = Instant::now();
         if self.writes {
-            let t = Instant::now();
             let header = Header {
                 identity: self.identity.clone(),
                 state,
             };
             file::write(&self.path, &header, buffer_bytes, fill)?;
             tracing::info!(
-                iteration,
-                seconds = format!("{:.2}", t.elapsed().as_secs_f64()),
+                iteration = at.0,
+                within = at.1.unwrap_or(0),
+                seconds = format!("{:.3}", t.elapsed().as_secs_f64()),
                 path = %self.path.display(),
                 "checkpoint written"
             );
         }
-        self.saved = Some(iteration);
+        self.saved = Some(at);
+        self.last_write = t.elapsed();
         self.last = Instant::now();
         Ok(())
     }
@@ -457,14 +662,54 @@ impl Saver {
         state: State,
         radiosity: &[Radiosity],
     ) -> Result<(), CheckpointError> {
-        self.save(state, 1 << 20, |w| {
-            let mut bytes = [0u8; file::RADIOSITY_LEN];
-            for b in radiosity {
-                file::encode_radiosity(b, &mut bytes);
-                w.write_all(&bytes)?;
+        self.save(state, 1 << 20, |w| write_radiosity(w, radiosity))
+    }
+
+    /// A mid-iteration checkpoint, `done` directions into iteration `state.iteration + 1`:
+    /// the radiosity the iteration gathers from and every rank's partial sums `acc`, gathered
+    /// to rank 0 in pieces of [`GATHER_PIECE`] surfels. Every rank of `comm` must call it (the
+    /// same number of exchanges happens on every rank, whatever rank 0's writing meets).
+    pub fn save_within(
+        &mut self,
+        comm: &dyn Comm,
+        mut state: State,
+        done: u64,
+        radiosity: &[Radiosity],
+        acc: &[Gathered],
+    ) -> Result<(), CheckpointError> {
+        state.within = Some(done);
+        let pieces = acc.len().div_ceil(GATHER_PIECE);
+        let exchanges = (comm.size() - 1) * pieces;
+        let made = std::cell::Cell::new(0usize);
+        // The `made`-th exchange: rank `1 + made / pieces` sends piece `made % pieces` of its
+        // sums to rank 0, which gets them back (the others get nothing).
+        let exchange = || {
+            let k = made.get();
+            made.set(k + 1);
+            let (from, piece) = (1 + k / pieces, k % pieces);
+            let mut outgoing = vec![Vec::new(); comm.size()];
+            if comm.rank() == from {
+                outgoing[0] = encode_sums(
+                    &acc[piece * GATHER_PIECE..]
+                        [..GATHER_PIECE.min(acc.len() - piece * GATHER_PIECE)],
+                );
+            }
+            comm.exchange(outgoing).swap_remove(from)
+        };
+        let result = self.save(state, 1 << 20, |w| {
+            write_radiosity(w, radiosity)?;
+            w.write_all(&encode_sums(acc))?;
+            while made.get() < exchanges {
+                w.write_all(&exchange())?;
             }
             Ok(())
-        })
+        });
+        // Rank 0's writing may have stopped short (or, on the other ranks, never started):
+        // the exchanges left are made all the same, so that no rank waits for another.
+        while made.get() < exchanges {
+            exchange();
+        }
+        result
     }
 
     /// At a boundary the solve goes on from: saves if due, and on failure warns and goes on
@@ -478,7 +723,14 @@ impl Saver {
             return;
         }
         let state = state(self);
-        if let Err(e) = save(self, state) {
+        let result = save(self, state);
+        self.warn_on_failure(result);
+    }
+
+    /// Warns of a checkpoint that could not be written; the solve goes on (the earlier
+    /// checkpoint stays; losing the solve for a checkpoint would be worse).
+    pub fn warn_on_failure(&mut self, result: Result<(), CheckpointError>) {
+        if let Err(e) = result {
             tracing::warn!("checkpoint not written ({e}); the solve goes on");
             // Not again at once: the disk is full or failing.
             self.last = Instant::now();
@@ -493,8 +745,20 @@ impl Saver {
         completed: usize,
         save: impl FnOnce(&mut Self) -> Result<(), CheckpointError>,
     ) -> Interruption {
+        self.interrupt_at(signal, completed, None, save)
+    }
+
+    /// The interruption after `completed` iterations and, `within`, that many directions of the
+    /// next, saving that state first (`save`) unless the checkpoint on disk already holds it.
+    pub fn interrupt_at(
+        &mut self,
+        signal: i32,
+        completed: usize,
+        within: Option<u64>,
+        save: impl FnOnce(&mut Self) -> Result<(), CheckpointError>,
+    ) -> Interruption {
         let mut failure = None;
-        if self.saved != Some(completed as u64) {
+        if self.saved != Some((completed as u64, within)) {
             if let Err(e) = save(self) {
                 failure = Some(e.to_string());
             }
@@ -502,11 +766,36 @@ impl Saver {
         Interruption {
             signal,
             completed,
-            checkpoint: self.saved.map(|i| (self.path.clone(), i)),
+            within,
+            checkpoint: self.saved.map(|(i, w)| (self.path.clone(), i, w)),
             failure,
             writer: self.writes,
         }
     }
+}
+
+/// Writes radiosity held in memory as a checkpoint's payload.
+fn write_radiosity(w: &mut dyn std::io::Write, radiosity: &[Radiosity]) -> std::io::Result<()> {
+    let mut bytes = vec![0u8; file::RADIOSITY_LEN * 4096];
+    for piece in radiosity.chunks(4096) {
+        for (b, out) in piece
+            .iter()
+            .zip(bytes.chunks_exact_mut(file::RADIOSITY_LEN))
+        {
+            file::encode_radiosity(b, out);
+        }
+        w.write_all(&bytes[..piece.len() * file::RADIOSITY_LEN])?;
+    }
+    Ok(())
+}
+
+/// Partial sums as a checkpoint stores them.
+fn encode_sums(acc: &[Gathered]) -> Vec<u8> {
+    let mut bytes = vec![0u8; acc.len() * file::PARTIAL_LEN];
+    for (g, out) in acc.iter().zip(bytes.chunks_exact_mut(file::PARTIAL_LEN)) {
+        file::encode_gathered(g, out);
+    }
+    bytes
 }
 
 /// A solve stopped by SIGTERM or SIGINT (exit status 3).
@@ -515,8 +804,11 @@ pub struct Interruption {
     pub signal: i32,
     /// Iterations completed when it stopped.
     pub completed: usize,
-    /// The checkpoint to resume from and its iteration.
-    pub checkpoint: Option<(PathBuf, u64)>,
+    /// Directions of the next iteration gathered when it stopped (and saved), if it stopped
+    /// inside an iteration and kept that.
+    pub within: Option<u64>,
+    /// The checkpoint to resume from, its iteration and its mid-iteration position.
+    pub checkpoint: Option<(PathBuf, u64, Option<u64>)>,
     /// Why the checkpoint of the last completed iteration could not be written.
     pub failure: Option<String>,
     /// Whether this process wrote the checkpoints (rank 0).
@@ -530,6 +822,7 @@ impl Interruption {
         Interruption {
             signal,
             completed,
+            within: None,
             checkpoint: None,
             failure: None,
             writer,
@@ -540,27 +833,31 @@ impl Interruption {
 impl std::fmt::Display for Interruption {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let signal = crate::interrupt::name(self.signal);
+        let when = match self.within {
+            Some(done) => format!(
+                "after iteration {} and {done} directions of the next",
+                self.completed
+            ),
+            None => format!("after iteration {}", self.completed),
+        };
         if !self.writer {
             return write!(
                 f,
-                "interrupted by {signal} after iteration {}; rank 0 wrote the checkpoint",
-                self.completed
+                "interrupted by {signal} {when}; rank 0 wrote the checkpoint"
             );
         }
-        write!(
-            f,
-            "interrupted by {signal} after iteration {}; ",
-            self.completed
-        )?;
+        write!(f, "interrupted by {signal} {when}; ")?;
         if let Some(e) = &self.failure {
             write!(f, "its checkpoint could not be written ({e}); ")?;
         }
         match &self.checkpoint {
-            Some((path, iteration)) => write!(
-                f,
-                "checkpoint at {} (iteration {iteration}); rerun with --resume to continue",
-                path.display()
-            ),
+            Some((path, iteration, within)) => {
+                write!(f, "checkpoint at {} (iteration {iteration}", path.display())?;
+                if let Some(done) = within {
+                    write!(f, ", {done} directions into the next")?;
+                }
+                write!(f, "); rerun with --resume to continue")
+            }
             None => write!(f, "no checkpoint; rerun to start again"),
         }
     }
@@ -655,11 +952,68 @@ mod tests {
     }
 
     #[test]
+    fn a_mid_iteration_checkpoint_hands_back_its_sums_or_restarts_the_iteration() {
+        let set = crate::voxel::voxelize::voxelize(
+            &crate::gen::furnace(1.0, 0.5),
+            crate::voxel::voxelize::GridSpec::Resolution(6),
+        )
+        .unwrap();
+        let directions = DirectionSet::with_count(13);
+        let this = Identity::in_memory(&set, &directions, 3, false);
+        let dir = tempfile::tempdir().unwrap();
+        let n = set.surfels.len();
+        let mut saver =
+            Saver::new(dir.path(), this.clone(), true, Duration::ZERO, 1, None).within(true);
+        let radiosity = vec![[[0.5f32; 3]; 2]; n];
+        let acc: Vec<Gathered> = (0..n)
+            .map(|i| [[i as f64 / 7.0, 1e-310, 0.0], [3.0, 2.0, 1.0]])
+            .collect();
+        let state = saver.state(2, Some(0.25), &Extrapolation::default());
+        saver
+            .save_within(&SingleProcess, state, 5, &radiosity, &acc)
+            .unwrap();
+        let path = path_in(dir.path());
+        let mut loaded = load_shared(&SingleProcess, &path, &this, 10)
+            .unwrap()
+            .unwrap();
+        assert_eq!((loaded.state.iteration, loaded.state.within), (2, Some(5)));
+        let mut other = loaded.clone();
+        let (done, sums) = loaded.take_within(true, 1).unwrap();
+        assert_eq!(done, 5);
+        let bits = |v: &[Gathered]| -> Vec<u64> {
+            v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
+        };
+        assert_eq!(bits(&sums), bits(&acc));
+        // Another rank count or a mode that cannot use them: the iteration starts again.
+        assert!(other.clone().take_within(true, 2).is_none());
+        assert!(other.take_within(false, 1).is_none());
+        // Its interruption message names the position.
+        let i = saver.interrupt_at(libc::SIGTERM, 2, Some(5), |_| unreachable!("on disk"));
+        let text = i.to_string();
+        assert!(
+            text.contains("after iteration 2 and 5 directions of the next")
+                && text.contains("5 directions into the next"),
+            "{text}"
+        );
+        // A position past the iteration's end is refused.
+        let state = saver.state(2, None, &Extrapolation::default());
+        saver
+            .save_within(&SingleProcess, state, 13, &radiosity, &acc)
+            .unwrap();
+        let err = load_shared(&SingleProcess, &path, &this, 10).unwrap_err();
+        assert!(
+            err.is_bad_input() && err.to_string().contains("damaged"),
+            "{err}"
+        );
+    }
+
+    #[test]
     fn interruption_messages() {
         let i = Interruption {
             signal: libc::SIGTERM,
             completed: 7,
-            checkpoint: Some((PathBuf::from("out/checkpoint.bin"), 7)),
+            within: None,
+            checkpoint: Some((PathBuf::from("out/checkpoint.bin"), 7, None)),
             failure: None,
             writer: true,
         };

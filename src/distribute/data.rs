@@ -468,8 +468,13 @@ impl<'a> DataSolver<'a> {
         let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
         let mut iterations_done = 0;
         let mut first = 1;
-        if let Some(loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
-            // The boundary the checkpoint holds (every rank has the whole of it).
+        if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
+            // The boundary the checkpoint holds (every rank has the whole of it). A
+            // mid-iteration checkpoint's sums are by direction-mode rank, not by owned line:
+            // its iteration starts again (and rank 0 says so).
+            if world.rank() == 0 {
+                let _ = loaded.take_within(false, world.size());
+            }
             for e in &held.order {
                 let slot = e.index as usize;
                 held.radiosity[slot] = loaded.radiosity[held.ids[slot] as usize];

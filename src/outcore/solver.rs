@@ -5,8 +5,13 @@
 //!
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
-//! copies from the source, their radiosity from the canonical file). Stop signals are heard
-//! between directions, as in `solve::jacobi`.
+//! copies from the source, their radiosity from the canonical file). Inside an iteration
+//! (`Saver::within`) a checkpoint can be written between two main axes, when one is due or on
+//! a stop signal: it adds the canonical sum of the light gathered by the axes done (the same
+//! bytes the sum file holds), and a resume continues with the next axis. Not inside an axis:
+//! its light is spread over the shared gathered file in that axis's order, and folding it early
+//! would change the order of the sums. Stop signals are heard between directions, as in
+//! `solve::jacobi`.
 
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
@@ -244,13 +249,32 @@ fn run(
     let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
     let mut convergence = Convergence::new();
     let mut first_iteration = 1;
+    // Directions done after each main axis: the places inside an iteration a checkpoint can
+    // hold (the light of the axes before it is then whole in the canonical sum).
+    let axis_ends: Vec<u64> = by_axis
+        .iter()
+        .scan(0, |done, axis| {
+            *done += axis.len() as u64;
+            Some(*done)
+        })
+        .collect();
+    // Axes already gathered in the iteration resumed from a mid-iteration checkpoint.
+    let mut resume_axes = 0;
     if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
         let t = Instant::now();
-        restore(&file, &work, &plan, &mut io)?;
+        resume_axes = restore(&file, &work, &plan, &axis_ends, &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         first_iteration = convergence.resume(&file.header.state, &file.path, &mut stats.solve);
         extrapolation = file.header.state.extrapolation.clone();
+        if resume_axes > 0 {
+            tracing::info!(
+                iteration = first_iteration,
+                within = axis_ends[resume_axes - 1],
+                "continuing inside an iteration from the checkpoint's partial sums"
+            );
+        }
     }
+    let within = checkpoints.as_ref().is_some_and(|c| c.saver.saves_within());
     if checkpoints.is_some() {
         crate::interrupt::start_iterating();
     }
@@ -261,10 +285,13 @@ fn run(
         }
         progress.reset();
         progress.set_message(format!("iteration {iteration}"));
-        let mut gathered_any = false;
+        // Axes whose light is in the canonical sum (those resumed from first).
+        let mut axes_done = std::mem::take(&mut resume_axes);
+        progress.set_position(axes_done.checked_sub(1).map_or(0, |m| axis_ends[m]));
+        let mut gathered_any = axes_done > 0;
         let mut signal = None;
         for (m, (copy, copy_files)) in work.copies.iter().zip(&files).enumerate() {
-            if by_axis[m].is_empty() || signal.is_some() {
+            if m < axes_done || by_axis[m].is_empty() || signal.is_some() {
                 continue;
             }
             let histogram = copy.load_histogram(&plan)?;
@@ -302,22 +329,40 @@ fn run(
             fold_gathered(copy, &work, &plan, !gathered_any, &mut io)?;
             fold_seconds += t.elapsed().as_secs_f64();
             gathered_any = true;
+            axes_done = m + 1;
+            // Between two axes (not after the last: the iteration's boundary comes next), when
+            // a checkpoint is due.
+            let more = by_axis[m + 1..].iter().any(|a| !a.is_empty());
+            if let Some(c) = checkpoints
+                .as_mut()
+                .filter(|c| within && more && c.saver.due_within())
+            {
+                let state =
+                    c.saver
+                        .state(iteration - 1, convergence.previous_change, &extrapolation);
+                let result = save_within(c.saver, state, axis_ends[m], &work, &plan);
+                c.saver.warn_on_failure(result);
+            }
         }
         if let Some(signal) = signal {
             progress.finish_and_clear();
             let completed = iteration - 1;
             let interruption = match checkpoints.as_mut() {
+                // The axes whose light is summed are kept.
+                Some(c) if within && axes_done > 0 => {
+                    let done = axis_ends[axes_done - 1];
+                    c.saver
+                        .interrupt_at(signal, completed, Some(done), |saver| {
+                            let state =
+                                saver.state(completed, convergence.previous_change, &extrapolation);
+                            save_within(saver, state, done, &work, &plan)
+                        })
+                }
                 Some(c) => c.saver.interrupt(signal, completed, |saver| {
                     let state = saver.state(completed, convergence.previous_change, &extrapolation);
                     save(saver, state, &work, &plan)
                 }),
-                None => Interruption {
-                    signal,
-                    completed,
-                    checkpoint: None,
-                    failure: None,
-                    writer: true,
-                },
+                None => Interruption::without_checkpoint(signal, completed, true),
             };
             return Err(OocError::Interrupted(interruption));
         }
@@ -408,14 +453,68 @@ fn save(
     })
 }
 
+/// Saves a checkpoint inside an iteration, `done` directions into it (the end of a main axis):
+/// the canonical radiosity file, then the canonical sum of the light gathered so far.
+fn save_within(
+    saver: &mut Saver,
+    mut state: crate::checkpoint::State,
+    done: u64,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+) -> Result<(), crate::checkpoint::CheckpointError> {
+    state.within = Some(done);
+    saver.save(state, plan.io_bytes, |w| {
+        let mut reader = SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)
+            .map_err(std::io::Error::other)?;
+        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+            w.write_all(&record)?;
+        }
+        // Same layout as a checkpoint's partial sums: f64 x 6 per surfel, side-major, LE.
+        const _: () = assert!(crate::checkpoint::file::PARTIAL_LEN == GATHER_LEN);
+        let mut reader = SeqReader::<GATHER_LEN>::open(&work.canonical_gathered, plan.io_bytes)
+            .map_err(std::io::Error::other)?;
+        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+            w.write_all(&record)?;
+        }
+        Ok(())
+    })
+}
+
 /// Puts a checkpoint's radiosity (the canonical order's, checked against its checksum before
-/// anything is solved from it) into the canonical radiosity file and every axis copy.
+/// anything is solved from it) into the canonical radiosity file and every axis copy, and a
+/// mid-iteration checkpoint's sum into the canonical sum; returns the axes of the iteration
+/// that sum holds (0 at a boundary). `axis_ends` are the directions done after each axis.
 fn restore(
     file: &CheckpointFile,
     work: &WorkSet,
     plan: &MemoryPlan,
+    axis_ends: &[u64],
     io: &mut IoCounters,
-) -> Result<(), OocError> {
+) -> Result<usize, OocError> {
+    let bad = |what: String| OocError::BadData {
+        source_name: file.path.display().to_string(),
+        what,
+    };
+    let axes = match file.header.state.within {
+        None => 0,
+        Some(done) => {
+            if file.header.partial_ranks() != 1 {
+                return Err(bad(format!(
+                    "it holds the partial sums of {} ranks, an out-of-core solve keeps one",
+                    file.header.partial_ranks()
+                )));
+            }
+            match axis_ends.iter().position(|&e| e == done) {
+                Some(m) => m + 1,
+                None => {
+                    return Err(bad(format!(
+                        "it is {done} directions into an iteration, not at the end of a main \
+                         axis (damaged?)"
+                    )))
+                }
+            }
+        }
+    };
     // Same layout: f32 x 6 per surfel, side-major, little-endian.
     const _: () = assert!(crate::checkpoint::file::RADIOSITY_LEN == RADIOSITY_LEN);
     if file.header.identity.surfels != work.count {
@@ -428,10 +527,27 @@ fn restore(
         });
     }
     let mut out = SeqWriter::create(&work.canonical_radiosity, plan.io_bytes)?;
-    file.read_radiosity::<OocError>(plan.io_bytes, |piece| out.write(piece))?;
+    // The sum file is rewritten only if the checkpoint has a sum (it keeps its length else).
+    let mut sums = match axes {
+        0 => None,
+        _ => Some(SeqWriter::create(&work.canonical_gathered, plan.io_bytes)?),
+    };
+    file.read_payload::<OocError>(
+        plan.io_bytes,
+        |piece| out.write(piece),
+        |piece| match sums.as_mut() {
+            Some(s) => s.write(piece),
+            None => Ok(()),
+        },
+    )?;
     io.written += out.finish()?;
     io.read += work.count * RADIOSITY_LEN as u64;
-    send_to_copies(work, plan, io)
+    if let Some(s) = sums {
+        io.written += s.finish()?;
+        io.read += work.count * GATHER_LEN as u64;
+    }
+    send_to_copies(work, plan, io)?;
+    Ok(axes)
 }
 
 /// What one update of the radiosity found.

@@ -13,9 +13,11 @@
 //!
 //! **Checkpoints and signals** ([`solve_checkpointed`]): at iteration boundaries the radiosity
 //! and the bookkeeping above are saved (see `crate::checkpoint`), and a solve can start from
-//! them; between directions the loop asks whether SIGTERM or SIGINT came (`crate::interrupt`),
-//! and all ranks agree on it once per iteration before they sum, so none waits for a rank that
-//! has stopped.
+//! them; between directions the loop asks whether SIGTERM or SIGINT came (`crate::interrupt`).
+//! With mid-iteration checkpoints on (`Saver::within`), the ranks agree between every two
+//! directions (one `max_u64`) on stopping and on saving, and a stop keeps the directions already
+//! gathered; without, they agree once per iteration before they sum and a stop abandons the
+//! iteration in progress. Either way none waits for a rank that has stopped.
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::normalize::cosine_sums;
@@ -255,7 +257,22 @@ fn run(
     let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
     let mut convergence = Convergence::new();
     let mut first = 1;
-    if let Some(loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
+    // Steps of an iteration: one direction per rank each, the same count on every rank (a rank
+    // dealt one direction fewer idles in the last step), so that the ranks can agree between
+    // two steps on stopping or saving.
+    let steps = directions.len().div_ceil(comm.size());
+    let within = checkpoints.as_ref().is_some_and(|c| c.saver.saves_within());
+    // A mid-iteration checkpoint resumed from: the steps done and this rank's sums.
+    let mut resume_within = None;
+    if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
+        resume_within = loaded.take_within(true, comm.size());
+        if let Some((done, _)) = &resume_within {
+            tracing::info!(
+                iteration = loaded.state.iteration + 1,
+                within = done,
+                "continuing inside an iteration from the checkpoint's partial sums"
+            );
+        }
         // The boundary the checkpoint holds, exactly as the interrupted run had it.
         radiosity = loaded.radiosity;
         assert_eq!(
@@ -284,17 +301,50 @@ fn run(
             stats.converged = true;
             break;
         }
-        acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+        let start = match resume_within.take() {
+            Some((done, sums)) => {
+                assert_eq!(sums.len(), n, "a checkpoint is checked against the scene");
+                acc = sums;
+                done as usize
+            }
+            None => {
+                acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+                0
+            }
+        };
         progress.reset();
+        progress.set_position(start as u64);
         progress.set_message(format!("iteration {iteration}"));
         let mut signal = 0;
-        for &k in &mine {
-            // Abandon the iteration on a stop signal; `radiosity` still holds the last
-            // completed one.
-            if let Some(s) = crate::interrupt::requested() {
+        let mut stopped_at = 0;
+        for step in start..steps {
+            if let Some(c) = checkpoints.as_mut().filter(|_| within) {
+                // Between two steps every rank agrees on stopping and on saving.
+                let asked = crate::interrupt::requested().unwrap_or(0);
+                let (agreed, save) = c.saver.agree_within(comm, asked);
+                if agreed != 0 {
+                    (signal, stopped_at) = (agreed, step);
+                    break;
+                }
+                // Not at the iteration's start (its boundary was saved, or is the one resumed
+                // from) nor where this run resumed.
+                if save && step > start {
+                    let state =
+                        c.saver
+                            .state(iteration - 1, convergence.previous_change, &extrapolation);
+                    let result = c
+                        .saver
+                        .save_within(comm, state, step as u64, &radiosity, &acc);
+                    c.saver.warn_on_failure(result);
+                }
+            } else if let Some(s) = crate::interrupt::requested() {
+                // Abandon the iteration; `radiosity` still holds the last completed one.
                 signal = s;
                 break;
             }
+            let Some(&k) = mine.get(step) else {
+                continue;
+            };
             let (d, frame) = (&directions.directions[k], &frames[k]);
             let t0 = Instant::now();
             let t1 = pool.install(|| {
@@ -319,12 +369,24 @@ fn run(
             stats.propagate_seconds += t1.elapsed().as_secs_f64();
             progress.inc(1);
         }
-        // Every rank takes part, signalled or not, before anyone sums: all stop or none.
-        let signal = comm.max_u64(signal as u64) as i32;
+        // Every rank takes part, signalled or not, before anyone sums: all stop or none. (With
+        // mid-iteration checkpoints they agreed between the steps already.)
+        if !within {
+            signal = comm.max_u64(signal as u64) as i32;
+        }
         if signal != 0 {
             progress.finish_and_clear();
             let completed = iteration - 1;
             let interruption = match checkpoints.as_mut() {
+                Some(c) if stopped_at > 0 => {
+                    let done = stopped_at as u64;
+                    c.saver
+                        .interrupt_at(signal, completed, Some(done), |saver| {
+                            let state =
+                                saver.state(completed, convergence.previous_change, &extrapolation);
+                            saver.save_within(comm, state, done, &radiosity, &acc)
+                        })
+                }
                 Some(c) => c.saver.interrupt(signal, completed, |saver| {
                     let state = saver.state(completed, convergence.previous_change, &extrapolation);
                     saver.save_memory(state, &radiosity)
