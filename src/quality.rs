@@ -22,6 +22,9 @@ pub struct Preset {
     pub directions: usize,
     pub tolerance: f64,
     pub accelerate: bool,
+    /// Dense line directions of the direct-light pass where the scene's emitters are small
+    /// (`solve::direct`); 0: none.
+    pub direct: usize,
 }
 
 impl Quality {
@@ -42,18 +45,21 @@ impl Quality {
                 directions: 109,
                 tolerance: 1e-2,
                 accelerate: true,
+                direct: 0,
             },
             Quality::Default => Preset {
                 resolution: 32,
                 directions: 589,
                 tolerance: 1e-4,
                 accelerate: true,
+                direct: 0,
             },
             Quality::High => Preset {
                 resolution: 64,
                 directions: 1201,
                 tolerance: 1e-5,
                 accelerate: true,
+                direct: 0,
             },
         }
     }

@@ -1,0 +1,383 @@
+//! The direct-light pass: the emitters' own light gathered once, along many directions, from the
+//! lines that carry an emitter only.
+//!
+//! **Why.** Gathering is linear in the radiosity it reads: `H(B) = H(E) + H(B - E)`. The first
+//! term is the direct light. From a small bright emitter it is what aliases (a receiver sees a
+//! small lamp through one discrete line or none, so the lamp's light falls in stripes), and it
+//! does not change from one iteration to the next. So it is gathered once, with a dense direction
+//! set, and the iterations gather only the reflected part `B - E` with the normal, coarser set:
+//!
+//! `B = E + rho * (H_dense(E) / S_dense(n) + H_coarse(B - E) / S_coarse(n))`.
+//!
+//! Each term is divided by the cosine sum of its own direction set (`normalize`), so a uniform
+//! field is reproduced by each: the furnace stays exactly `E / (1 - rho)`, and the power balance
+//! (emitted against absorbed) holds as in a plain solve.
+//!
+//! **Cost.** `H_dense(E)` is non-zero only at receivers whose partner on some line emits, and a
+//! line carries light from an emitter only if the emitter lies on it. So for each dense direction
+//! only the lines through emitting surfels are built, by walking them layer by layer through a
+//! table from voxel to surfels, and gathered exactly as `propagate` gathers any line. The pass
+//! costs about (emitter lines) x (line length) per direction instead of the whole surfel set.
+//!
+//! **Determinism.** Directions are taken in blocks; a block's directions run in parallel, each
+//! returning its receivers' contributions, which are then added in direction order: the result
+//! does not depend on the thread count, and a resumed solve recomputes it bit for bit.
+
+use super::normalize::cosine_sums;
+use super::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
+use crate::distribute::Comm;
+use crate::geometry::directions::{Direction, DirectionSet};
+use crate::geometry::lines::LineFrame;
+use crate::voxel::SurfelSet;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+use std::time::Instant;
+
+/// Light per surfel side and channel, as the solver accumulates it.
+type SideLight = [[f64; 3]; 2];
+
+/// What the direct pass did, for the report.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct DirectStats {
+    /// Line directions of the dense set.
+    pub directions: usize,
+    /// Surfels with an emitting side.
+    pub emitting_surfels: usize,
+    /// Lines gathered, summed over the dense directions (this rank's share).
+    pub lines: u64,
+    /// Surfels on those lines, summed over the dense directions (this rank's share).
+    pub line_surfels: u64,
+    /// Wall clock of the pass (cosine sums included).
+    pub seconds: f64,
+}
+
+/// The direct light of every surfel side: `H_dense(E) / S_dense(n)`.
+#[derive(Clone, Debug)]
+pub struct DirectLight {
+    pub irradiance: Vec<SideLight>,
+    pub stats: DirectStats,
+}
+
+impl DirectLight {
+    /// The reflected part `B - E` that the iterations gather (f32, as radiosity is stored).
+    pub fn reflected(
+        &self,
+        radiosity: &[[[f32; 3]; 2]],
+        emission: &[[[f32; 3]; 2]],
+        out: &mut Vec<[[f32; 3]; 2]>,
+    ) {
+        out.clear();
+        out.extend(radiosity.iter().zip(emission).map(|(b, e)| {
+            let mut r = [[0f32; 3]; 2];
+            for side in 0..2 {
+                for ch in 0..3 {
+                    r[side][ch] = (b[side][ch] as f64 - e[side][ch] as f64) as f32;
+                }
+            }
+            r
+        }));
+    }
+}
+
+/// Directions per block: enough parallel work per block, a bounded list of contributions.
+const BLOCK: usize = 256;
+
+/// Gathers the direct light of `set` along `directions`, this rank's share of the directions
+/// (dealt as `distribute::dealt` deals them), summed over the ranks of `comm`. The work runs on
+/// `pool`; every call on `comm` on the calling thread.
+pub fn gather_direct(
+    set: &SurfelSet,
+    surfels: &[PropSurfel],
+    emission: &[[[f32; 3]; 2]],
+    directions: &DirectionSet,
+    comm: &dyn Comm,
+    pool: &rayon::ThreadPool,
+) -> DirectLight {
+    let started = Instant::now();
+    let emitters: Vec<u32> = emission
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| e.iter().flatten().any(|&v| v > 0.0))
+        .map(|(i, _)| i as u32)
+        .collect();
+    let table = VoxelTable::new(set);
+    let mine = crate::distribute::dealt(directions.len(), comm.rank(), comm.size());
+    let mut acc = vec![[[0f64; 3]; 2]; set.surfels.len()];
+    let mut stats = DirectStats {
+        directions: directions.len(),
+        emitting_surfels: emitters.len(),
+        ..Default::default()
+    };
+    let context = Context {
+        dims: set.grid.dims,
+        surfels,
+        emission,
+        emitters: &emitters,
+        table: &table,
+    };
+    for block in mine.chunks(BLOCK) {
+        let gathered: Vec<DirectionLight> = pool.install(|| {
+            block
+                .par_iter()
+                .map_init(Buffers::default, |buffers, &k| {
+                    context.direction(&directions.directions[k], buffers)
+                })
+                .collect()
+        });
+        for direction in gathered {
+            stats.lines += direction.lines;
+            stats.line_surfels += direction.line_surfels;
+            for (index, light) in direction.received {
+                let to = &mut acc[index as usize];
+                for side in 0..2 {
+                    for ch in 0..3 {
+                        to[side][ch] += light[side][ch];
+                    }
+                }
+            }
+        }
+    }
+    if comm.size() > 1 {
+        let mut flat: Vec<f64> = acc.iter().flatten().flatten().copied().collect();
+        comm.sum_in_place(&mut flat);
+        for (a, v) in acc.iter_mut().flatten().flatten().zip(&flat) {
+            *a = *v;
+        }
+    }
+    let cosine_sum = pool.install(|| cosine_sums(&set.normals, directions));
+    for (light, s) in acc.iter_mut().zip(&set.surfels) {
+        let norm = cosine_sum[s.normal_id as usize];
+        light.iter_mut().flatten().for_each(|v| *v /= norm);
+    }
+    stats.seconds = started.elapsed().as_secs_f64();
+    DirectLight {
+        irradiance: acc,
+        stats,
+    }
+}
+
+/// What one direction's emitter lines gave.
+struct DirectionLight {
+    lines: u64,
+    line_surfels: u64,
+    /// Receivers and their gathered light (`H`, not yet divided by `S`).
+    received: Vec<(u32, SideLight)>,
+}
+
+/// A task's reusable buffers: one line at a time, copied into local arrays so that
+/// `gather_line` runs on it unchanged.
+#[derive(Default)]
+struct Buffers {
+    line_ids: Vec<u64>,
+    members: Vec<u32>,
+    local_line: Vec<u32>,
+    local_surfels: Vec<PropSurfel>,
+    local_emission: Vec<[[f32; 3]; 2]>,
+    local_acc: Vec<SideLight>,
+    scratch: LineScratch,
+}
+
+/// Everything the per-direction work reads.
+struct Context<'a> {
+    dims: [u32; 3],
+    surfels: &'a [PropSurfel],
+    emission: &'a [[[f32; 3]; 2]],
+    emitters: &'a [u32],
+    table: &'a VoxelTable,
+}
+
+impl Context<'_> {
+    fn direction(&self, d: &Direction, b: &mut Buffers) -> DirectionLight {
+        let frame = LineFrame::new(d.vector, self.dims);
+        b.line_ids.clear();
+        b.line_ids.extend(
+            self.emitters
+                .iter()
+                .map(|&e| frame.line_index(self.surfels[e as usize].voxel)),
+        );
+        b.line_ids.sort_unstable();
+        b.line_ids.dedup();
+        let mut out = DirectionLight {
+            lines: 0,
+            line_surfels: 0,
+            received: Vec::new(),
+        };
+        let input_weight = d.solid_angle / std::f64::consts::PI;
+        for at in 0..b.line_ids.len() {
+            let line = b.line_ids[at];
+            self.walk(&frame, d.vector, line, &mut b.members);
+            out.lines += 1;
+            out.line_surfels += b.members.len() as u64;
+            if b.members.len() < 2 {
+                continue;
+            }
+            b.local_line.clear();
+            b.local_line.extend(0..b.members.len() as u32);
+            b.local_surfels.clear();
+            b.local_surfels
+                .extend(b.members.iter().map(|&m| self.surfels[m as usize]));
+            b.local_emission.clear();
+            b.local_emission
+                .extend(b.members.iter().map(|&m| self.emission[m as usize]));
+            b.local_acc.clear();
+            b.local_acc.resize(b.members.len(), [[0.0; 3]; 2]);
+            let input = DirectionInput {
+                unit: d.unit,
+                weight: input_weight,
+                surfels: &b.local_surfels,
+                radiosity: &b.local_emission,
+                channels: 3,
+            };
+            // SAFETY: `local_acc` has one entry per surfel of `local_surfels`, and this task
+            // alone owns it.
+            unsafe {
+                gather_line(
+                    &b.local_line,
+                    &input,
+                    &mut b.scratch,
+                    b.local_acc.as_mut_ptr(),
+                )
+            };
+            for (&m, light) in b.members.iter().zip(&b.local_acc) {
+                if light.iter().flatten().any(|&v| v != 0.0) {
+                    out.received.push((m, *light));
+                }
+            }
+        }
+        out
+    }
+
+    /// The surfels of line `line` of `frame`, in order along `vector` (the order `dispatch`
+    /// gives: voxel by voxel along the line, by surfel index within a voxel).
+    fn walk(&self, frame: &LineFrame, vector: [i64; 3], line: u64, members: &mut Vec<u32>) {
+        members.clear();
+        let (i, j) = (line / frame.nj, line % frame.nj);
+        let layers = self.dims[frame.main] as usize;
+        let forward = vector[frame.main] > 0;
+        for step in 0..layers {
+            let layer = if forward { step } else { layers - 1 - step };
+            let (su, sv) = frame.layer_shift(layer);
+            // Outside the grid on this layer (an oblique line enters it late or leaves early).
+            if i < su || j < sv {
+                continue;
+            }
+            let (u, v) = (i - su, j - sv);
+            if u >= self.dims[frame.u] as u64 || v >= self.dims[frame.v] as u64 {
+                continue;
+            }
+            let mut voxel = [0i32; 3];
+            voxel[frame.main] = layer as i32;
+            voxel[frame.u] = u as i32;
+            voxel[frame.v] = v as i32;
+            if let Some(&(first, end)) = self.table.map.get(&VoxelTable::key(voxel)) {
+                members.extend(first..end);
+            }
+        }
+    }
+}
+
+/// From a voxel to the range of its surfels (which are adjacent in a surfel set).
+struct VoxelTable {
+    map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>>,
+}
+
+impl VoxelTable {
+    fn new(set: &SurfelSet) -> Self {
+        let mut map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>> = HashMap::default();
+        let s = &set.surfels;
+        let mut first = 0;
+        while first < s.len() {
+            let mut end = first + 1;
+            while end < s.len() && s[end].voxel == s[first].voxel {
+                end += 1;
+            }
+            map.insert(Self::key(s[first].voxel), (first as u32, end as u32));
+            first = end;
+        }
+        VoxelTable { map }
+    }
+
+    /// Voxel coordinates are below 2^21 (the grid limit), so three fit one key.
+    fn key(voxel: [i32; 3]) -> u64 {
+        voxel[0] as u64 | (voxel[1] as u64) << 21 | (voxel[2] as u64) << 42
+    }
+}
+
+/// A hasher for integer keys that are already spread (the voxel keys above): one multiply.
+#[derive(Default)]
+struct MixHasher(u64);
+
+impl Hasher for MixHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+
+    fn write_u64(&mut self, v: u64) {
+        let x = (v ^ (v >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        self.0 = x ^ (x >> 32);
+    }
+}
+
+/// Whether and how a solve runs the direct pass.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DirectPass {
+    /// Never (every direction of the solve gathers `B` whole).
+    #[default]
+    Off,
+    /// When the scene's emitters are small ([`small_emitters`]), with about this many dense
+    /// line directions.
+    Auto(usize),
+    /// Always, with about this many dense line directions.
+    On(usize),
+}
+
+/// Emitting surfels at most this fraction of all surfels count as small emitters.
+pub const SMALL_EMITTER_FRACTION: f64 = 0.05;
+
+/// Whether `emitting` emitting surfels among `surfels` are small emitters: few enough that the
+/// pass is cheap (its lines are the emitters'), and small against the scene, where their direct
+/// light aliases.
+pub fn small_emitters(emitting: usize, surfels: usize) -> bool {
+    emitting > 0 && emitting as f64 <= SMALL_EMITTER_FRACTION * surfels as f64
+}
+
+impl DirectPass {
+    /// The dense direction count the solve of a scene with `emitting` emitting surfels among
+    /// `surfels` uses, or `None` for no direct pass.
+    pub fn resolve(self, emitting: usize, surfels: usize) -> Option<usize> {
+        match self {
+            DirectPass::Off | DirectPass::Auto(0) | DirectPass::On(0) => None,
+            DirectPass::Auto(n) => small_emitters(emitting, surfels).then_some(n),
+            DirectPass::On(n) => Some(n),
+        }
+    }
+
+    /// The dense direction set of a solve of `set`, or `None`.
+    pub fn directions_for(self, set: &SurfelSet) -> Option<DirectionSet> {
+        let emitting = super::effects::analyse(set).emitting_surfels;
+        self.resolve(emitting, set.surfels.len())
+            .map(DirectionSet::with_count)
+    }
+}
+
+/// Adds the power the direct light `direct` deposits, `(1 - rho) H_dense(E) / S_dense` times the
+/// area, to `stats.absorbed_power` (the iterations' gather holds only the reflected part).
+pub fn add_absorbed(set: &SurfelSet, direct: &DirectLight, stats: &mut super::SolveStats) {
+    let area_unit = set.grid.voxel_size * set.grid.voxel_size;
+    for (s, light) in set.surfels.iter().zip(&direct.irradiance) {
+        let area = s.area as f64 * area_unit;
+        for (&material, side_light) in s.material.iter().zip(light) {
+            let m = &set.materials[material as usize];
+            for (ch, &h) in side_light.iter().enumerate() {
+                stats.absorbed_power[ch] += (1.0 - m.reflectance[ch]) * h * area;
+            }
+        }
+    }
+}
