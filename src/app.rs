@@ -174,7 +174,21 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
 
     // Simulate only what the scene calls for (see `solve::effects`).
     let analysis = crate::solve::effects::analyse(&set);
-    let shaped = analysis.shape(&cmd.solve);
+    let mut shaped = analysis.shape(&cmd.solve);
+    // The data and hybrid modes' loop gathers B whole (their ranks own lines, not directions).
+    let direct_unavailable = match mode {
+        Mode::Data { .. } | Mode::Hybrid { .. }
+            if shaped.direct != crate::solve::direct::DirectPass::Off =>
+        {
+            shaped.direct = crate::solve::direct::DirectPass::Off;
+            Some(format!(
+                "--distribute {} gathers every light along the solve's directions (no direct \
+                 pass in the data and hybrid modes yet; --distribute directions has it)",
+                mode.name()
+            ))
+        }
+        _ => None,
+    };
     let directions = DirectionSet::with_count(shaped.directions);
     let t = Instant::now();
     let solution = solve_in_memory(cmd, &set, &directions, &shaped, comm, mode)?;
@@ -227,7 +241,7 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     report.set_phase("reduce", stats.reduce_seconds);
     // The whole solve call (set-up, iterations, communication): what a speed-up compares.
     report.set_phase("solve", solve_seconds);
-    report.effects = analysis.effects(&cmd.solve, stats);
+    report.effects = analysis.effects(&cmd.solve, stats, direct_unavailable.as_deref());
     report.set_phase("read", read_seconds);
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);
@@ -263,7 +277,8 @@ fn solve_in_memory(
     } else {
         3
     };
-    let identity = Identity::in_memory(set, directions, channels, options.accelerate);
+    let identity = Identity::in_memory(set, directions, channels, options.accelerate)
+        .with_direct_pass(options.direct.directions_for(set).as_ref());
     let path = checkpoint::path_in(&cmd.out);
     let resume = if cmd.checkpoint.resume {
         checkpoint::load_shared(comm, &path, &identity, options.max_iterations)
@@ -612,6 +627,12 @@ fn solve_out_of_core_to(
             crate::outcore::budget::format_bytes(budget)
         ),
     )];
+    report.effects.push(Effect::new(
+        "direct-light pass",
+        false,
+        "not applied: the out-of-core solver gathers every light along the solve's directions \
+         (no direct pass out of core yet)",
+    ));
     Ok((report, staged))
 }
 

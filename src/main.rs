@@ -11,6 +11,7 @@ use voxrad::app::{
 use voxrad::distribute::Mode;
 use voxrad::output::report::Report;
 use voxrad::quality::Quality;
+use voxrad::solve::direct::DirectPass;
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::GridSpec;
 
@@ -65,6 +66,12 @@ enum Command {
         /// --quality).
         #[arg(long)]
         directions: Option<usize>,
+        /// Dense line directions for the direct light of small emitters, gathered once from the
+        /// lines through the emitters only; the bounces use --directions (0: no direct pass;
+        /// default: from --quality, used where at most 5 % of the surfels emit). Given
+        /// explicitly, the pass runs whatever the emitters' size.
+        #[arg(long)]
+        direct_directions: Option<usize>,
         /// Largest number of iterations; given without --tolerance, exactly this many are run.
         #[arg(long)]
         iterations: Option<usize>,
@@ -261,6 +268,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             resolution,
             voxel_size,
             directions,
+            direct_directions,
             iterations,
             tolerance,
             threads,
@@ -322,6 +330,11 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 // Extrapolation only under the tolerance rule: `--iterations K` alone asks for K
                 // plain Jacobi sweeps.
                 accelerate: preset.accelerate && (tolerance.is_some() || iterations.is_none()),
+                direct: match direct_directions {
+                    None => DirectPass::Auto(preset.direct),
+                    Some(0) => DirectPass::Off,
+                    Some(n) => DirectPass::On(n),
+                },
                 ..Default::default()
             };
             let cmd = SolveCommand {

@@ -381,3 +381,7 @@ pub fn add_absorbed(set: &SurfelSet, direct: &DirectLight, stats: &mut super::So
         }
     }
 }
+
+/// What the pass gained where it was measured, for the report (README, "What a solve
+/// simulates").
+pub const MEASURED_GAIN: &str = "TO BE MEASURED";

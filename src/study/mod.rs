@@ -87,6 +87,8 @@ pub struct Plan {
     pub reference: Settings,
     /// Also run the quality presets of `voxrad solve --quality` (knob `preset`).
     pub presets: bool,
+    /// Further settings to measure as they are (knob `candidate`), such as presets being tuned.
+    pub candidates: Vec<Settings>,
     /// Probe points.
     pub probes: usize,
     pub threads: usize,
@@ -123,6 +125,7 @@ impl Plan {
                 direct: 0,
             },
             presets: true,
+            candidates: Vec::new(),
             probes: 300,
             threads: 0,
         }
@@ -150,6 +153,7 @@ impl Plan {
                 direct: 0,
             },
             presets: false,
+            candidates: Vec::new(),
             probes: 100,
             threads: 0,
         }
@@ -374,6 +378,9 @@ pub fn run(
                 },
             ));
         }
+    }
+    for &c in &plan.candidates {
+        settings.push(("candidate", c));
     }
     let mut runs = Vec::new();
     for (knob, s) in settings {
