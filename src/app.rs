@@ -278,7 +278,12 @@ fn solve_in_memory(
         3
     };
     let identity = Identity::in_memory(set, directions, channels, options.accelerate)
-        .with_direct_pass(options.direct.directions_for(set).as_ref());
+        .with_direct_pass(
+            options
+                .direct
+                .directions_for(set, directions.len())
+                .as_ref(),
+        );
     let path = checkpoint::path_in(&cmd.out);
     let resume = if cmd.checkpoint.resume {
         checkpoint::load_shared(comm, &path, &identity, options.max_iterations)

@@ -461,7 +461,7 @@ fn resume_from_every_boundary(direct: DirectPass) {
     };
     let tmp = tempfile::tempdir().unwrap();
     let identity = Identity::in_memory(&set, &directions, 3, true)
-        .with_direct_pass(direct.directions_for(&set).as_ref());
+        .with_direct_pass(direct.directions_for(&set, directions.len()).as_ref());
     let saver = |dir: &Path, resumed: Option<u64>| {
         Saver::new(dir, identity.clone(), true, Duration::ZERO, 1, resumed)
     };

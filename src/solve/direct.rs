@@ -332,7 +332,8 @@ pub enum DirectPass {
     #[default]
     Off,
     /// When the scene's emitters are small ([`small_emitters`]), with about this many dense
-    /// line directions.
+    /// line directions, fewer if that would cost more than about [`BUDGET_ITERATIONS`]
+    /// iterations ([`affordable_directions`]), none if fewer than twice the solve's own.
     Auto(usize),
     /// Always, with about this many dense line directions.
     On(usize),
@@ -348,21 +349,75 @@ pub fn small_emitters(emitting: usize, surfels: usize) -> bool {
     emitting > 0 && emitting as f64 <= SMALL_EMITTER_FRACTION * surfels as f64
 }
 
+/// The most an automatic pass may cost, in iterations of the solve (a solve to 1e-4 runs 10
+/// to 20 on the study scenes).
+pub const BUDGET_ITERATIONS: f64 = 10.0;
+
+/// Cost of the pass per emitting surfel and layer of a dense direction, against one
+/// surfel-direction update of an iteration. Measured on the Cornell box (resolution 32, 20,173
+/// dense directions against 193): 0.73 lines per emitting surfel and direction (lines through
+/// several emitters are walked once), 7 ns per voxel step against 46 ns per update, so about
+/// 1/9; rounded up.
+const WALK_STEP_PER_UPDATE: f64 = 1.0 / 8.0;
+
+/// The most dense directions an automatic pass affords: per dense direction it walks about one
+/// line per emitting surfel through `longest_axis` layers, and it may cost about
+/// [`BUDGET_ITERATIONS`] iterations of `directions` over `surfels`.
+pub fn affordable_directions(
+    emitting: usize,
+    surfels: usize,
+    longest_axis: u32,
+    directions: usize,
+) -> usize {
+    let per_direction = (emitting as f64 * longest_axis as f64 * WALK_STEP_PER_UPDATE).max(1.0);
+    (BUDGET_ITERATIONS * directions as f64 * surfels as f64 / per_direction) as usize
+}
+
+/// What a scene offers the decision: emitting surfels, all surfels, the grid's longest axis
+/// (voxels), and the solve's own line directions.
+#[derive(Clone, Copy, Debug)]
+pub struct Shape {
+    pub emitting: usize,
+    pub surfels: usize,
+    pub longest_axis: u32,
+    pub directions: usize,
+}
+
+impl Shape {
+    pub fn of(set: &SurfelSet, directions: usize) -> Self {
+        Shape {
+            emitting: super::effects::analyse(set).emitting_surfels,
+            surfels: set.surfels.len(),
+            longest_axis: set.grid.dims.into_iter().max().unwrap_or(0),
+            directions,
+        }
+    }
+}
+
 impl DirectPass {
-    /// The dense direction count the solve of a scene with `emitting` emitting surfels among
-    /// `surfels` uses, or `None` for no direct pass.
-    pub fn resolve(self, emitting: usize, surfels: usize) -> Option<usize> {
+    /// The dense direction count a solve of a scene of shape `shape` uses, or `None` for no
+    /// direct pass.
+    pub fn resolve(self, shape: Shape) -> Option<usize> {
         match self {
             DirectPass::Off | DirectPass::Auto(0) | DirectPass::On(0) => None,
-            DirectPass::Auto(n) => small_emitters(emitting, surfels).then_some(n),
+            DirectPass::Auto(n) => {
+                let affordable = affordable_directions(
+                    shape.emitting,
+                    shape.surfels,
+                    shape.longest_axis,
+                    shape.directions,
+                );
+                let n = n.min(affordable);
+                (small_emitters(shape.emitting, shape.surfels) && n >= 2 * shape.directions)
+                    .then_some(n)
+            }
             DirectPass::On(n) => Some(n),
         }
     }
 
-    /// The dense direction set of a solve of `set`, or `None`.
-    pub fn directions_for(self, set: &SurfelSet) -> Option<DirectionSet> {
-        let emitting = super::effects::analyse(set).emitting_surfels;
-        self.resolve(emitting, set.surfels.len())
+    /// The dense direction set of a solve of `set` with `directions` line directions, or `None`.
+    pub fn directions_for(self, set: &SurfelSet, directions: usize) -> Option<DirectionSet> {
+        self.resolve(Shape::of(set, directions))
             .map(DirectionSet::with_count)
     }
 }
@@ -384,4 +439,7 @@ pub fn add_absorbed(set: &SurfelSet, direct: &DirectLight, stats: &mut super::So
 
 /// What the pass gained where it was measured, for the report (README, "What a solve
 /// simulates").
-pub const MEASURED_GAIN: &str = "TO BE MEASURED";
+pub const MEASURED_GAIN: &str = "at resolution 32 with 193 bounce directions the mean error \
+     at the study's probes falls from 13.3 % to 6.7 % (the largest from 96 % to 36 %) with \
+     20,173 dense directions, for 28 % more time; 49 bounce directions with the pass (7.4 %) beat \
+     589 without it (8.6 %)";

@@ -17,7 +17,7 @@
 //! [`Analysis::effects`] turns the decisions and what the solve did into the report's `effects`
 //! list, each with why, and what it saved where that can be stated.
 
-use super::direct::DirectPass;
+use super::direct::{DirectPass, Shape};
 use super::{SolveOptions, SolveStats};
 use crate::output::report::Effect;
 use crate::voxel::SurfelSet;
@@ -38,6 +38,8 @@ pub struct Analysis {
     pub emitting_surfels: usize,
     /// All surfels.
     pub surfels: usize,
+    /// Voxels along the grid's longest axis.
+    pub longest_axis: u32,
 }
 
 /// Analyses the materials on the surfels' sides.
@@ -71,6 +73,7 @@ pub fn analyse(set: &SurfelSet) -> Analysis {
         max_reflectance: used.iter().flat_map(|m| m.reflectance).fold(0.0, f64::max),
         emitting_surfels,
         surfels: set.surfels.len(),
+        longest_axis: set.grid.dims.into_iter().max().unwrap_or(0),
     }
 }
 
@@ -86,7 +89,10 @@ impl Analysis {
     /// reflection, no pass: `B = E` reads no gathered light).
     pub fn shape(&self, options: &SolveOptions) -> SolveOptions {
         let mut shaped = options.clone();
-        shaped.direct = match options.direct.resolve(self.emitting_surfels, self.surfels) {
+        shaped.direct = match options
+            .direct
+            .resolve(self.direct_shape(options.directions))
+        {
             Some(n) if self.reflective => DirectPass::On(n),
             _ => DirectPass::Off,
         };
@@ -190,6 +196,16 @@ impl Analysis {
         list
     }
 
+    /// What the direct pass's decision reads, for a solve asking for about `directions`.
+    fn direct_shape(&self, directions: usize) -> Shape {
+        Shape {
+            emitting: self.emitting_surfels,
+            surfels: self.surfels,
+            longest_axis: self.longest_axis,
+            directions: crate::geometry::directions::DirectionSet::with_count(directions).len(),
+        }
+    }
+
     /// The report's entry for the direct-light pass (see `direct`).
     fn direct_effect(
         &self,
@@ -198,6 +214,12 @@ impl Analysis {
         unavailable: Option<&str>,
     ) -> Effect {
         const NAME: &str = "direct-light pass";
+        let affordable = super::direct::affordable_directions(
+            self.emitting_surfels,
+            self.surfels,
+            self.longest_axis,
+            stats.directions,
+        );
         let share = format!(
             "{} of {} surfels emit ({:.2} %)",
             self.emitting_surfels,
@@ -207,12 +229,22 @@ impl Analysis {
         if let Some(d) = &stats.direct {
             let why = match requested.direct {
                 DirectPass::On(_) => "requested (--direct-directions)".to_string(),
-                _ => format!(
+                DirectPass::Auto(n) => format!(
                     "small emitters (at most {:.0} % of the surfels), whose direct light aliases \
-                     into stripes with the bounces' {} directions",
+                     into stripes with the bounces' {} directions{}",
                     100.0 * super::direct::SMALL_EMITTER_FRACTION,
-                    stats.directions
+                    stats.directions,
+                    if affordable < n {
+                        format!(
+                            "; {n} dense directions asked, {affordable} afforded (the pass may \
+                             cost about {} iterations)",
+                            super::direct::BUDGET_ITERATIONS
+                        )
+                    } else {
+                        String::new()
+                    }
                 ),
+                DirectPass::Off => "(no request)".to_string(),
             };
             let gathering = stats.dispatch_seconds + stats.propagate_seconds;
             return Effect::new(
@@ -247,6 +279,15 @@ impl Analysis {
             "nothing emits".to_string()
         } else if !self.reflective {
             "every reflectance is 0: B = E reads no gathered light".to_string()
+        } else if super::direct::small_emitters(self.emitting_surfels, self.surfels) {
+            format!(
+                "{share}, small emitters, but the pass affords only {affordable} dense \
+                 directions (about {} iterations' cost: one line per emitting surfel through \
+                 {} voxels per direction), fewer than twice the solve's {}: no gain",
+                super::direct::BUDGET_ITERATIONS,
+                self.longest_axis,
+                stats.directions
+            )
         } else {
             format!(
                 "{share}, more than {:.0} %: large emitters alias little, and the pass, which \

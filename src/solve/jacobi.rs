@@ -236,7 +236,7 @@ fn run(
     // The direct light, once (see `direct`); the iterations then gather only `B - E`.
     let direct = options
         .direct
-        .directions_for(set)
+        .directions_for(set, directions.len())
         .map(|dense| super::direct::gather_direct(set, &surfels, &emission, &dense, comm, pool));
     let mut reflected = Vec::new();
 

@@ -252,6 +252,7 @@ struct Measured {
 
 fn measure(
     scene: &Scene,
+    knob: &str,
     settings: Settings,
     probes: &[(DVec3, DVec3)],
     threads: usize,
@@ -266,10 +267,12 @@ fn measure(
         tolerance: Some(settings.tolerance),
         threads,
         accelerate: settings.accelerate,
-        direct: if settings.direct > 0 {
-            crate::solve::direct::DirectPass::On(settings.direct)
-        } else {
-            crate::solve::direct::DirectPass::Off
+        // The presets as `voxrad solve --quality` runs them (the pass decided by the scene);
+        // every other run with the pass as asked.
+        direct: match (settings.direct, knob) {
+            (0, _) => crate::solve::direct::DirectPass::Off,
+            (n, "draft" | "default" | "high") => crate::solve::direct::DirectPass::Auto(n),
+            (n, _) => crate::solve::direct::DirectPass::On(n),
         },
         ..Default::default()
     });
@@ -308,7 +311,7 @@ pub fn run(
         ),
         None => {
             let r = plan.reference;
-            let m = measure(&scene.scene, r, &probes, plan.threads)?;
+            let m = measure(&scene.scene, "reference", r, &probes, plan.threads)?;
             (
                 m.values,
                 format!(
@@ -384,7 +387,7 @@ pub fn run(
     }
     let mut runs = Vec::new();
     for (knob, s) in settings {
-        let m = measure(&scene.scene, s, &probes, plan.threads)?;
+        let m = measure(&scene.scene, knob, s, &probes, plan.threads)?;
         let (mean_error, max_error) = errors(&m.values, &reference);
         let run = Run {
             knob,
