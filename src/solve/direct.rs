@@ -270,21 +270,32 @@ impl Context<'_> {
             voxel[frame.main] = layer as i32;
             voxel[frame.u] = u as i32;
             voxel[frame.v] = v as i32;
-            if let Some(&(first, end)) = self.table.map.get(&VoxelTable::key(voxel)) {
+            if let Some((first, end)) = self.table.surfels_of(voxel) {
                 members.extend(first..end);
             }
         }
     }
 }
 
-/// From a voxel to the range of its surfels (which are adjacent in a surfel set).
+/// Grids up to this many voxels get an occupancy bit per voxel (32 MiB at most).
+const MAX_BITMAP_VOXELS: u64 = 1 << 28;
+
+/// From a voxel to the range of its surfels (which are adjacent in a surfel set). Most voxels a
+/// line crosses are empty (the air of a room): an occupancy bitmap answers those without a hash
+/// look-up, where the grid is small enough for one.
 struct VoxelTable {
     map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>>,
+    dims: [u64; 3],
+    occupied: Option<Vec<u64>>,
 }
 
 impl VoxelTable {
     fn new(set: &SurfelSet) -> Self {
         let mut map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>> = HashMap::default();
+        let dims = set.grid.dims.map(u64::from);
+        let voxels = dims[0] * dims[1] * dims[2];
+        let mut occupied =
+            (voxels <= MAX_BITMAP_VOXELS).then(|| vec![0u64; voxels.div_ceil(64) as usize]);
         let s = &set.surfels;
         let mut first = 0;
         while first < s.len() {
@@ -293,9 +304,33 @@ impl VoxelTable {
                 end += 1;
             }
             map.insert(Self::key(s[first].voxel), (first as u32, end as u32));
+            if let Some(bits) = occupied.as_mut() {
+                let at = Self::linear(dims, s[first].voxel);
+                bits[(at / 64) as usize] |= 1 << (at % 64);
+            }
             first = end;
         }
-        VoxelTable { map }
+        VoxelTable {
+            map,
+            dims,
+            occupied,
+        }
+    }
+
+    fn linear(dims: [u64; 3], voxel: [i32; 3]) -> u64 {
+        (voxel[2] as u64 * dims[1] + voxel[1] as u64) * dims[0] + voxel[0] as u64
+    }
+
+    /// The surfels of `voxel` (inside the grid), if any.
+    #[inline]
+    fn surfels_of(&self, voxel: [i32; 3]) -> Option<(u32, u32)> {
+        if let Some(bits) = &self.occupied {
+            let at = Self::linear(self.dims, voxel);
+            if bits[(at / 64) as usize] & (1 << (at % 64)) == 0 {
+                return None;
+            }
+        }
+        self.map.get(&Self::key(voxel)).copied()
     }
 
     /// Voxel coordinates are below 2^21 (the grid limit), so three fit one key.
