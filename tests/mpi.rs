@@ -591,6 +591,9 @@ fn shard_sets_solve_in_every_mode() {
                 "3",
                 "--threads",
                 "1",
+                // Plain in every mode (the data and hybrid modes have no direct-light pass).
+                "--direct-directions",
+                "0",
                 "--distribute",
                 mode,
             ],
