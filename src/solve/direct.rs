@@ -333,8 +333,9 @@ impl VoxelTable {
         self.map.get(&Self::key(voxel)).copied()
     }
 
-    /// Voxel coordinates are below 2^21 (the grid limit), so three fit one key.
+    /// Voxel coordinates are below `voxelize::MAX_GRID_EDGE` (2^20), so three fit one key.
     fn key(voxel: [i32; 3]) -> u64 {
+        const _: () = assert!(crate::voxel::voxelize::MAX_GRID_EDGE <= 1 << 21);
         voxel[0] as u64 | (voxel[1] as u64) << 21 | (voxel[2] as u64) << 42
     }
 }
@@ -478,3 +479,64 @@ pub const MEASURED_GAIN: &str = "at resolution 32 with 193 bounce directions the
      at the study's probes falls from 13.3 % to 6.7 % (the largest from 96 % to 36 %) with \
      20,173 dense directions, for 28 % more time; 49 bounce directions with the pass (7.4 %) beat \
      589 without it (8.6 %)";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shape(emitting: usize, surfels: usize, longest_axis: u32, directions: usize) -> Shape {
+        Shape {
+            emitting,
+            surfels,
+            longest_axis,
+            directions,
+        }
+    }
+
+    #[test]
+    fn automatic_pass_only_for_small_affordable_emitters() {
+        // The Cornell box at resolution 32: 48 of 6,718 surfels emit.
+        let cornell = shape(48, 6718, 32, 193);
+        assert_eq!(DirectPass::Auto(20_000).resolve(cornell), Some(20_000));
+        // Every surfel emits (a furnace): no pass.
+        assert_eq!(
+            DirectPass::Auto(20_000).resolve(shape(100, 100, 8, 49)),
+            None
+        );
+        // Asked for more than the budget: capped to what about ten iterations cost.
+        let capped = DirectPass::Auto(1_000_000).resolve(cornell).unwrap();
+        assert_eq!(capped, affordable_directions(48, 6718, 32, 193));
+        assert!(capped > 20_000 && capped < 1_000_000);
+        // Many small lamps in a huge grid: the budget leaves fewer than twice the solve's own
+        // directions, no gain.
+        assert_eq!(
+            DirectPass::Auto(20_000).resolve(shape(40_000, 1_000_000, 4000, 49)),
+            None
+        );
+        // Asked for explicitly: always, as asked; 0 never.
+        assert_eq!(
+            DirectPass::On(500).resolve(shape(100, 100, 8, 49)),
+            Some(500)
+        );
+        assert_eq!(DirectPass::On(0).resolve(cornell), None);
+        assert_eq!(DirectPass::Off.resolve(cornell), None);
+    }
+
+    #[test]
+    fn voxel_keys_are_distinct_up_to_the_grid_limit() {
+        let edge = (1 << 21) - 1;
+        let keys = [
+            VoxelTable::key([0, 0, 0]),
+            VoxelTable::key([edge, 0, 0]),
+            VoxelTable::key([0, edge, 0]),
+            VoxelTable::key([0, 0, edge]),
+            VoxelTable::key([1, 1, 1]),
+            VoxelTable::key([edge, edge, edge]),
+        ];
+        for (i, a) in keys.iter().enumerate() {
+            for b in &keys[i + 1..] {
+                assert_ne!(a, b);
+            }
+        }
+    }
+}
