@@ -19,6 +19,13 @@
 //! table from voxel to surfels, and gathered exactly as `propagate` gathers any line. The pass
 //! costs about (emitter lines) x (line length) per direction instead of the whole surfel set.
 //!
+//! **When** ([`DirectPass`]): asked for with a count, or automatically where the emitters are
+//! small ([`small_emitters`]: at most 5 % of the surfels emit), capped to what about
+//! [`BUDGET_ITERATIONS`] iterations cost ([`affordable_directions`]). The in-memory solver runs it
+//! (on one process or dealing its directions over ranks); the out-of-core solver and the data
+//! and hybrid modes do not have it yet. A stop signal during the pass is answered at the first
+//! direction after it.
+//!
 //! **Determinism.** Directions are taken in blocks; a block's directions run in parallel, each
 //! returning its receivers' contributions, which are then added in direction order: the result
 //! does not depend on the thread count, and a resumed solve recomputes it bit for bit.
