@@ -259,6 +259,10 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     }
 }
 
+/// Largest `--direct-directions`: far past any measured gain (README, "What a solve
+/// simulates"), and a typo of a few digits more would otherwise run for hours.
+const MAX_DIRECT_DIRECTIONS: usize = 1_000_000;
+
 fn run(cli: Cli) -> Result<(), AppError> {
     match cli.command {
         Command::Solve {
@@ -311,6 +315,13 @@ fn run(cli: Cli) -> Result<(), AppError> {
                         "--tolerance {t}: must be a positive number"
                     )));
                 }
+            }
+            if direct_directions.is_some_and(|n| n > MAX_DIRECT_DIRECTIONS) {
+                return Err(AppError::BadInput(format!(
+                    "--direct-directions {}: at most {MAX_DIRECT_DIRECTIONS} (80,000 already \
+                     leaves the directions' error below the voxels')",
+                    direct_directions.unwrap_or(0)
+                )));
             }
             if directions == 0 {
                 return Err(AppError::BadInput(
