@@ -284,3 +284,23 @@ fn auto_applies_to_small_emitters_only() {
     let (_, lamp) = run(&lamp_over_floor(0.06, 0.7, 1.0, 0.5), 32, auto);
     assert!(lamp.stats.direct.is_some(), "a lamp of a few surfels");
 }
+
+#[test]
+fn grey_scene_solved_once_gives_the_three_channel_answer() {
+    // One channel solved and copied (grey materials) must stay the three-channel answer, bit for
+    // bit, with the pass's direct light added to it.
+    let scene = lamp_over_floor(0.1, 0.7, 10.0, 0.6);
+    let options = |grey| SolveOptions {
+        directions: 49,
+        tolerance: Some(1e-5),
+        direct: DirectPass::On(2000),
+        grey,
+        ..Default::default()
+    };
+    let set = voxelize(&scene, GridSpec::Resolution(16)).unwrap();
+    let three = solve(&set, &options(false)).unwrap();
+    let one = solve(&set, &options(true)).unwrap();
+    assert_eq!(one.stats.channels, 1);
+    assert_eq!(one.radiosity, three.radiosity);
+    assert_eq!(one.stats.absorbed_power, three.stats.absorbed_power);
+}
