@@ -264,6 +264,7 @@ fn report_lists_the_effects_the_scene_calls_for() {
     let coloured = report_for(&lamp_room([0.7, 0.2, 0.1]), "coloured");
     assert!(simulated(&coloured, "colour"));
     assert!(simulated(&coloured, "direct-light pass"));
+    assert!(coloured.seconds["direct"] > 0.0);
     // The data mode's loop has no direct pass, and says so.
     let data = report_in(
         &lamp_room([0.7, 0.2, 0.1]),
