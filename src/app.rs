@@ -174,7 +174,21 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
 
     // Simulate only what the scene calls for (see `solve::effects`).
     let analysis = crate::solve::effects::analyse(&set);
-    let shaped = analysis.shape(&cmd.solve);
+    let mut shaped = analysis.shape(&cmd.solve);
+    // The data and hybrid modes' loop gathers B whole (their ranks own lines, not directions).
+    let direct_unavailable = match mode {
+        Mode::Data { .. } | Mode::Hybrid { .. }
+            if shaped.direct != crate::solve::direct::DirectPass::Off =>
+        {
+            shaped.direct = crate::solve::direct::DirectPass::Off;
+            Some(format!(
+                "--distribute {} gathers every light along the solve's directions (no direct \
+                 pass in the data and hybrid modes yet; --distribute directions has it)",
+                mode.name()
+            ))
+        }
+        _ => None,
+    };
     let directions = DirectionSet::with_count(shaped.directions);
     let t = Instant::now();
     let solution = solve_in_memory(cmd, &set, &directions, &shaped, comm, mode)?;
@@ -227,7 +241,11 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     report.set_phase("reduce", stats.reduce_seconds);
     // The whole solve call (set-up, iterations, communication): what a speed-up compares.
     report.set_phase("solve", solve_seconds);
-    report.effects = analysis.effects(&cmd.solve, stats);
+    report.effects = analysis.effects(&cmd.solve, stats, direct_unavailable.as_deref());
+    if let Some(direct) = &stats.direct {
+        // Inside "solve": the direct-light pass, before the iterations.
+        report.set_phase("direct", direct.seconds);
+    }
     report.set_phase("read", read_seconds);
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);
@@ -263,7 +281,13 @@ fn solve_in_memory(
     } else {
         3
     };
-    let identity = Identity::in_memory(set, directions, channels, options.accelerate);
+    let identity = Identity::in_memory(set, directions, channels, options.accelerate)
+        .with_direct_pass(
+            options
+                .direct
+                .directions_for(set, directions.len())
+                .as_ref(),
+        );
     let path = checkpoint::path_in(&cmd.out);
     let resume = if cmd.checkpoint.resume {
         checkpoint::load_shared(comm, &path, &identity, options.max_iterations)
@@ -416,6 +440,8 @@ fn analyse_source(
     }
     let mut analysis = crate::solve::effects::analyse_sides(&info.materials, sides.into_iter());
     analysis.emitting_surfels = emitting_surfels;
+    analysis.surfels = info.count as usize;
+    analysis.longest_axis = info.grid.dims.into_iter().max().unwrap_or(0);
     Ok(analysis)
 }
 
@@ -648,7 +674,11 @@ fn solve_out_of_core_to(
         bytes_written_per_voxel_direction: stats.bytes_written as f64 / updates,
         bands: stats.bands,
     });
-    report.effects = analysis.effects(&cmd.solve, &stats.solve);
+    report.effects = analysis.effects(
+        &cmd.solve,
+        &stats.solve,
+        Some("the out-of-core solver gathers all light along the solve's directions (no direct pass out of core yet)"),
+    );
     report.effects.push(Effect::new(
         "out of core",
         true,

@@ -458,9 +458,10 @@ fn a_failed_solve_keeps_the_earlier_result() {
 
     let nan = write(d, "nan.obj", "v 0 0 0\nv 1 0 0\nv 0 nan 0\nf 1 2 3\n");
     let furnace = s(&d.join("furnace.obj"));
-    let bad_runs: [Vec<&str>; 3] = [
+    let bad_runs: [Vec<&str>; 4] = [
         vec!["solve", furnace.as_str(), "--resolution", "1"],
         vec!["solve", furnace.as_str(), "--directions", "0"],
+        vec!["solve", furnace.as_str(), "--direct-directions", "5000000"],
         vec!["solve", nan.to_str().unwrap()],
     ];
     let out_s = s(&out);

@@ -11,6 +11,8 @@ use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::output::results::read_results;
+use voxrad::quality::Quality;
+use voxrad::solve::direct::DirectPass;
 use voxrad::solve::jacobi::solve_with;
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
@@ -81,10 +83,13 @@ fn directions_mode_matches_one_process_for_1_to_4_ranks() {
         max_iterations: 4,
         tolerance: None,
         threads: 1,
-        // As the command line runs `--iterations` without `--tolerance`: plain iterations.
+        // As the command line runs `--iterations` without `--tolerance`: plain iterations, and
+        // the default preset's direct-light pass, whose dense directions are dealt out too.
+        direct: DirectPass::Auto(Quality::Default.preset().direct),
         ..SolveOptions::default()
     };
     let reference = solve_with(&set, &DirectionSet::with_count(49), &options).unwrap();
+    assert!(reference.stats.direct.is_some());
     let tmp = tempfile::tempdir().unwrap();
     for ranks in 1..=4 {
         let out = tmp.path().join(format!("ranks{ranks}"));
@@ -265,6 +270,8 @@ fn large_sums_across_ranks_match_one_process() {
             "2",
             "--threads",
             "1",
+            "--direct-directions",
+            "0",
             "--distribute",
             "directions",
         ],
@@ -739,6 +746,9 @@ fn shard_sets_solve_in_every_mode() {
                 "3",
                 "--threads",
                 "1",
+                // Plain in every mode (the data and hybrid modes have no direct-light pass).
+                "--direct-directions",
+                "0",
                 "--distribute",
                 mode,
             ],

@@ -14,6 +14,7 @@ use voxrad::checkpoint::{self, CheckpointFile, Identity, Saver};
 use voxrad::distribute::SingleProcess;
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::outcore::{solve_out_of_core_checkpointed, InMemorySource, OocCheckpoints};
+use voxrad::solve::direct::DirectPass;
 use voxrad::solve::jacobi::{solve_checkpointed, solve_with, Checkpoints};
 use voxrad::solve::SolveOptions;
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
@@ -522,6 +523,18 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
             &["another run", "directions"],
         ),
         (
+            "other direct-light pass",
+            good.clone(),
+            &["--direct-directions", "3000"],
+            &["another run", "direct-light pass"],
+        ),
+        (
+            "no direct-light pass",
+            good.clone(),
+            &["--direct-directions", "0"],
+            &["another run", "direct-light pass"],
+        ),
+        (
             "other resolution",
             good.clone(),
             &["--resolution", "24"],
@@ -562,6 +575,16 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
 /// default preset's extrapolation is on, so boundaries before, at and after a jump are covered.
 #[test]
 fn resuming_from_every_iteration_boundary_is_bit_identical() {
+    resume_from_every_boundary(DirectPass::Off);
+}
+
+/// The same with the direct-light pass, which a resumed solve recomputes (`solve::direct`).
+#[test]
+fn resuming_with_the_direct_pass_from_every_boundary_is_bit_identical() {
+    resume_from_every_boundary(DirectPass::On(3000));
+}
+
+fn resume_from_every_boundary(direct: DirectPass) {
     let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
     let set = voxelize(&scene, GridSpec::Resolution(16)).unwrap();
     let directions = DirectionSet::with_count(49);
@@ -570,6 +593,7 @@ fn resuming_from_every_iteration_boundary_is_bit_identical() {
         tolerance: Some(1e-6),
         threads: 2,
         accelerate: true,
+        direct,
         ..SolveOptions::default()
     };
     let reference = solve_with(&set, &directions, &options).unwrap();
@@ -582,7 +606,8 @@ fn resuming_from_every_iteration_boundary_is_bit_identical() {
         r.iter().flatten().flatten().map(|v| v.to_bits()).collect()
     };
     let tmp = tempfile::tempdir().unwrap();
-    let identity = Identity::in_memory(&set, &directions, 3, true);
+    let identity = Identity::in_memory(&set, &directions, 3, true)
+        .with_direct_pass(direct.directions_for(&set, directions.len()).as_ref());
     let saver = |dir: &Path, resumed: Option<u64>| {
         Saver::new(dir, identity.clone(), true, Duration::ZERO, 1, resumed)
     };

@@ -219,9 +219,11 @@ fn extrapolation_at_reflectance_0_999() {
 
 #[test]
 fn report_lists_the_effects_the_scene_calls_for() {
-    use voxrad::app::{run_solve, SolveCommand};
+    use voxrad::app::{run_solve_on, SolveCommand};
+    use voxrad::distribute::{Mode, SingleProcess};
+    use voxrad::solve::direct::DirectPass;
     let dir = tempfile::tempdir().unwrap();
-    let report_for = |scene: &Scene, name: &str| {
+    let report_in = |scene: &Scene, name: &str, mode: Mode| {
         let obj = dir.path().join(format!("{name}.obj"));
         voxrad::gen::write_obj(scene, &obj).unwrap();
         let cmd = SolveCommand {
@@ -232,14 +234,16 @@ fn report_lists_the_effects_the_scene_calls_for() {
                 directions: 13,
                 threads: 2,
                 accelerate: true,
+                direct: DirectPass::Auto(2000),
                 ..Default::default()
             },
             image_size: (32, 24),
             memory: None,
             checkpoint: Default::default(),
         };
-        run_solve(&cmd).unwrap()
+        run_solve_on(&cmd, &SingleProcess, mode).unwrap()
     };
+    let report_for = |scene: &Scene, name: &str| report_in(scene, name, Mode::Single);
     let simulated = |r: &voxrad::output::Report, name: &str| {
         r.effects
             .iter()
@@ -253,10 +257,28 @@ fn report_lists_the_effects_the_scene_calls_for() {
     assert!(simulated(&grey, "interreflection"));
     assert!(!simulated(&grey, "colour"));
     assert!(simulated(&grey, "tail extrapolation"));
+    // Every surfel emits: no direct-light pass.
+    assert!(!simulated(&grey, "direct-light pass"));
     assert!(grey.energy.balance.abs() < 1e-3, "{:?}", grey.energy);
-    // A coloured room: three channels.
+    // A coloured room: three channels; its lamp is small, so its direct light has its own pass.
     let coloured = report_for(&lamp_room([0.7, 0.2, 0.1]), "coloured");
     assert!(simulated(&coloured, "colour"));
+    assert!(simulated(&coloured, "direct-light pass"));
+    assert!(coloured.seconds["direct"] > 0.0);
+    // The data mode's loop has no direct pass, and says so.
+    let data = report_in(
+        &lamp_room([0.7, 0.2, 0.1]),
+        "data",
+        Mode::Data { compress: false },
+    );
+    assert!(!simulated(&data, "direct-light pass"));
+    let why = &data
+        .effects
+        .iter()
+        .find(|e| e.name == "direct-light pass")
+        .unwrap()
+        .why;
+    assert!(why.contains("not applied"), "{why}");
     // Nothing emits: nothing solved.
     let dark = report_for(&common::furnace(0.0, 0.9), "dark");
     assert!(!simulated(&dark, "direct light"));

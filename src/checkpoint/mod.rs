@@ -115,6 +115,20 @@ impl Identity {
         }
     }
 
+    /// The identity of a solve that also runs the direct-light pass over `dense` (see
+    /// `solve::direct`): its direct light changes every iteration's answer, so its direction set
+    /// joins the directions' checksum.
+    pub fn with_direct_pass(mut self, dense: Option<&DirectionSet>) -> Self {
+        if let Some(dense) = dense {
+            let mut h = crc32fast::Hasher::new();
+            h.update(&self.directions_checksum.to_le_bytes());
+            h.update(b"direct");
+            h.update(&directions_checksum(dense).to_le_bytes());
+            self.directions_checksum = h.finalize();
+        }
+        self
+    }
+
     /// How `self` (the checkpoint's) differs from `this` (the run's), in words.
     fn mismatch(&self, this: &Identity) -> Option<String> {
         if self.solver != this.solver {
@@ -133,13 +147,18 @@ impl Identity {
                 self.voxel_size, this.voxel_size
             ));
         }
-        if self.directions != this.directions
-            || self.directions_checksum != this.directions_checksum
-        {
+        if self.directions != this.directions {
             return Some(format!(
                 "it is for {} directions, and this run uses {} (another --directions or \
                  --quality?)",
                 self.directions, this.directions
+            ));
+        }
+        if self.directions_checksum != this.directions_checksum {
+            return Some(format!(
+                "it is for {} directions but another direction set or direct-light pass \
+                 (another --direct-directions or --quality?)",
+                self.directions
             ));
         }
         if self.surfels != this.surfels || self.scene_checksum != this.scene_checksum {

@@ -7,12 +7,17 @@
 //! - **every reflectance 0**: light does not bounce, so one pass gives `B = E` (direct light only);
 //! - **grey** (every used reflectance and emission equal in its three channels): the three RGB
 //!   solves are the same solve, so one channel is solved and copied to the others;
+//! - **small emitters** (emitting surfels at most 5 % of all, `direct::small_emitters`): their
+//!   direct light is gathered once with a dense direction set from their own lines, and the
+//!   iterations gather only the reflected light (`direct`); larger emitters alias less and would
+//!   make the pass cost about a full pass per dense direction;
 //! - otherwise iterations run until the scene's own convergence (the contraction-aware tolerance
 //!   rule in `jacobi`), not a fixed count.
 //!
 //! [`Analysis::effects`] turns the decisions and what the solve did into the report's `effects`
 //! list, each with why, and what it saved where that can be stated.
 
+use super::direct::{DirectPass, Shape};
 use super::{SolveOptions, SolveStats};
 use crate::output::report::Effect;
 use crate::voxel::SurfelSet;
@@ -31,22 +36,30 @@ pub struct Analysis {
     pub max_reflectance: f64,
     /// Surfels with an emitting side.
     pub emitting_surfels: usize,
+    /// All surfels.
+    pub surfels: usize,
+    /// Voxels along the grid's longest axis.
+    pub longest_axis: u32,
 }
 
 /// Analyses the materials on the surfels' sides.
 pub fn analyse(set: &SurfelSet) -> Analysis {
-    analyse_sides(&set.materials, set.surfels.iter().map(|s| s.material))
+    let mut analysis = analyse_sides(&set.materials, set.surfels.iter().map(|s| s.material));
+    analysis.longest_axis = set.grid.dims.into_iter().max().unwrap_or(0);
+    analysis
 }
 
 /// Analyses the materials a stream of surfels carries on their sides (`sides`: each surfel's
 /// front and back material index into `materials`), for solvers that never hold the surfels.
+/// The grid's longest axis is left 0 for the caller to set.
 pub fn analyse_sides(
     materials: &[crate::scene::Material],
     sides: impl Iterator<Item = [u32; 2]>,
 ) -> Analysis {
     let mut used = vec![false; materials.len()];
-    let mut emitting_surfels = 0;
+    let (mut emitting_surfels, mut surfels) = (0, 0);
     for pair in sides {
+        surfels += 1;
         let mut emits = false;
         for m in pair {
             if let Some(u) = used.get_mut(m as usize) {
@@ -71,6 +84,8 @@ pub fn analyse_sides(
             .all(|m| equal(&m.reflectance) && equal(&m.emission)),
         max_reflectance: used.iter().flat_map(|m| m.reflectance).fold(0.0, f64::max),
         emitting_surfels,
+        surfels,
+        longest_axis: 0,
     }
 }
 
@@ -82,9 +97,17 @@ pub fn is_grey(set: &SurfelSet) -> bool {
 
 impl Analysis {
     /// The options shaped by the analysis: no emitter, no iteration; no reflection, one pass;
-    /// grey, one channel.
+    /// grey, one channel; the direct pass decided (`DirectPass::Auto` becomes on or off; no
+    /// reflection, no pass: `B = E` reads no gathered light).
     pub fn shape(&self, options: &SolveOptions) -> SolveOptions {
         let mut shaped = options.clone();
+        shaped.direct = match options
+            .direct
+            .resolve(self.direct_shape(options.directions))
+        {
+            Some(n) if self.reflective => DirectPass::On(n),
+            _ => DirectPass::Off,
+        };
         if !self.emitters {
             shaped.max_iterations = 0;
         } else if !self.reflective {
@@ -95,13 +118,25 @@ impl Analysis {
     }
 
     /// The report's list of effects for a solve shaped by [`Analysis::shape`] from `requested`,
-    /// with what it did (`stats`).
-    pub fn effects(&self, requested: &SolveOptions, stats: &SolveStats) -> Vec<Effect> {
+    /// with what it did (`stats`); `direct_unavailable` says why the solve could not run the
+    /// direct pass (its mode), if so.
+    pub fn effects(
+        &self,
+        requested: &SolveOptions,
+        stats: &SolveStats,
+        direct_unavailable: Option<&str>,
+    ) -> Vec<Effect> {
         let mut list = Vec::new();
         list.push(Effect::new(
             "direct light",
             self.emitters,
-            &if self.emitters {
+            &if let Some(d) = &stats.direct {
+                format!(
+                    "{} surfels emit (Ke > 0); gathered along {} dense line directions (the \
+                     direct-light pass)",
+                    self.emitting_surfels, d.directions
+                )
+            } else if self.emitters {
                 format!(
                     "{} surfels emit (Ke > 0); gathered along {} line directions",
                     self.emitting_surfels, stats.directions
@@ -151,6 +186,7 @@ impl Analysis {
                 "some material has unequal RGB channels: three channels solved"
             },
         ));
+        list.push(self.direct_effect(requested, stats, direct_unavailable));
         if bounces {
             list.push(Effect::new(
                 "tail extrapolation",
@@ -170,6 +206,109 @@ impl Analysis {
             ));
         }
         list
+    }
+
+    /// What the direct pass's decision reads, for a solve asking for about `directions`.
+    fn direct_shape(&self, directions: usize) -> Shape {
+        Shape {
+            emitting: self.emitting_surfels,
+            surfels: self.surfels,
+            longest_axis: self.longest_axis,
+            directions: crate::geometry::directions::DirectionSet::with_count(directions).len(),
+        }
+    }
+
+    /// The report's entry for the direct-light pass (see `direct`).
+    fn direct_effect(
+        &self,
+        requested: &SolveOptions,
+        stats: &SolveStats,
+        unavailable: Option<&str>,
+    ) -> Effect {
+        const NAME: &str = "direct-light pass";
+        let affordable = super::direct::affordable_directions(
+            self.emitting_surfels,
+            self.surfels,
+            self.longest_axis,
+            stats.directions,
+        );
+        let share = format!(
+            "{} of {} surfels emit ({:.2} %)",
+            self.emitting_surfels,
+            self.surfels,
+            100.0 * self.emitting_surfels as f64 / self.surfels.max(1) as f64
+        );
+        if let Some(d) = &stats.direct {
+            let why = match requested.direct {
+                DirectPass::On(_) => "requested (--direct-directions)".to_string(),
+                DirectPass::Auto(n) => format!(
+                    "small emitters (at most {:.0} % of the surfels), whose direct light aliases \
+                     into stripes with the bounces' {} directions{}",
+                    100.0 * super::direct::SMALL_EMITTER_FRACTION,
+                    stats.directions,
+                    if affordable < n {
+                        format!(
+                            "; {n} dense directions asked, {affordable} afforded (the pass may \
+                             cost about {} iterations)",
+                            super::direct::BUDGET_ITERATIONS
+                        )
+                    } else {
+                        String::new()
+                    }
+                ),
+                DirectPass::Off => "(no request)".to_string(),
+            };
+            let gathering = stats.dispatch_seconds + stats.propagate_seconds;
+            return Effect::new(
+                NAME,
+                true,
+                &format!(
+                    "{share}: {why}. Their direct light was gathered once along {} dense line \
+                     directions from the {} lines through them only ({:.3} s, against {:.3} s \
+                     for the {} iterations' gathering), and the iterations gathered only the \
+                     reflected light B - E along {} directions. Measured on the Cornell box \
+                     (README, \"What a solve simulates\"): {}",
+                    d.directions,
+                    d.lines,
+                    d.seconds,
+                    gathering,
+                    stats.iterations,
+                    stats.directions,
+                    super::direct::MEASURED_GAIN
+                ),
+            );
+        }
+        let why = if let Some(reason) = unavailable {
+            format!("not applied: {reason}")
+        } else if matches!(
+            requested.direct,
+            DirectPass::Off | DirectPass::On(0) | DirectPass::Auto(0)
+        ) {
+            "not requested (--direct-directions 0): the emitters' light is gathered with the \
+             iterations' directions"
+                .to_string()
+        } else if !self.emitters {
+            "nothing emits".to_string()
+        } else if !self.reflective {
+            "every reflectance is 0: B = E reads no gathered light".to_string()
+        } else if super::direct::small_emitters(self.emitting_surfels, self.surfels) {
+            format!(
+                "{share}, small emitters, but the pass affords only {affordable} dense \
+                 directions (about {} iterations' cost: one line per emitting surfel through \
+                 {} voxels per direction), fewer than twice the solve's {}: no gain",
+                super::direct::BUDGET_ITERATIONS,
+                self.longest_axis,
+                stats.directions
+            )
+        } else {
+            format!(
+                "{share}, more than {:.0} %: large emitters alias little, and the pass, which \
+                 builds the lines through every emitting surfel, would cost about a full pass \
+                 per dense direction",
+                100.0 * super::direct::SMALL_EMITTER_FRACTION
+            )
+        };
+        Effect::new(NAME, false, &why)
     }
 }
 

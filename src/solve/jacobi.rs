@@ -48,6 +48,8 @@ pub struct SolveOptions {
     pub grey: bool,
     /// Extrapolate the geometric tail of the iterations (see `accelerate`).
     pub accelerate: bool,
+    /// Gather the emitters' own light once with a dense direction set (see `direct`).
+    pub direct: super::direct::DirectPass,
 }
 
 impl Default for SolveOptions {
@@ -59,6 +61,7 @@ impl Default for SolveOptions {
             threads: 0,
             grey: false,
             accelerate: false,
+            direct: super::direct::DirectPass::Off,
         }
     }
 }
@@ -232,6 +235,12 @@ fn run(
         .collect();
 
     let (emission, reflectance) = material_tables(set);
+    // The direct light, once (see `direct`); the iterations then gather only `B - E`.
+    let direct = options
+        .direct
+        .directions_for(set, directions.len())
+        .map(|dense| super::direct::gather_direct(set, &surfels, &emission, &dense, comm, pool));
+    let mut reflected = Vec::new();
 
     let channels = if options.grey && super::effects::is_grey(set) {
         1
@@ -312,6 +321,9 @@ fn run(
                 0
             }
         };
+        if let Some(d) = &direct {
+            d.reflected(&radiosity, &emission, &mut reflected);
+        }
         progress.reset();
         progress.set_position(start as u64);
         progress.set_message(format!("iteration {iteration}"));
@@ -359,7 +371,11 @@ fn run(
                     unit: d.unit,
                     weight: d.solid_angle / std::f64::consts::PI,
                     surfels: &surfels,
-                    radiosity: &radiosity,
+                    radiosity: if direct.is_some() {
+                        &reflected
+                    } else {
+                        &radiosity
+                    },
                     channels,
                 };
                 gather_all_lines(&lines, &input, &mut acc, threads);
@@ -417,8 +433,11 @@ fn run(
             let area = s.area as f64;
             for side in 0..2 {
                 for ch in 0..channels {
-                    let b = emission[k][side][ch] as f64
+                    let mut b = emission[k][side][ch] as f64
                         + reflectance[k][side][ch] * acc[k][side][ch] / norm;
+                    if let Some(d) = &direct {
+                        b += reflectance[k][side][ch] * d.irradiance[k][side][ch];
+                    }
                     change += area * (b - radiosity[k][side][ch] as f64).abs();
                     total += area * b;
                     radiosity[k][side][ch] = b as f32;
@@ -478,6 +497,10 @@ fn run(
         stats.per_rank_seconds = table.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
     }
     energy(set, &acc, &cosine_sum, &mut stats);
+    if let Some(d) = direct {
+        super::direct::add_absorbed(set, &d, &mut stats);
+        stats.direct = Some(d.stats);
+    }
     Ok(Solution { radiosity, stats })
 }
 

@@ -7,6 +7,7 @@
 
 pub mod accelerate;
 pub mod coverage;
+pub mod direct;
 pub mod dispatch;
 pub mod effects;
 pub mod jacobi;
@@ -57,4 +58,6 @@ pub struct SolveStats {
     pub data: Option<crate::distribute::data::DataStats>,
     /// The iteration of the checkpoint this solve continued from (`--resume`).
     pub resumed_from_iteration: Option<usize>,
+    /// The direct-light pass, where it ran (see `direct`).
+    pub direct: Option<direct::DirectStats>,
 }

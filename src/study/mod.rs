@@ -68,6 +68,8 @@ pub struct Settings {
     pub directions: usize,
     pub tolerance: f64,
     pub accelerate: bool,
+    /// Dense line directions of the direct-light pass (`solve::direct`); 0: no direct pass.
+    pub direct: usize,
 }
 
 /// What to sweep.
@@ -78,10 +80,15 @@ pub struct Plan {
     pub directions: Vec<usize>,
     pub tolerances: Vec<f64>,
     pub resolutions: Vec<u32>,
+    /// (bounce directions, dense directions) pairs run with the direct-light pass (knob
+    /// `direct`).
+    pub direct: Vec<(usize, usize)>,
     /// The reference run, for scenes without an analytic answer.
     pub reference: Settings,
     /// Also run the quality presets of `voxrad solve --quality` (knob `preset`).
     pub presets: bool,
+    /// Further settings to measure as they are (knob `candidate`), such as presets being tuned.
+    pub candidates: Vec<Settings>,
     /// Probe points.
     pub probes: usize,
     pub threads: usize,
@@ -97,17 +104,28 @@ impl Plan {
                 directions: 193,
                 tolerance: 1e-5,
                 accelerate: false,
+                direct: 0,
             },
             directions: vec![13, 49, 109, 193, 301, 589, 1201],
             tolerances: vec![3e-1, 1e-1, 3e-2, 1e-2, 1e-3, 1e-4, 1e-5],
             resolutions: vec![16, 24, 32, 48],
+            direct: vec![
+                (49, 20_000),
+                (109, 20_000),
+                (193, 5_000),
+                (193, 20_000),
+                (193, 80_000),
+                (589, 20_000),
+            ],
             reference: Settings {
                 resolution: 64,
                 directions: 2401,
                 tolerance: 1e-6,
                 accelerate: true,
+                direct: 0,
             },
             presets: true,
+            candidates: Vec::new(),
             probes: 300,
             threads: 0,
         }
@@ -121,17 +139,21 @@ impl Plan {
                 directions: 49,
                 tolerance: 1e-5,
                 accelerate: false,
+                direct: 0,
             },
             directions: vec![13, 49, 193],
             tolerances: vec![1e-1, 1e-2, 1e-4],
             resolutions: vec![12, 16, 24],
+            direct: vec![(49, 5_000)],
             reference: Settings {
                 resolution: 32,
                 directions: 301,
                 tolerance: 1e-6,
                 accelerate: true,
+                direct: 0,
             },
             presets: false,
+            candidates: Vec::new(),
             probes: 100,
             threads: 0,
         }
@@ -147,6 +169,8 @@ pub struct Run {
     pub settings: Settings,
     /// Line directions actually used (the cube set nearest the request).
     pub directions_used: usize,
+    /// Dense line directions the direct-light pass used (0: none).
+    pub direct_used: usize,
     pub surfels: usize,
     pub iterations: usize,
     /// Voxelize + solve, wall clock.
@@ -220,6 +244,7 @@ pub fn probe_points(scene: &Scene, count: usize, seed: u64) -> Vec<(DVec3, DVec3
 struct Measured {
     values: Vec<Option<f64>>,
     directions: usize,
+    direct: usize,
     surfels: usize,
     iterations: usize,
     seconds: f64,
@@ -227,6 +252,7 @@ struct Measured {
 
 fn measure(
     scene: &Scene,
+    knob: &str,
     settings: Settings,
     probes: &[(DVec3, DVec3)],
     threads: usize,
@@ -241,6 +267,13 @@ fn measure(
         tolerance: Some(settings.tolerance),
         threads,
         accelerate: settings.accelerate,
+        // The presets as `voxrad solve --quality` runs them (the pass decided by the scene);
+        // every other run with the pass as asked.
+        direct: match (settings.direct, knob) {
+            (0, _) => crate::solve::direct::DirectPass::Off,
+            (n, "draft" | "default" | "high") => crate::solve::direct::DirectPass::Auto(n),
+            (n, _) => crate::solve::direct::DirectPass::On(n),
+        },
         ..Default::default()
     });
     let solution = solve(&set, &options).map_err(|e| e.to_string())?;
@@ -257,6 +290,7 @@ fn measure(
     Ok(Measured {
         values,
         directions: solution.stats.directions,
+        direct: solution.stats.direct.as_ref().map_or(0, |d| d.directions),
         surfels: set.surfels.len(),
         iterations: solution.stats.iterations,
         seconds,
@@ -277,14 +311,24 @@ pub fn run(
         ),
         None => {
             let r = plan.reference;
-            let m = measure(&scene.scene, r, &probes, plan.threads)?;
+            let m = measure(&scene.scene, "reference", r, &probes, plan.threads)?;
             (
                 m.values,
                 format!(
-                    "a converged run at much higher settings: resolution {}, {} directions, \
+                    "a converged run at much higher settings: resolution {}, {} directions{}, \
                      tolerance {:.0e} ({} iterations with tail extrapolation, {} surfels, \
                      {:.1} s)",
-                    r.resolution, m.directions, r.tolerance, m.iterations, m.surfels, m.seconds
+                    r.resolution,
+                    m.directions,
+                    if m.direct > 0 {
+                        format!(" and a direct-light pass of {} directions", m.direct)
+                    } else {
+                        String::new()
+                    },
+                    r.tolerance,
+                    m.iterations,
+                    m.surfels,
+                    m.seconds
                 ),
             )
         }
@@ -313,6 +357,16 @@ pub fn run(
     for &r in &plan.resolutions {
         settings.push(("resolution", Settings { resolution: r, ..b }));
     }
+    for &(directions, direct) in &plan.direct {
+        settings.push((
+            "direct",
+            Settings {
+                directions,
+                direct,
+                ..b
+            },
+        ));
+    }
     if plan.presets {
         for q in crate::quality::Quality::ALL {
             let p = q.preset();
@@ -323,18 +377,23 @@ pub fn run(
                     directions: p.directions,
                     tolerance: p.tolerance,
                     accelerate: p.accelerate,
+                    direct: p.direct,
                 },
             ));
         }
     }
+    for &c in &plan.candidates {
+        settings.push(("candidate", c));
+    }
     let mut runs = Vec::new();
     for (knob, s) in settings {
-        let m = measure(&scene.scene, s, &probes, plan.threads)?;
+        let m = measure(&scene.scene, knob, s, &probes, plan.threads)?;
         let (mean_error, max_error) = errors(&m.values, &reference);
         let run = Run {
             knob,
             settings: s,
             directions_used: m.directions,
+            direct_used: m.direct,
             surfels: m.surfels,
             iterations: m.iterations,
             seconds: m.seconds,
@@ -401,14 +460,15 @@ impl Study {
     /// The CSV table: one row per run.
     pub fn csv(&self) -> String {
         let mut out = String::from(
-            "knob,resolution,directions,tolerance,extrapolation,surfels,iterations,seconds,mean_error,max_error,pareto\n",
+            "knob,resolution,directions,direct_directions,tolerance,extrapolation,surfels,iterations,seconds,mean_error,max_error,pareto\n",
         );
         for r in &self.runs {
             out.push_str(&format!(
-                "{},{},{},{:e},{},{},{},{:.4},{:.6e},{:.6e},{}\n",
+                "{},{},{},{},{:e},{},{},{},{:.4},{:.6e},{:.6e},{}\n",
                 r.knob,
                 r.settings.resolution,
                 r.directions_used,
+                r.direct_used,
                 r.settings.tolerance,
                 r.settings.accelerate,
                 r.surfels,
@@ -433,15 +493,16 @@ impl Study {
             self.scene, self.reference, self.probes
         );
         out.push_str(
-            "| knob | resolution | directions | tolerance | extrapolation | iterations | seconds | mean error | max error | Pareto |\n\
-             |---|---|---|---|---|---|---|---|---|---|\n",
+            "| knob | resolution | directions | direct directions | tolerance | extrapolation | iterations | seconds | mean error | max error | Pareto |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &self.runs {
             out.push_str(&format!(
-                "| {} | {} | {} | {:.0e} | {} | {} | {:.2} | {:.2e} | {:.2e} | {} |\n",
+                "| {} | {} | {} | {} | {:.0e} | {} | {} | {:.2} | {:.2e} | {:.2e} | {} |\n",
                 r.knob,
                 r.settings.resolution,
                 r.directions_used,
+                r.direct_used,
                 r.settings.tolerance,
                 if r.settings.accelerate { "yes" } else { "no" },
                 r.iterations,
@@ -490,6 +551,7 @@ mod tests {
             knob: "directions",
             settings: Plan::quick().base,
             directions_used: 1,
+            direct_used: 0,
             surfels: 1,
             iterations: 1,
             seconds,

@@ -10,16 +10,18 @@ use super::Run;
 use plotters::prelude::*;
 
 /// The knobs in drawing order and their colours.
-const KNOBS: [(&str, RGBColor); 4] = [
+const KNOBS: [(&str, RGBColor); 5] = [
     ("directions", RGBColor(31, 119, 180)),
     ("tolerance", RGBColor(44, 160, 44)),
     ("tolerance+extrapolation", RGBColor(255, 127, 14)),
     ("resolution", RGBColor(214, 39, 40)),
+    ("direct", RGBColor(148, 103, 189)),
 ];
 
 /// The colours in words, for the Markdown.
 pub const LEGEND: &str = "directions blue, tolerance green, tolerance with tail extrapolation \
-                          orange, resolution red; the quality presets are grey squares";
+                          orange, resolution red, direct-light pass purple (in the order of \
+                          the table); the quality presets are grey squares";
 
 /// Errors below this are drawn at it (an exact extrapolation can reach 1e-16).
 const ERROR_FLOOR: f64 = 1e-7;

@@ -1,0 +1,549 @@
+//! The direct-light pass: the emitters' own light gathered once, along many directions, from the
+//! lines that carry an emitter only.
+//!
+//! **Why.** Gathering is linear in the radiosity it reads: `H(B) = H(E) + H(B - E)`. The first
+//! term is the direct light. From a small bright emitter it is what aliases (a receiver sees a
+//! small lamp through one discrete line or none, so the lamp's light falls in stripes), and it
+//! does not change from one iteration to the next. So it is gathered once, with a dense direction
+//! set, and the iterations gather only the reflected part `B - E` with the normal, coarser set:
+//!
+//! `B = E + rho * (H_dense(E) / S_dense(n) + H_coarse(B - E) / S_coarse(n))`.
+//!
+//! Each term is divided by the cosine sum of its own direction set (`normalize`), so a uniform
+//! field is reproduced by each: the furnace stays exactly `E / (1 - rho)`, and the power balance
+//! (emitted against absorbed) holds as in a plain solve.
+//!
+//! **Cost.** `H_dense(E)` is non-zero only at receivers whose partner on some line emits, and a
+//! line carries light from an emitter only if the emitter lies on it. So for each dense direction
+//! only the lines through emitting surfels are built, by walking them layer by layer through a
+//! table from voxel to surfels, and gathered exactly as `propagate` gathers any line. The pass
+//! costs about (emitter lines) x (line length) per direction instead of the whole surfel set.
+//!
+//! **When** ([`DirectPass`]): asked for with a count, or automatically where the emitters are
+//! small ([`small_emitters`]: at most 5 % of the surfels emit), capped to what about
+//! [`BUDGET_ITERATIONS`] iterations cost ([`affordable_directions`]). The in-memory solver runs it
+//! (on one process or dealing its directions over ranks); the out-of-core solver and the data
+//! and hybrid modes do not have it yet. A stop signal during the pass is answered at the first
+//! direction after it.
+//!
+//! **Determinism.** Directions are taken in blocks; a block's directions run in parallel, each
+//! returning its receivers' contributions, which are then added in direction order: the result
+//! does not depend on the thread count, and a resumed solve recomputes it bit for bit.
+
+use super::normalize::cosine_sums;
+use super::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
+use crate::distribute::Comm;
+use crate::geometry::directions::{Direction, DirectionSet};
+use crate::geometry::lines::LineFrame;
+use crate::voxel::SurfelSet;
+use rayon::prelude::*;
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+use std::time::Instant;
+
+/// Light per surfel side and channel, as the solver accumulates it.
+type SideLight = [[f64; 3]; 2];
+
+/// What the direct pass did, for the report.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct DirectStats {
+    /// Line directions of the dense set.
+    pub directions: usize,
+    /// Surfels with an emitting side.
+    pub emitting_surfels: usize,
+    /// Lines gathered, summed over the dense directions (this rank's share).
+    pub lines: u64,
+    /// Surfels on those lines, summed over the dense directions (this rank's share).
+    pub line_surfels: u64,
+    /// Wall clock of the pass (cosine sums included).
+    pub seconds: f64,
+}
+
+/// The direct light of every surfel side: `H_dense(E) / S_dense(n)`.
+#[derive(Clone, Debug)]
+pub struct DirectLight {
+    pub irradiance: Vec<SideLight>,
+    pub stats: DirectStats,
+}
+
+impl DirectLight {
+    /// The reflected part `B - E` that the iterations gather (f32, as radiosity is stored).
+    pub fn reflected(
+        &self,
+        radiosity: &[[[f32; 3]; 2]],
+        emission: &[[[f32; 3]; 2]],
+        out: &mut Vec<[[f32; 3]; 2]>,
+    ) {
+        out.clear();
+        out.extend(radiosity.iter().zip(emission).map(|(b, e)| {
+            let mut r = [[0f32; 3]; 2];
+            for side in 0..2 {
+                for ch in 0..3 {
+                    r[side][ch] = (b[side][ch] as f64 - e[side][ch] as f64) as f32;
+                }
+            }
+            r
+        }));
+    }
+}
+
+/// Directions per block: enough parallel work per block, a bounded list of contributions.
+const BLOCK: usize = 256;
+
+/// Gathers the direct light of `set` along `directions`, this rank's share of the directions
+/// (dealt as `distribute::dealt` deals them), summed over the ranks of `comm`. The work runs on
+/// `pool`; every call on `comm` on the calling thread.
+pub fn gather_direct(
+    set: &SurfelSet,
+    surfels: &[PropSurfel],
+    emission: &[[[f32; 3]; 2]],
+    directions: &DirectionSet,
+    comm: &dyn Comm,
+    pool: &rayon::ThreadPool,
+) -> DirectLight {
+    let started = Instant::now();
+    let emitters: Vec<u32> = emission
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| e.iter().flatten().any(|&v| v > 0.0))
+        .map(|(i, _)| i as u32)
+        .collect();
+    let table = VoxelTable::new(set);
+    let mine = crate::distribute::dealt(directions.len(), comm.rank(), comm.size());
+    let mut acc = vec![[[0f64; 3]; 2]; set.surfels.len()];
+    let mut stats = DirectStats {
+        directions: directions.len(),
+        emitting_surfels: emitters.len(),
+        ..Default::default()
+    };
+    let context = Context {
+        dims: set.grid.dims,
+        surfels,
+        emission,
+        emitters: &emitters,
+        table: &table,
+    };
+    for block in mine.chunks(BLOCK) {
+        let gathered: Vec<DirectionLight> = pool.install(|| {
+            block
+                .par_iter()
+                .map_init(Buffers::default, |buffers, &k| {
+                    context.direction(&directions.directions[k], buffers)
+                })
+                .collect()
+        });
+        for direction in gathered {
+            stats.lines += direction.lines;
+            stats.line_surfels += direction.line_surfels;
+            for (index, light) in direction.received {
+                let to = &mut acc[index as usize];
+                for side in 0..2 {
+                    for ch in 0..3 {
+                        to[side][ch] += light[side][ch];
+                    }
+                }
+            }
+        }
+    }
+    if comm.size() > 1 {
+        let mut flat: Vec<f64> = acc.iter().flatten().flatten().copied().collect();
+        comm.sum_in_place(&mut flat);
+        for (a, v) in acc.iter_mut().flatten().flatten().zip(&flat) {
+            *a = *v;
+        }
+    }
+    let cosine_sum = pool.install(|| cosine_sums(&set.normals, directions));
+    for (light, s) in acc.iter_mut().zip(&set.surfels) {
+        let norm = cosine_sum[s.normal_id as usize];
+        light.iter_mut().flatten().for_each(|v| *v /= norm);
+    }
+    stats.seconds = started.elapsed().as_secs_f64();
+    DirectLight {
+        irradiance: acc,
+        stats,
+    }
+}
+
+/// What one direction's emitter lines gave.
+struct DirectionLight {
+    lines: u64,
+    line_surfels: u64,
+    /// Receivers and their gathered light (`H`, not yet divided by `S`).
+    received: Vec<(u32, SideLight)>,
+}
+
+/// A task's reusable buffers: one line at a time, copied into local arrays so that
+/// `gather_line` runs on it unchanged.
+#[derive(Default)]
+struct Buffers {
+    line_ids: Vec<u64>,
+    members: Vec<u32>,
+    local_line: Vec<u32>,
+    local_surfels: Vec<PropSurfel>,
+    local_emission: Vec<[[f32; 3]; 2]>,
+    local_acc: Vec<SideLight>,
+    scratch: LineScratch,
+}
+
+/// Everything the per-direction work reads.
+struct Context<'a> {
+    dims: [u32; 3],
+    surfels: &'a [PropSurfel],
+    emission: &'a [[[f32; 3]; 2]],
+    emitters: &'a [u32],
+    table: &'a VoxelTable,
+}
+
+impl Context<'_> {
+    fn direction(&self, d: &Direction, b: &mut Buffers) -> DirectionLight {
+        let frame = LineFrame::new(d.vector, self.dims);
+        b.line_ids.clear();
+        b.line_ids.extend(
+            self.emitters
+                .iter()
+                .map(|&e| frame.line_index(self.surfels[e as usize].voxel)),
+        );
+        b.line_ids.sort_unstable();
+        b.line_ids.dedup();
+        let mut out = DirectionLight {
+            lines: 0,
+            line_surfels: 0,
+            received: Vec::new(),
+        };
+        let input_weight = d.solid_angle / std::f64::consts::PI;
+        for at in 0..b.line_ids.len() {
+            let line = b.line_ids[at];
+            self.walk(&frame, d.vector, line, &mut b.members);
+            out.lines += 1;
+            out.line_surfels += b.members.len() as u64;
+            if b.members.len() < 2 {
+                continue;
+            }
+            b.local_line.clear();
+            b.local_line.extend(0..b.members.len() as u32);
+            b.local_surfels.clear();
+            b.local_surfels
+                .extend(b.members.iter().map(|&m| self.surfels[m as usize]));
+            b.local_emission.clear();
+            b.local_emission
+                .extend(b.members.iter().map(|&m| self.emission[m as usize]));
+            b.local_acc.clear();
+            b.local_acc.resize(b.members.len(), [[0.0; 3]; 2]);
+            let input = DirectionInput {
+                unit: d.unit,
+                weight: input_weight,
+                surfels: &b.local_surfels,
+                radiosity: &b.local_emission,
+                channels: 3,
+            };
+            // SAFETY: `local_acc` has one entry per surfel of `local_surfels`, and this task
+            // alone owns it.
+            unsafe {
+                gather_line(
+                    &b.local_line,
+                    &input,
+                    &mut b.scratch,
+                    b.local_acc.as_mut_ptr(),
+                )
+            };
+            for (&m, light) in b.members.iter().zip(&b.local_acc) {
+                if light.iter().flatten().any(|&v| v != 0.0) {
+                    out.received.push((m, *light));
+                }
+            }
+        }
+        out
+    }
+
+    /// The surfels of line `line` of `frame`, in order along `vector` (the order `dispatch`
+    /// gives: voxel by voxel along the line, by surfel index within a voxel).
+    fn walk(&self, frame: &LineFrame, vector: [i64; 3], line: u64, members: &mut Vec<u32>) {
+        members.clear();
+        let (i, j) = (line / frame.nj, line % frame.nj);
+        let layers = self.dims[frame.main] as usize;
+        let forward = vector[frame.main] > 0;
+        for step in 0..layers {
+            let layer = if forward { step } else { layers - 1 - step };
+            let (su, sv) = frame.layer_shift(layer);
+            // Outside the grid on this layer (an oblique line enters it late or leaves early).
+            if i < su || j < sv {
+                continue;
+            }
+            let (u, v) = (i - su, j - sv);
+            if u >= self.dims[frame.u] as u64 || v >= self.dims[frame.v] as u64 {
+                continue;
+            }
+            let mut voxel = [0i32; 3];
+            voxel[frame.main] = layer as i32;
+            voxel[frame.u] = u as i32;
+            voxel[frame.v] = v as i32;
+            if let Some((first, end)) = self.table.surfels_of(voxel) {
+                members.extend(first..end);
+            }
+        }
+    }
+}
+
+/// Grids up to this many voxels get an occupancy bit per voxel (32 MiB at most).
+const MAX_BITMAP_VOXELS: u64 = 1 << 28;
+
+/// From a voxel to the range of its surfels (which are adjacent in a surfel set). Most voxels a
+/// line crosses are empty (the air of a room): an occupancy bitmap answers those without a hash
+/// look-up, where the grid is small enough for one.
+struct VoxelTable {
+    map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>>,
+    dims: [u64; 3],
+    occupied: Option<Vec<u64>>,
+}
+
+impl VoxelTable {
+    fn new(set: &SurfelSet) -> Self {
+        let mut map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>> = HashMap::default();
+        let dims = set.grid.dims.map(u64::from);
+        let voxels = dims[0] * dims[1] * dims[2];
+        let mut occupied =
+            (voxels <= MAX_BITMAP_VOXELS).then(|| vec![0u64; voxels.div_ceil(64) as usize]);
+        let s = &set.surfels;
+        let mut first = 0;
+        while first < s.len() {
+            let mut end = first + 1;
+            while end < s.len() && s[end].voxel == s[first].voxel {
+                end += 1;
+            }
+            map.insert(Self::key(s[first].voxel), (first as u32, end as u32));
+            if let Some(bits) = occupied.as_mut() {
+                let at = Self::linear(dims, s[first].voxel);
+                bits[(at / 64) as usize] |= 1 << (at % 64);
+            }
+            first = end;
+        }
+        VoxelTable {
+            map,
+            dims,
+            occupied,
+        }
+    }
+
+    fn linear(dims: [u64; 3], voxel: [i32; 3]) -> u64 {
+        (voxel[2] as u64 * dims[1] + voxel[1] as u64) * dims[0] + voxel[0] as u64
+    }
+
+    /// The surfels of `voxel` (inside the grid), if any.
+    #[inline]
+    fn surfels_of(&self, voxel: [i32; 3]) -> Option<(u32, u32)> {
+        if let Some(bits) = &self.occupied {
+            let at = Self::linear(self.dims, voxel);
+            if bits[(at / 64) as usize] & (1 << (at % 64)) == 0 {
+                return None;
+            }
+        }
+        self.map.get(&Self::key(voxel)).copied()
+    }
+
+    /// Voxel coordinates are below `voxelize::MAX_GRID_EDGE` (2^20), so three fit one key.
+    fn key(voxel: [i32; 3]) -> u64 {
+        const _: () = assert!(crate::voxel::voxelize::MAX_GRID_EDGE <= 1 << 21);
+        voxel[0] as u64 | (voxel[1] as u64) << 21 | (voxel[2] as u64) << 42
+    }
+}
+
+/// A hasher for integer keys that are already spread (the voxel keys above): one multiply.
+#[derive(Default)]
+struct MixHasher(u64);
+
+impl Hasher for MixHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        }
+    }
+
+    fn write_u64(&mut self, v: u64) {
+        let x = (v ^ (v >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        self.0 = x ^ (x >> 32);
+    }
+}
+
+/// Whether and how a solve runs the direct pass.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DirectPass {
+    /// Never (every direction of the solve gathers `B` whole).
+    #[default]
+    Off,
+    /// When the scene's emitters are small ([`small_emitters`]), with about this many dense
+    /// line directions, fewer if that would cost more than about [`BUDGET_ITERATIONS`]
+    /// iterations ([`affordable_directions`]), none if fewer than twice the solve's own.
+    Auto(usize),
+    /// Always, with about this many dense line directions.
+    On(usize),
+}
+
+/// Emitting surfels at most this fraction of all surfels count as small emitters.
+pub const SMALL_EMITTER_FRACTION: f64 = 0.05;
+
+/// Whether `emitting` emitting surfels among `surfels` are small emitters: few enough that the
+/// pass is cheap (its lines are the emitters'), and small against the scene, where their direct
+/// light aliases.
+pub fn small_emitters(emitting: usize, surfels: usize) -> bool {
+    emitting > 0 && emitting as f64 <= SMALL_EMITTER_FRACTION * surfels as f64
+}
+
+/// The most an automatic pass may cost, in iterations of the solve (a solve to 1e-4 runs 10
+/// to 20 on the study scenes).
+pub const BUDGET_ITERATIONS: f64 = 10.0;
+
+/// Cost of the pass per emitting surfel and layer of a dense direction, against one
+/// surfel-direction update of an iteration. Measured on the Cornell box (resolution 32, 20,173
+/// dense directions against 193): 0.73 lines per emitting surfel and direction (lines through
+/// several emitters are walked once), 7 ns per voxel step against 46 ns per update, so about
+/// 1/9; rounded up.
+const WALK_STEP_PER_UPDATE: f64 = 1.0 / 8.0;
+
+/// The most dense directions an automatic pass affords: per dense direction it walks about one
+/// line per emitting surfel through `longest_axis` layers, and it may cost about
+/// [`BUDGET_ITERATIONS`] iterations of `directions` over `surfels`.
+pub fn affordable_directions(
+    emitting: usize,
+    surfels: usize,
+    longest_axis: u32,
+    directions: usize,
+) -> usize {
+    let per_direction = (emitting as f64 * longest_axis as f64 * WALK_STEP_PER_UPDATE).max(1.0);
+    (BUDGET_ITERATIONS * directions as f64 * surfels as f64 / per_direction) as usize
+}
+
+/// What a scene offers the decision: emitting surfels, all surfels, the grid's longest axis
+/// (voxels), and the solve's own line directions.
+#[derive(Clone, Copy, Debug)]
+pub struct Shape {
+    pub emitting: usize,
+    pub surfels: usize,
+    pub longest_axis: u32,
+    pub directions: usize,
+}
+
+impl Shape {
+    pub fn of(set: &SurfelSet, directions: usize) -> Self {
+        Shape {
+            emitting: super::effects::analyse(set).emitting_surfels,
+            surfels: set.surfels.len(),
+            longest_axis: set.grid.dims.into_iter().max().unwrap_or(0),
+            directions,
+        }
+    }
+}
+
+impl DirectPass {
+    /// The dense direction count a solve of a scene of shape `shape` uses, or `None` for no
+    /// direct pass.
+    pub fn resolve(self, shape: Shape) -> Option<usize> {
+        match self {
+            DirectPass::Off | DirectPass::Auto(0) | DirectPass::On(0) => None,
+            DirectPass::Auto(n) => {
+                let affordable = affordable_directions(
+                    shape.emitting,
+                    shape.surfels,
+                    shape.longest_axis,
+                    shape.directions,
+                );
+                let n = n.min(affordable);
+                (small_emitters(shape.emitting, shape.surfels) && n >= 2 * shape.directions)
+                    .then_some(n)
+            }
+            DirectPass::On(n) => Some(n),
+        }
+    }
+
+    /// The dense direction set of a solve of `set` with `directions` line directions, or `None`.
+    pub fn directions_for(self, set: &SurfelSet, directions: usize) -> Option<DirectionSet> {
+        self.resolve(Shape::of(set, directions))
+            .map(DirectionSet::with_count)
+    }
+}
+
+/// Adds the power the direct light `direct` deposits, `(1 - rho) H_dense(E) / S_dense` times the
+/// area, to `stats.absorbed_power` (the iterations' gather holds only the reflected part).
+pub fn add_absorbed(set: &SurfelSet, direct: &DirectLight, stats: &mut super::SolveStats) {
+    let area_unit = set.grid.voxel_size * set.grid.voxel_size;
+    for (s, light) in set.surfels.iter().zip(&direct.irradiance) {
+        let area = s.area as f64 * area_unit;
+        for (&material, side_light) in s.material.iter().zip(light) {
+            let m = &set.materials[material as usize];
+            for (ch, &h) in side_light.iter().enumerate() {
+                stats.absorbed_power[ch] += (1.0 - m.reflectance[ch]) * h * area;
+            }
+        }
+    }
+}
+
+/// What the pass gained where it was measured, for the report (README, "What a solve
+/// simulates").
+pub const MEASURED_GAIN: &str = "at resolution 32 with 193 bounce directions the mean error \
+     at the study's probes falls from 13.3 % to 6.7 % (the largest from 96 % to 36 %) with \
+     20,173 dense directions, for 28 % more time; 49 bounce directions with the pass (7.4 %) beat \
+     589 without it (8.6 %)";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn shape(emitting: usize, surfels: usize, longest_axis: u32, directions: usize) -> Shape {
+        Shape {
+            emitting,
+            surfels,
+            longest_axis,
+            directions,
+        }
+    }
+
+    #[test]
+    fn automatic_pass_only_for_small_affordable_emitters() {
+        // The Cornell box at resolution 32: 48 of 6,718 surfels emit.
+        let cornell = shape(48, 6718, 32, 193);
+        assert_eq!(DirectPass::Auto(20_000).resolve(cornell), Some(20_000));
+        // Every surfel emits (a furnace): no pass.
+        assert_eq!(
+            DirectPass::Auto(20_000).resolve(shape(100, 100, 8, 49)),
+            None
+        );
+        // Asked for more than the budget: capped to what about ten iterations cost.
+        let capped = DirectPass::Auto(1_000_000).resolve(cornell).unwrap();
+        assert_eq!(capped, affordable_directions(48, 6718, 32, 193));
+        assert!(capped > 20_000 && capped < 1_000_000);
+        // Many small lamps in a huge grid: the budget leaves fewer than twice the solve's own
+        // directions, no gain.
+        assert_eq!(
+            DirectPass::Auto(20_000).resolve(shape(40_000, 1_000_000, 4000, 49)),
+            None
+        );
+        // Asked for explicitly: always, as asked; 0 never.
+        assert_eq!(
+            DirectPass::On(500).resolve(shape(100, 100, 8, 49)),
+            Some(500)
+        );
+        assert_eq!(DirectPass::On(0).resolve(cornell), None);
+        assert_eq!(DirectPass::Off.resolve(cornell), None);
+    }
+
+    #[test]
+    fn voxel_keys_are_distinct_up_to_the_grid_limit() {
+        let edge = (1 << 21) - 1;
+        let keys = [
+            VoxelTable::key([0, 0, 0]),
+            VoxelTable::key([edge, 0, 0]),
+            VoxelTable::key([0, edge, 0]),
+            VoxelTable::key([0, 0, edge]),
+            VoxelTable::key([1, 1, 1]),
+            VoxelTable::key([edge, edge, edge]),
+        ];
+        for (i, a) in keys.iter().enumerate() {
+            for b in &keys[i + 1..] {
+                assert_ne!(a, b);
+            }
+        }
+    }
+}
