@@ -70,6 +70,8 @@ pub struct CheckpointOptions {
     pub resume: bool,
     /// `--checkpoint-every`: least time between two checkpoints (zero: every iteration).
     pub every: std::time::Duration,
+    /// Whether `--checkpoint-every` was given (rather than its default).
+    pub every_given: bool,
 }
 
 impl Default for CheckpointOptions {
@@ -77,6 +79,7 @@ impl Default for CheckpointOptions {
         CheckpointOptions {
             resume: false,
             every: std::time::Duration::from_secs(60),
+            every_given: false,
         }
     }
 }
@@ -105,10 +108,13 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             )));
         }
     }
+    if let (Mode::Data { .. }, Some(budget)) = (mode, cmd.memory) {
+        return run_solve_data_out_of_core(cmd, comm, budget, started);
+    }
     if mode != Mode::Single && cmd.memory.is_some() {
         return Err(AppError::BadInput(format!(
-            "{}: --distribute {} does not work out of core yet (--memory); every rank solves in \
-             memory: leave --memory out, or run one process",
+            "{}: --distribute {} does not work out of core (--memory); only --distribute data \
+             does: use it, or leave --memory out",
             cmd.scene.display(),
             mode.name()
         )));
@@ -468,8 +474,35 @@ fn run_solve_obj_out_of_core(
     started: Instant,
 ) -> Result<Report, AppError> {
     create_out_dir(&cmd.out)?;
+    let (_work, shards, converted) = convert_obj(cmd, budget, ".voxrad-shards-")?;
+    let convert_seconds = started.elapsed().as_secs_f64();
+    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
+    let (mut report, staged) = solve_out_of_core_to(cmd, &source, budget)?;
+    report.set_phase("convert", convert_seconds);
+    tracing::info!(
+        surfels = converted.surfels,
+        "solved from a temporary shard set"
+    );
+    finish_report(report, staged, started)
+}
+
+/// Converts the OBJ scene of `cmd` into a shard set in a new temporary directory (named from
+/// `prefix`) inside the out directory: the streaming conversion of `voxrad-shard convert`,
+/// within `budget`. Returns the directory (removed when dropped), the set and its summary.
+fn convert_obj(
+    cmd: &SolveCommand,
+    budget: u64,
+    prefix: &str,
+) -> Result<
+    (
+        tempfile::TempDir,
+        PathBuf,
+        crate::convert::commands::ConvertSummary,
+    ),
+    AppError,
+> {
     let work = tempfile::Builder::new()
-        .prefix(".voxrad-shards-")
+        .prefix(prefix)
         .tempdir_in(&cmd.out)
         .map_err(|e| {
             AppError::Failure(format!(
@@ -491,15 +524,7 @@ fn run_solve_obj_out_of_core(
         crate::convert::ConvertError::BadInput(m) => AppError::BadInput(m),
         crate::convert::ConvertError::Failure(m) => AppError::Failure(m),
     })?;
-    let convert_seconds = started.elapsed().as_secs_f64();
-    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
-    let (mut report, staged) = solve_out_of_core_to(cmd, &source, budget)?;
-    report.set_phase("convert", convert_seconds);
-    tracing::info!(
-        surfels = converted.surfels,
-        "solved from a temporary shard set"
-    );
-    finish_report(report, staged, started)
+    Ok((work, shards, converted))
 }
 
 fn create_out_dir(out: &Path) -> Result<(), AppError> {
@@ -544,35 +569,7 @@ fn solve_out_of_core_to(
     let t = Instant::now();
     let info = source.info();
     let staged = stage(&cmd.out)?;
-    let results_path = staged.path().join(crate::output::RESULTS_FILE);
-    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
-    let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count).map_err(fail)?;
-    solution
-        .for_each(source, |s, b| {
-            writer
-                .push(&crate::output::results::Record::from_surfel(s, *b))
-                .map_err(|e| OocError::BadData {
-                    source_name: results_path.display().to_string(),
-                    what: e.to_string(),
-                })
-        })
-        .map_err(ooc_error)?;
-    writer.finish().map_err(fail)?;
-    // The picture and the PLY need every surfel in memory: only when that fits the budget.
-    let in_memory_bytes = info.count * 400;
-    if in_memory_bytes <= budget {
-        let results = read_results(&results_path).map_err(|e| AppError::Failure(e.to_string()))?;
-        let (set, solution) = from_results(&results);
-        drop(results);
-        write_previews(staged.path(), &set, &solution, cmd.image_size)?;
-    } else {
-        tracing::warn!(
-            "{} surfels: the PLY and the picture are not written within --memory {}; use \
-             `voxrad-shard export` and `voxrad render` with more memory",
-            info.count,
-            crate::outcore::budget::format_bytes(budget)
-        );
-    }
+    write_streamed_outputs(cmd, &staged, info, budget, |f| solution.for_each(source, f))?;
     let write_seconds = t.elapsed().as_secs_f64();
     let resolution = info.grid.dims.iter().copied().max().unwrap_or(0);
     let run = RunInfo {
@@ -613,6 +610,48 @@ fn solve_out_of_core_to(
         ),
     )];
     Ok((report, staged))
+}
+
+/// Writes the results file from `each` (which calls its argument for every surfel in canonical
+/// order) and, when the results fit `budget`, the PLY and the picture, into `staged`.
+fn write_streamed_outputs(
+    cmd: &SolveCommand,
+    staged: &Staging,
+    info: &crate::outcore::source::SourceInfo,
+    budget: u64,
+    each: impl FnOnce(
+        &mut dyn FnMut(&Surfel, &[[f32; 3]; 2]) -> Result<(), OocError>,
+    ) -> Result<(), OocError>,
+) -> Result<(), AppError> {
+    let results_path = staged.path().join(crate::output::RESULTS_FILE);
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count).map_err(fail)?;
+    each(&mut |s, b| {
+        writer
+            .push(&crate::output::results::Record::from_surfel(s, *b))
+            .map_err(|e| OocError::BadData {
+                source_name: results_path.display().to_string(),
+                what: e.to_string(),
+            })
+    })
+    .map_err(ooc_error)?;
+    writer.finish().map_err(fail)?;
+    // The picture and the PLY need every surfel in memory: only when that fits the budget.
+    let in_memory_bytes = info.count * 400;
+    if in_memory_bytes <= budget {
+        let results = read_results(&results_path).map_err(|e| AppError::Failure(e.to_string()))?;
+        let (set, solution) = from_results(&results);
+        drop(results);
+        write_previews(staged.path(), &set, &solution, cmd.image_size)?;
+    } else {
+        tracing::warn!(
+            "{} surfels: the PLY and the picture are not written within --memory {}; use \
+             `voxrad-shard export` and `voxrad render` with more memory",
+            info.count,
+            crate::outcore::budget::format_bytes(budget)
+        );
+    }
+    Ok(())
 }
 
 /// Bytes the in-memory solver holds per surfel (surfel set, solver arrays, voxelization pieces at
@@ -681,6 +720,136 @@ fn write_outputs(
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     write_results(&out.join(crate::output::RESULTS_FILE), set, solution).map_err(fail)?;
     write_previews(out, set, solution, size)
+}
+
+/// `mpirun -n P voxrad solve SCENE --distribute data --memory SIZE`: every rank holds its share
+/// of the scene in work files under the out directory, within `budget` (see
+/// `distribute::ooc`); rank 0 writes the outputs. An OBJ scene is first converted to a shard
+/// set by every rank, each in its own work directory, within the budget.
+fn run_solve_data_out_of_core(
+    cmd: &SolveCommand,
+    comm: &dyn Comm,
+    budget: u64,
+    started: Instant,
+) -> Result<Report, AppError> {
+    if cmd.checkpoint.resume || cmd.checkpoint.every_given {
+        return Err(AppError::BadInput(format!(
+            "{}: --distribute data --memory writes no checkpoints yet, so --resume and \
+             --checkpoint-every do not apply; leave them out, or solve in memory (without \
+             --memory) to have checkpoints",
+            cmd.scene.display()
+        )));
+    }
+    create_out_dir(&cmd.out)?;
+    let (_converted, shards) = if cmd.scene.is_dir() {
+        (None, cmd.scene.clone())
+    } else {
+        let prefix = format!(".voxrad-shards-rank{}-", comm.rank());
+        let (work, shards, _) = convert_obj(cmd, budget, &prefix)?;
+        (Some(work), shards)
+    };
+    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
+    let read_seconds = started.elapsed().as_secs_f64();
+    let directions = DirectionSet::with_count(cmd.solve.directions);
+    let t = Instant::now();
+    let solution = crate::distribute::ooc::solve_data_out_of_core(
+        &source,
+        &directions,
+        &cmd.solve,
+        comm,
+        budget,
+        &cmd.out,
+    )
+    .map_err(ooc_error)?;
+    let solve_seconds = t.elapsed().as_secs_f64();
+    let mut stats = solution.stats.clone();
+    tracing::info!(
+        iterations = stats.iterations,
+        converged = stats.converged,
+        residual = stats.residual,
+        bytes_read = solution.bytes_read,
+        bytes_written = solution.bytes_written,
+        "solved out of core over {} ranks",
+        comm.size()
+    );
+    let t = Instant::now();
+    let info = source.info();
+    let staged = if comm.rank() == 0 {
+        let staged = stage(&cmd.out)?;
+        write_streamed_outputs(cmd, &staged, info, budget, |f| {
+            solution.for_each(&source, f)
+        })?;
+        Some(staged)
+    } else {
+        None
+    };
+    let write_seconds = t.elapsed().as_secs_f64();
+    // Every rank's peak, after its last work.
+    let mut peaks = vec![0.0; comm.size()];
+    peaks[comm.rank()] = crate::output::report::peak_rss_bytes() as f64;
+    comm.sum_in_place(&mut peaks);
+    if let Some(data) = stats.data.as_mut() {
+        for (rank, peak) in data.out_of_core.iter_mut().zip(&peaks) {
+            rank.peak_rss_bytes = *peak as u64;
+        }
+    }
+    let mut report = Report::from_counts(
+        run_info(cmd, comm, info),
+        solution.voxels,
+        solution.surfels,
+        info.grid.voxel_size,
+        &stats,
+    );
+    let Some(staged) = staged else {
+        // Only rank 0 writes the report.
+        return Ok(report);
+    };
+    report.set_phase("read", read_seconds);
+    report.set_phase("setup", solution.setup_seconds);
+    report.set_phase("solve", solve_seconds);
+    report.set_phase("reduce", stats.reduce_seconds);
+    report.set_phase("write", write_seconds);
+    let updates =
+        (solution.surfels * stats.directions as u64 * stats.iterations as u64).max(1) as f64;
+    report.out_of_core = Some(OutOfCoreReport {
+        memory_budget_bytes: budget,
+        bytes_read: solution.bytes_read,
+        bytes_written: solution.bytes_written,
+        bytes_read_per_voxel_direction: solution.bytes_read as f64 / updates,
+        bytes_written_per_voxel_direction: solution.bytes_written as f64 / updates,
+        bands: solution.bands,
+    });
+    report.effects = vec![Effect::new(
+        "out of core",
+        true,
+        &format!(
+            "every rank held its share of the surfels in files, within {} per rank",
+            crate::outcore::budget::format_bytes(budget)
+        ),
+    )];
+    report.set_total(started.elapsed().as_secs_f64());
+    // What a node must have: the largest rank.
+    report.peak_rss_bytes = peaks.iter().copied().fold(0.0, f64::max) as u64;
+    report
+        .write(staged.path())
+        .map_err(|e| AppError::Failure(e.to_string()))?;
+    drop(solution);
+    publish(staged)?;
+    Ok(report)
+}
+
+fn run_info(
+    cmd: &SolveCommand,
+    comm: &dyn Comm,
+    info: &crate::outcore::source::SourceInfo,
+) -> RunInfo {
+    RunInfo {
+        scene: cmd.scene.display().to_string(),
+        mode: Mode::Data { compress: false }.name().to_string(),
+        ranks: comm.size(),
+        resolution: info.grid.dims.iter().copied().max().unwrap_or(0),
+        tolerance: cmd.solve.tolerance.unwrap_or(0.0),
+    }
 }
 
 /// The PLY and the picture.

@@ -78,6 +78,26 @@ pub struct DataStats {
     pub bytes_sent: u64,
     /// Every rank's seconds per phase, by rank.
     pub per_rank: Vec<PhaseSeconds>,
+    /// The data mode out of core (`--memory`): every rank's work-file traffic, largest share
+    /// and peak memory, by rank.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub out_of_core: Vec<RankOutOfCore>,
+}
+
+/// What one rank of the data mode out of core moved through its disk and held.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct RankOutOfCore {
+    /// Bytes read from and written to the input and the rank's work files.
+    pub bytes_read: u64,
+    pub bytes_written: u64,
+    /// The same per surfel of the scene and direction of every iteration.
+    pub bytes_read_per_voxel_direction: f64,
+    pub bytes_written_per_voxel_direction: f64,
+    /// The most surfel bytes (208 per surfel: static data, radiosity, light) the rank held in
+    /// its files for one direction.
+    pub largest_share_bytes: u64,
+    /// The rank's peak resident memory (`VmHWM`) over the whole run.
+    pub peak_rss_bytes: u64,
 }
 
 /// One rank's seconds in each phase of the data mode.
@@ -93,9 +113,9 @@ pub struct PhaseSeconds {
 }
 
 impl PhaseSeconds {
-    const FIELDS: usize = 7;
+    pub(crate) const FIELDS: usize = 7;
 
-    fn to_array(self) -> [f64; Self::FIELDS] {
+    pub(crate) fn to_array(self) -> [f64; Self::FIELDS] {
         [
             self.balance,
             self.fill,
@@ -107,7 +127,7 @@ impl PhaseSeconds {
         ]
     }
 
-    fn from_slice(v: &[f64]) -> Self {
+    pub(crate) fn from_slice(v: &[f64]) -> Self {
         PhaseSeconds {
             balance: v[0],
             fill: v[1],
@@ -931,6 +951,7 @@ impl<'a> DataSolver<'a> {
                 .chunks(PhaseSeconds::FIELDS)
                 .map(PhaseSeconds::from_slice)
                 .collect(),
+            out_of_core: Vec::new(),
         }
     }
 

@@ -162,7 +162,7 @@ fn solve_in_pool(
 /// creating it fails, and glibc retries (an `mmap` that fails) on many later allocations. Under
 /// a 48 MiB limit that made a solve ten times slower, mostly in the kernel. The solver's hot
 /// loops do not allocate, so one arena costs nothing measurable.
-fn one_malloc_arena() {
+pub(crate) fn one_malloc_arena() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: `mallopt` only changes allocator settings; M_ARENA_MAX takes any positive count.
     unsafe {
