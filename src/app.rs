@@ -740,6 +740,7 @@ fn run_solve_data_out_of_core(
             cmd.scene.display()
         )));
     }
+    let start_rss = crate::output::report::peak_rss_bytes();
     create_out_dir(&cmd.out)?;
     let (_converted, shards) = if cmd.scene.is_dir() {
         (None, cmd.scene.clone())
@@ -785,12 +786,16 @@ fn run_solve_data_out_of_core(
     };
     let write_seconds = t.elapsed().as_secs_f64();
     // Every rank's peak, after its last work.
-    let mut peaks = vec![0.0; comm.size()];
+    let ranks = comm.size();
+    let mut peaks = vec![0.0; 2 * ranks];
     peaks[comm.rank()] = crate::output::report::peak_rss_bytes() as f64;
+    peaks[ranks + comm.rank()] = start_rss as f64;
     comm.sum_in_place(&mut peaks);
+    let starts = peaks.split_off(ranks);
     if let Some(data) = stats.data.as_mut() {
-        for (rank, peak) in data.out_of_core.iter_mut().zip(&peaks) {
-            rank.peak_rss_bytes = *peak as u64;
+        for (r, rank) in data.out_of_core.iter_mut().enumerate() {
+            rank.peak_rss_bytes = peaks[r] as u64;
+            rank.start_rss_bytes = starts[r] as u64;
         }
     }
     let mut report = Report::from_counts(

@@ -98,6 +98,9 @@ pub struct RankOutOfCore {
     pub largest_share_bytes: u64,
     /// The rank's peak resident memory (`VmHWM`) over the whole run.
     pub peak_rss_bytes: u64,
+    /// The same before the scene was read: the program and its MPI library, which the budget
+    /// does not cover.
+    pub start_rss_bytes: u64,
 }
 
 /// One rank's seconds in each phase of the data mode.

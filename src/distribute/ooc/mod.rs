@@ -375,6 +375,7 @@ impl Solver<'_> {
                 bytes_written_per_voxel_direction: written / updates as f64,
                 largest_share_bytes: row[PhaseSeconds::FIELDS + 2] as u64,
                 peak_rss_bytes: 0,
+                start_rss_bytes: 0,
             });
         }
         let used: Vec<f64> = imbalance.iter().copied().filter(|&x| x > 0.0).collect();
