@@ -133,17 +133,17 @@ impl Held {
     }
 }
 
+/// Fills its argument with the next record of one file; false at the end.
+type RecordReader = Box<dyn FnMut(&mut [u8]) -> Result<bool, OocError>>;
+
 /// Reads held files record by record, in wire form.
 pub struct HeldReader {
-    readers: [Box<dyn FnMut(&mut [u8]) -> Result<bool, OocError>>; 4],
+    readers: [RecordReader; 4],
 }
 
 impl HeldReader {
     pub fn open(held: &Held, buffer_bytes: usize) -> Result<Self, OocError> {
-        fn reader<const L: usize>(
-            path: &Path,
-            buffer: usize,
-        ) -> Result<Box<dyn FnMut(&mut [u8]) -> Result<bool, OocError>>, OocError> {
+        fn reader<const L: usize>(path: &Path, buffer: usize) -> Result<RecordReader, OocError> {
             let mut r = SeqReader::<L>::open(path, buffer)?;
             Ok(Box::new(move |out: &mut [u8]| match r.next_record()? {
                 Some(rec) => {

@@ -506,11 +506,11 @@ impl Solver<'_> {
             // B = E, computed as the update computes it with no light gathered.
             let norm = cosine_sum[s.normal_id as usize];
             let mut b: [[f32; 3]; 2] = [[0.0; 3]; 2];
-            for side in 0..2 {
+            for (side, b_side) in b.iter_mut().enumerate() {
                 let m = &info.materials[s.material[side] as usize];
-                for ch in 0..3 {
+                for (ch, value) in b_side.iter_mut().enumerate() {
                     let e = m.emission[ch] as f32 as f64;
-                    b[side][ch] = (e + m.reflectance[ch] * 0.0 / norm) as f32;
+                    *value = (e + m.reflectance[ch] * 0.0 / norm) as f32;
                     slice.any_light |= m.emission[ch] > 0.0;
                 }
             }

@@ -154,6 +154,9 @@ impl Router<'_> {
     }
 }
 
+/// Takes the bytes that arrived from one source rank.
+pub type Received<'a> = dyn FnMut(usize, &[u8]) -> Result<(), OocError> + 'a;
+
 /// Sends the file `outgoing[d]` to rank `d` (none: nothing) in rounds of at most `round_bytes`
 /// per rank in all, cut at whole records of `record` bytes; hands what arrives to
 /// `received(source, bytes)`, in order for each source. Collective: the number of rounds is
@@ -164,7 +167,7 @@ pub fn exchange_files(
     record: usize,
     round_bytes: u64,
     io: &mut IoCounters,
-    received: &mut dyn FnMut(usize, &[u8]) -> Result<(), OocError>,
+    received: &mut Received,
 ) -> Result<(), OocError> {
     let ranks = comm.size();
     let record = record as u64;
