@@ -28,8 +28,10 @@
 //! canonical distribution (blocks of surfel ids), so that the `k`-th rank of every group holds
 //! the same surfels; those ranks add their gathered light, in group order, and all update `B`.
 //!
-//! Every rank still reads and voxelizes the whole scene (the surfel set is the input of this
-//! function) and keeps the scene tables; only the solver's per-surfel state is distributed.
+//! In this in-memory form every rank reads and voxelizes the whole scene (the surfel set is the
+//! input of this function) and keeps the scene tables; only the solver's per-surfel state is
+//! distributed. With `--memory` the data mode runs out of core instead (`super::ooc`): each rank
+//! reads only its slice of the scene and holds its share in work files within the budget.
 
 use super::balance::{self, Distribution, Projection};
 use super::Comm;
