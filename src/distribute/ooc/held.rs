@@ -267,9 +267,21 @@ impl RunWriter {
     }
 }
 
-/// Merges run files, each sorted by `key`, into `sink` in that order, `fan_in` runs at a time
-/// at most (earlier passes merge groups of runs into new runs in `dir`). Removes the runs.
+/// A stream of wire records (a run file, or the held files read through a filter).
+pub type Source<'a> = Box<dyn FnMut() -> Result<Option<Wire>, OocError> + 'a>;
+
+/// A run file as a [`Source`].
+pub fn run_source<'a>(path: &Path, buffer_bytes: usize) -> Result<Source<'a>, OocError> {
+    let mut reader = SeqReader::<WIRE_LEN>::open(path, buffer_bytes)?;
+    Ok(Box::new(move || reader.next_record()))
+}
+
+/// Merges `first` (if any) and the run files `runs`, each sorted by `key`, into `sink` in that
+/// order, `fan_in` sources at a time at most (earlier passes merge groups of runs into new runs
+/// in `dir`). Removes the runs.
+#[allow(clippy::too_many_arguments)]
 pub fn merge_runs(
+    first: Option<Source>,
     mut runs: Vec<PathBuf>,
     key: AxisKey,
     fan_in: usize,
@@ -280,35 +292,48 @@ pub fn merge_runs(
 ) -> Result<(), OocError> {
     let fan_in = fan_in.max(2);
     let mut pass = 0;
-    while runs.len() > fan_in {
+    while runs.len() + first.is_some() as usize > fan_in {
         let mut next = Vec::new();
         for (g, group) in runs.chunks(fan_in).enumerate() {
             let path = dir.join(format!("merge-{pass}-{g}.run"));
             let mut out = RunWriter::create(&path, buffer_bytes)?;
-            merge_once(group, key, buffer_bytes, io, &mut |w| out.write(w))?;
+            let sources = group
+                .iter()
+                .map(|p| run_source(p, buffer_bytes))
+                .collect::<Result<Vec<_>, _>>()?;
+            merge_sources(sources, key, io, &mut |w| out.write(w))?;
             next.push(out.finish(io)?);
+            remove_all(group)?;
         }
         runs = next;
         pass += 1;
     }
-    merge_once(&runs, key, buffer_bytes, io, sink)
+    let mut sources: Vec<Source> = first.into_iter().collect();
+    for p in &runs {
+        sources.push(run_source(p, buffer_bytes)?);
+    }
+    merge_sources(sources, key, io, sink)?;
+    remove_all(&runs)
 }
 
-fn merge_once(
-    runs: &[PathBuf],
+fn remove_all(paths: &[PathBuf]) -> Result<(), OocError> {
+    for p in paths {
+        std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+    }
+    Ok(())
+}
+
+/// One k-way merge of sorted sources (keys are unique: they end with the canonical id).
+fn merge_sources(
+    mut sources: Vec<Source>,
     key: AxisKey,
-    buffer_bytes: usize,
     io: &mut IoCounters,
     sink: &mut dyn FnMut(&Wire) -> Result<(), OocError>,
 ) -> Result<(), OocError> {
-    let mut readers = runs
-        .iter()
-        .map(|p| SeqReader::<WIRE_LEN>::open(p, buffer_bytes))
-        .collect::<Result<Vec<_>, _>>()?;
-    let mut heads: Vec<Wire> = Vec::with_capacity(runs.len());
-    let mut heap = BinaryHeap::with_capacity(runs.len());
-    for (k, r) in readers.iter_mut().enumerate() {
-        let head = r.next_record()?;
+    let mut heads: Vec<Wire> = Vec::with_capacity(sources.len());
+    let mut heap = BinaryHeap::with_capacity(sources.len());
+    for (k, source) in sources.iter_mut().enumerate() {
+        let head = source()?;
         if let Some(w) = head {
             heap.push(Reverse((key.key(&w), k)));
         }
@@ -317,22 +342,20 @@ fn merge_once(
     while let Some(Reverse((_, k))) = heap.pop() {
         sink(&heads[k])?;
         io.read += WIRE_LEN as u64;
-        if let Some(w) = readers[k].next_record()? {
+        if let Some(w) = sources[k]()? {
             heap.push(Reverse((key.key(&w), k)));
             heads[k] = w;
         }
     }
-    drop(readers);
-    for p in runs {
-        std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
-    }
     Ok(())
 }
 
-/// Sorts the records of `inputs` (run files in any order) by `key` into `sink`: pieces of
-/// `chunk_records` sorted in memory into runs, then merged. Removes the inputs.
+/// Sorts the records of `first` and of the run files `inputs` (in any order) by `key` into
+/// `sink`: pieces of `chunk_records` sorted in memory into runs, then merged. Removes the
+/// inputs.
 #[allow(clippy::too_many_arguments)]
 pub fn sort_runs(
+    first: Option<Source>,
     inputs: Vec<PathBuf>,
     key: AxisKey,
     chunk_records: usize,
@@ -362,9 +385,12 @@ pub fn sort_runs(
         piece.clear();
         Ok(())
     };
-    for input in &inputs {
-        let mut reader = SeqReader::<WIRE_LEN>::open(input, buffer_bytes)?;
-        while let Some(w) = reader.next_record()? {
+    let mut sources: Vec<Source> = first.into_iter().collect();
+    for p in &inputs {
+        sources.push(run_source(p, buffer_bytes)?);
+    }
+    for mut source in sources {
+        while let Some(w) = source()? {
             io.read += WIRE_LEN as u64;
             if piece.is_empty() {
                 // Exactly one piece: growth by doubling could overshoot the budget.
@@ -375,12 +401,11 @@ pub fn sort_runs(
                 flush(&mut piece, &mut runs, io)?;
             }
         }
-        drop(reader);
-        std::fs::remove_file(input).map_err(|e| OocError::io(input, "remove", e))?;
     }
+    remove_all(&inputs)?;
     flush(&mut piece, &mut runs, io)?;
     drop(piece);
-    merge_runs(runs, key, fan_in, buffer_bytes, dir, io, sink)
+    merge_runs(None, runs, key, fan_in, buffer_bytes, dir, io, sink)
 }
 
 #[cfg(test)]
@@ -418,15 +443,28 @@ mod tests {
         }
         expected.sort_by_key(|w| key.key(w));
         let mut got = Vec::new();
-        sort_runs(inputs, key, 7, 2, 4096, dir.path(), &mut io, &mut |w| {
-            got.push(*w);
-            Ok(())
-        })
+        // The first part as a source, the others as run files.
+        let first = run_source(&inputs[0], 4096).unwrap();
+        let rest = inputs[1..].to_vec();
+        sort_runs(
+            Some(first),
+            rest,
+            key,
+            7,
+            2,
+            4096,
+            dir.path(),
+            &mut io,
+            &mut |w| {
+                got.push(*w);
+                Ok(())
+            },
+        )
         .unwrap();
         assert_eq!(got.len(), expected.len());
         assert!(got == expected);
-        // Nothing left behind.
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        // Nothing left behind but the first input, which the caller owns.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
     #[test]

@@ -5,7 +5,9 @@
 //! into the new held files; an external sort instead when the held order was another axis's).
 
 use super::held::WIRE_LEN;
-use super::held::{merge_runs, sort_runs, AxisKey, Held, HeldReader, HeldWriter, RunWriter, Wire};
+use super::held::{
+    merge_runs, sort_runs, AxisKey, Held, HeldReader, HeldWriter, RunWriter, Source, Wire,
+};
 use crate::distribute::data::PhaseSeconds;
 use crate::distribute::Comm;
 use crate::outcore::budget::MemoryPlan;
@@ -61,10 +63,14 @@ impl Router<'_> {
         seconds: &mut PhaseSeconds,
     ) -> Result<(Held, Vec<u32>, u64), OocError> {
         let (ranks, me) = (self.comm.size(), self.comm.rank());
-        // Fill.
+        if ranks == 1 && sorted {
+            // Alone, in order already: nothing to move, nothing to read.
+            return Ok((held, histogram, 0));
+        }
+        // Fill: only the records that leave are written; the kept ones are read again from
+        // the held files by the merge (a write and a read of every kept record saved).
         let t = Instant::now();
         let buffer = self.plan.bucket_buffer(ranks as u64 + 1);
-        let mut kept = RunWriter::create(&self.dir.join("kept.run"), buffer)?;
         let mut outgoing: Vec<Option<RunWriter>> = (0..ranks)
             .map(|d| {
                 (d != me)
@@ -76,18 +82,12 @@ impl Router<'_> {
         let mut moved = 0u64;
         while let Some(mut w) = reader.next(io)? {
             transform(&mut w);
-            let dest = owner(&w);
-            match outgoing[dest].as_mut() {
-                Some(out) => {
-                    out.write(&w)?;
-                    moved += 1;
-                }
-                None => kept.write(&w)?,
+            if let Some(out) = outgoing[owner(&w)].as_mut() {
+                out.write(&w)?;
+                moved += 1;
             }
         }
         drop(reader);
-        held.remove()?;
-        let kept = kept.finish(io)?;
         let outgoing: Vec<Option<PathBuf>> = outgoing
             .into_iter()
             .map(|o| o.map(|o| o.finish(&mut *io)).transpose())
@@ -117,13 +117,22 @@ impl Router<'_> {
         for path in outgoing.iter().flatten() {
             std::fs::remove_file(path).map_err(|e| OocError::io(path, "remove", e))?;
         }
-        let mut runs = vec![kept];
+        let received: u64 = incoming.iter().flatten().map(|r| r.count).sum();
+        let mut runs = Vec::new();
         for run in incoming.into_iter().flatten() {
             runs.push(run.finish(io)?);
         }
         seconds.exchange += t.elapsed().as_secs_f64();
+        if sorted && moved == 0 && received == 0 {
+            // Nothing left or arrived, and the order holds: the held files stay as they are
+            // (`transform` changes records only when the order changes).
+            for path in &runs {
+                std::fs::remove_file(path).map_err(|e| OocError::io(path, "remove", e))?;
+            }
+            return Ok((held, histogram, 0));
+        }
 
-        // Merge (or sort) into the new held files.
+        // Merge (or sort) the kept records and the received runs into the new held files.
         let t = Instant::now();
         let mut writer = HeldWriter::create(
             self.dir,
@@ -133,21 +142,47 @@ impl Router<'_> {
         )?;
         let (fan_in, read_buffer) = self.fan_in();
         let mut sink = |w: &Wire| writer.write(w);
-        if sorted {
-            merge_runs(runs, key, fan_in, read_buffer, self.dir, io, &mut sink)?;
-        } else {
-            let records = self.sort_records();
-            sort_runs(
-                runs,
-                key,
-                records,
-                fan_in,
-                read_buffer,
-                self.dir,
-                io,
-                &mut sink,
-            )?;
+        {
+            // The merge counts the kept records it takes; the ones that left are counted below.
+            let mut uncounted = IoCounters::default();
+            let mut reader = HeldReader::open(&held, self.plan.io_bytes)?;
+            let kept: Source = Box::new(move || {
+                while let Some(mut w) = reader.next(&mut uncounted)? {
+                    transform(&mut w);
+                    if owner(&w) == me {
+                        return Ok(Some(w));
+                    }
+                }
+                Ok(None)
+            });
+            if sorted {
+                merge_runs(
+                    Some(kept),
+                    runs,
+                    key,
+                    fan_in,
+                    read_buffer,
+                    self.dir,
+                    io,
+                    &mut sink,
+                )?;
+            } else {
+                let records = self.sort_records();
+                sort_runs(
+                    Some(kept),
+                    runs,
+                    key,
+                    records,
+                    fan_in,
+                    read_buffer,
+                    self.dir,
+                    io,
+                    &mut sink,
+                )?;
+            }
         }
+        io.read += moved * WIRE_LEN as u64;
+        held.remove()?;
         let (held, histogram) = writer.finish(io)?;
         seconds.merge += t.elapsed().as_secs_f64();
         Ok((held, histogram.unwrap_or_default(), moved))
