@@ -387,22 +387,7 @@ fn solve_out_of_core_in(
     directions: &DirectionSet,
     budget: u64,
 ) -> Result<crate::outcore::OocSolution, AppError> {
-    let info = source.info();
-    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
-        .map(|p| p.io_bytes as u64)
-        .unwrap_or(1 << 16);
-    let identity = Identity {
-        solver: checkpoint::Solver::OutOfCore,
-        surfels: info.count,
-        dims: info.grid.dims,
-        voxel_size: info.grid.voxel_size,
-        directions: directions.len() as u32,
-        directions_checksum: checkpoint::directions_checksum(directions),
-        // The out-of-core solver always solves three channels and does not extrapolate.
-        channels: 3,
-        accelerate: false,
-        scene_checksum: source.checksum(window).map_err(ooc_error)?,
-    };
+    let identity = out_of_core_identity(source, directions, budget)?;
     let path = checkpoint::path_in(&cmd.out);
     let resume = if cmd.checkpoint.resume && path.exists() {
         let file = CheckpointFile::open(&path).map_err(checkpoint_error)?;
@@ -434,6 +419,31 @@ fn solve_out_of_core_in(
         checkpoints,
     )
     .map_err(ooc_error)
+}
+
+/// What names an out-of-core run in its checkpoints (one process or the data mode: the same
+/// radiosity, so either resumes the other's).
+fn out_of_core_identity(
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    budget: u64,
+) -> Result<Identity, AppError> {
+    let info = source.info();
+    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
+        .map(|p| p.io_bytes as u64)
+        .unwrap_or(1 << 16);
+    Ok(Identity {
+        solver: checkpoint::Solver::OutOfCore,
+        surfels: info.count,
+        dims: info.grid.dims,
+        voxel_size: info.grid.voxel_size,
+        directions: directions.len() as u32,
+        directions_checksum: checkpoint::directions_checksum(directions),
+        // The out-of-core solver always solves three channels and does not extrapolate.
+        channels: 3,
+        accelerate: false,
+        scene_checksum: source.checksum(window).map_err(ooc_error)?,
+    })
 }
 
 /// Sets the report's total time and peak RSS, writes it beside the staged outputs and moves
@@ -732,16 +742,11 @@ fn run_solve_data_out_of_core(
     budget: u64,
     started: Instant,
 ) -> Result<Report, AppError> {
-    if cmd.checkpoint.resume || cmd.checkpoint.every_given {
-        return Err(AppError::BadInput(format!(
-            "{}: --distribute data --memory writes no checkpoints yet, so --resume and \
-             --checkpoint-every do not apply; leave them out, or solve in memory (without \
-             --memory) to have checkpoints",
-            cmd.scene.display()
-        )));
-    }
     let start_rss = crate::output::report::peak_rss_bytes();
     create_out_dir(&cmd.out)?;
+    if comm.rank() == 0 {
+        checkpoint::remove_leftovers(&cmd.out);
+    }
     let (_converted, shards) = if cmd.scene.is_dir() {
         (None, cmd.scene.clone())
     } else {
@@ -752,6 +757,24 @@ fn run_solve_data_out_of_core(
     let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
     let read_seconds = started.elapsed().as_secs_f64();
     let directions = DirectionSet::with_count(cmd.solve.directions);
+    let identity = out_of_core_identity(&source, &directions, budget)?;
+    let (resume, state) = open_checkpoint_on_rank0(cmd, comm, &identity)?;
+    if comm.rank() == 0 {
+        say_where_it_starts(cmd, &checkpoint::path_in(&cmd.out), state.is_some());
+    }
+    let mut saver = Saver::new(
+        &cmd.out,
+        identity,
+        comm.rank() == 0,
+        cmd.checkpoint.every,
+        comm.size(),
+        state.as_ref().map(|s| s.iteration),
+    );
+    let checkpoints = crate::distribute::ooc::DataOocCheckpoints {
+        saver: &mut saver,
+        resume,
+        state,
+    };
     let t = Instant::now();
     let solution = crate::distribute::ooc::solve_data_out_of_core(
         &source,
@@ -760,6 +783,7 @@ fn run_solve_data_out_of_core(
         comm,
         budget,
         &cmd.out,
+        Some(checkpoints),
     )
     .map_err(ooc_error)?;
     let solve_seconds = t.elapsed().as_secs_f64();
@@ -840,7 +864,65 @@ fn run_solve_data_out_of_core(
         .map_err(|e| AppError::Failure(e.to_string()))?;
     drop(solution);
     publish(staged)?;
+    checkpoint::remove_finished(&cmd.out);
     Ok(report)
+}
+
+/// Under `--resume`, the checkpoint in the out directory: rank 0 opens it and checks it against
+/// the run (the file, if any, returned there), and every rank gets the state it holds; every
+/// rank returns the same outcome, so none is left waiting in a collective call.
+fn open_checkpoint_on_rank0(
+    cmd: &SolveCommand,
+    comm: &dyn Comm,
+    identity: &Identity,
+) -> Result<(Option<CheckpointFile>, Option<checkpoint::State>), AppError> {
+    let path = checkpoint::path_in(&cmd.out);
+    let (mut status, mut failure, mut file) = (0u64, None, None);
+    if cmd.checkpoint.resume && comm.rank() == 0 && path.exists() {
+        let opened = CheckpointFile::open(&path).and_then(|f| {
+            checkpoint::check(&path, &f.header, identity, cmd.solve.max_iterations).map(|_| f)
+        });
+        match opened {
+            Ok(f) => {
+                file = Some(f);
+                status = 1;
+            }
+            Err(e) => {
+                failure = Some(e);
+                status = 2;
+            }
+        }
+    }
+    match comm.max_u64(status) {
+        0 => return Ok((None, None)),
+        2 => {
+            return Err(checkpoint_error(failure.unwrap_or_else(|| {
+                CheckpointError::Bad {
+                    path: path.clone(),
+                    what: "rank 0 could not read it (see rank 0's message)".to_string(),
+                }
+            })))
+        }
+        _ => {}
+    }
+    // The state, from rank 0 to all (whole numbers and one f64: a sum with zeros keeps them).
+    let mut words = [0.0f64; 3];
+    if let Some(f) = &file {
+        let state = &f.header.state;
+        words = [
+            state.iteration as f64,
+            state.previous_change.is_some() as u8 as f64,
+            state.previous_change.unwrap_or(0.0),
+        ];
+    }
+    comm.sum_in_place(&mut words);
+    let state = checkpoint::State {
+        iteration: words[0] as u64,
+        ranks: comm.size() as u32,
+        previous_change: (words[1] == 1.0).then_some(words[2]),
+        extrapolation: Default::default(),
+    };
+    Ok((file, Some(state)))
 }
 
 fn run_info(

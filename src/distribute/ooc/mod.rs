@@ -35,6 +35,7 @@ pub mod route;
 
 use super::data::{DataStats, PhaseSeconds, RankOutOfCore};
 use super::Comm;
+use crate::checkpoint::{CheckpointFile, Saver, State};
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
@@ -100,6 +101,17 @@ impl DataOocSolution {
     }
 }
 
+/// The checkpoints of a data-mode out-of-core solve: at iteration boundaries the radiosity is
+/// gathered to canonical order on rank 0, which writes it (`Saver`); a resumed run starts from
+/// one, which rank 0 reads and sends to the ranks in slices.
+pub struct DataOocCheckpoints<'a> {
+    pub saver: &'a mut Saver,
+    /// On rank 0: the checkpoint to start from, opened and checked against the run.
+    pub resume: Option<CheckpointFile>,
+    /// On every rank: the state that checkpoint holds (`None`: start afresh).
+    pub state: Option<State>,
+}
+
 /// Solves `source` over the ranks of `comm`, each within `budget` bytes, with its work files
 /// in a new directory under `work_parent`.
 pub fn solve_data_out_of_core(
@@ -109,6 +121,7 @@ pub fn solve_data_out_of_core(
     comm: &dyn Comm,
     budget: u64,
     work_parent: &Path,
+    checkpoints: Option<DataOocCheckpoints>,
 ) -> Result<DataOocSolution, OocError> {
     let threads = if options.threads == 0 {
         rayon::current_num_threads()
@@ -132,7 +145,7 @@ pub fn solve_data_out_of_core(
         threads,
         pool: &pool,
     };
-    solver.run(budget, work_parent)
+    solver.run(budget, work_parent, checkpoints)
 }
 
 struct Solver<'a> {
@@ -156,12 +169,19 @@ struct Update {
 /// The rank's slice of the input.
 struct Slice {
     held: Held,
+    /// Canonical index of its first surfel.
+    first: u64,
     voxels: u64,
     any_light: bool,
 }
 
 impl Solver<'_> {
-    fn run(&self, budget: u64, work_parent: &Path) -> Result<DataOocSolution, OocError> {
+    fn run(
+        &self,
+        budget: u64,
+        work_parent: &Path,
+        mut checkpoints: Option<DataOocCheckpoints>,
+    ) -> Result<DataOocSolution, OocError> {
         let info = self.source.info();
         let dims = info.grid.dims;
         let (ranks, me) = (self.comm.size(), self.comm.rank());
@@ -192,6 +212,31 @@ impl Solver<'_> {
         let setup_seconds = started.elapsed().as_secs_f64();
         let mut held = slice.held;
         let mut largest_share = held.count;
+        let mut generation = 0u64;
+        let mut convergence = Convergence::new();
+        let mut stats = SolveStats {
+            directions: self.directions.len(),
+            threads: self.threads,
+            channels: 3,
+            normalize_seconds,
+            ..Default::default()
+        };
+        let mut first_iteration = 1;
+        if let Some(c) = checkpoints.as_mut() {
+            if let Some(state) = c.state.take() {
+                generation += 1;
+                held = self.restore(
+                    held,
+                    slice.first,
+                    c.resume.take(),
+                    generation,
+                    &router,
+                    &mut io,
+                )?;
+                first_iteration = convergence.resume(&state, c.saver.path(), &mut stats);
+            }
+            crate::interrupt::start_iterating();
+        }
 
         let d_count = self.directions.len();
         let by_axis: Vec<Vec<usize>> = (0..3)
@@ -208,19 +253,10 @@ impl Solver<'_> {
         let mut moved = vec![0.0f64; d_count];
         let mut histogram: Vec<u32> = Vec::new();
         let mut times = BandTimes::default();
-        let mut stats = SolveStats {
-            directions: d_count,
-            threads: self.threads,
-            channels: 3,
-            normalize_seconds,
-            ..Default::default()
-        };
-        let mut convergence = Convergence::new();
         let mut last = Update::default();
-        let mut generation = 0u64;
-        let mut iterations_done = 0;
+        let mut iterations_done = first_iteration - 1;
         let progress = crate::progress::bar(d_count as u64, "iteration 1");
-        for iteration in 1..=self.options.max_iterations {
+        for iteration in first_iteration..=self.options.max_iterations {
             if !any_light {
                 stats.converged = true;
                 break;
@@ -237,6 +273,15 @@ impl Solver<'_> {
                 }
                 let key = AxisKey::new(m, dims);
                 for (k, &d) in axis.iter().enumerate() {
+                    // The ranks exchange surfels for every direction: they stop together.
+                    self.stop_if_asked(
+                        iteration - 1,
+                        &held,
+                        &plan,
+                        dir,
+                        &convergence,
+                        &mut checkpoints,
+                    )?;
                     let direction = &self.directions.directions[d];
                     let frame = LineFrame::new(direction.vector, dims);
                     let t = Instant::now();
@@ -294,6 +339,15 @@ impl Solver<'_> {
                 }
                 pending = true;
             }
+            // A pass stopped early by a signal leaves this iteration's light incomplete.
+            self.stop_if_asked(
+                iteration - 1,
+                &held,
+                &plan,
+                dir,
+                &convergence,
+                &mut checkpoints,
+            )?;
             let t = Instant::now();
             generation += 1;
             let (next, result) = self.update(
@@ -323,6 +377,21 @@ impl Solver<'_> {
             if stop {
                 break;
             }
+            // A boundary the solve goes on from; rank 0's clock decides for all (the radiosity
+            // is gathered from every rank).
+            if iteration < self.options.max_iterations {
+                if let Some(c) = checkpoints.as_mut() {
+                    let due = self.comm.max_u64((me == 0 && c.saver.due()) as u64) == 1;
+                    if due {
+                        let canonical = self.gather_results(&held, surfels, dir, &plan, &mut io)?;
+                        let previous = convergence.previous_change;
+                        c.saver.save_if_due(
+                            |saver| saver.state(iteration, previous, &Default::default()),
+                            |saver, state| save(saver, state, canonical.as_deref(), &plan),
+                        );
+                    }
+                }
+            }
         }
         progress.finish_and_clear();
         if self.options.tolerance.is_none() {
@@ -340,7 +409,8 @@ impl Solver<'_> {
         stats.reduce_seconds = seconds.reduce;
 
         let t = Instant::now();
-        let canonical = self.gather_results(held, surfels, dir, &plan, &mut io)?;
+        let canonical = self.gather_results(&held, surfels, dir, &plan, &mut io)?;
+        held.remove()?;
         seconds.reduce += t.elapsed().as_secs_f64();
 
         // Statistics of every rank, added over ranks.
@@ -433,6 +503,7 @@ impl Solver<'_> {
         let mut previous: Option<[i32; 3]> = None;
         let mut inside = false;
         let mut slice = Slice {
+            first: 0,
             held: Held {
                 paths: Default::default(),
                 count: 0,
@@ -458,6 +529,9 @@ impl Solver<'_> {
                 if i >= hi {
                     break;
                 }
+                if !inside {
+                    slice.first = i;
+                }
                 inside = true;
                 first_id = i;
             }
@@ -469,6 +543,10 @@ impl Solver<'_> {
             self.write_group(&group, first_id, &mut writer, cosine_sum, &mut slice)?;
         }
         let (held, _) = writer.finish(io)?;
+        if !inside {
+            // Empty: it would start at the next rank's start, or at the end.
+            slice.first = index.min(n);
+        }
         slice.held = held;
         Ok(slice)
     }
@@ -644,11 +722,155 @@ impl Solver<'_> {
         Ok((held, result))
     }
 
+    /// Ends the solve if any rank was asked to stop: the checkpoint of the last completed
+    /// iteration (`completed`; the held radiosity is still its own) is written by rank 0.
+    #[allow(clippy::too_many_arguments)]
+    fn stop_if_asked(
+        &self,
+        completed: usize,
+        held: &Held,
+        plan: &MemoryPlan,
+        dir: &Path,
+        convergence: &Convergence,
+        checkpoints: &mut Option<DataOocCheckpoints>,
+    ) -> Result<(), OocError> {
+        let signal = self
+            .comm
+            .max_u64(crate::interrupt::requested().unwrap_or(0) as u64) as i32;
+        if signal == 0 {
+            return Ok(());
+        }
+        let writer = self.comm.rank() == 0;
+        let interruption = match checkpoints.as_mut() {
+            Some(c) => {
+                // Collective: every rank sends its radiosity, rank 0 writes.
+                let surfels = self.source.info().count;
+                let mut io = IoCounters::default();
+                let canonical = self.gather_results(held, surfels, dir, plan, &mut io)?;
+                let previous = convergence.previous_change;
+                c.saver.interrupt(signal, completed, |saver| {
+                    let state = saver.state(completed, previous, &Default::default());
+                    save(saver, state, canonical.as_deref(), plan)
+                })
+            }
+            None => crate::checkpoint::Interruption::without_checkpoint(signal, completed, writer),
+        };
+        Err(OocError::Interrupted(interruption))
+    }
+
+    /// Puts the radiosity of a checkpoint (`file`, on rank 0) into the held files of every rank,
+    /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
+    /// sends each rank its slice in bounded rounds.
+    fn restore(
+        &self,
+        held: Held,
+        first: u64,
+        file: Option<CheckpointFile>,
+        generation: u64,
+        router: &Router,
+        io: &mut IoCounters,
+    ) -> Result<Held, OocError> {
+        let (ranks, me) = (self.comm.size(), self.comm.rank());
+        let plan = router.plan;
+        let dir = router.dir;
+        let n = self.source.info().count;
+        let mut starts = vec![0.0f64; ranks];
+        starts[me] = first as f64;
+        self.comm.sum_in_place(&mut starts);
+        let starts: Vec<u64> = starts.iter().map(|&s| s as u64).collect();
+        // Rank 0 cuts the checkpoint's radiosity into one file per rank.
+        let path = |r: usize| dir.join(format!("restore-{r}.bin"));
+        let mut failure = None;
+        if me == 0 {
+            let cut = || -> Result<(), OocError> {
+                let file = file.ok_or_else(|| OocError::BadData {
+                    source_name: "the checkpoint".to_string(),
+                    what: "rank 0 did not open it".to_string(),
+                })?;
+                let buffer = plan.bucket_buffer(ranks as u64);
+                let mut outs = (0..ranks)
+                    .map(|r| crate::outcore::files::SeqWriter::create(&path(r), buffer))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let mut index = 0u64;
+                file.read_radiosity::<OocError>(plan.io_bytes, |piece| {
+                    for b in piece.chunks_exact(RADIOSITY_LEN) {
+                        let owner = starts[1..].partition_point(|&s| s <= index);
+                        outs[owner].write(b)?;
+                        index += 1;
+                    }
+                    Ok(())
+                })?;
+                if index != n {
+                    return Err(OocError::BadData {
+                        source_name: file.path.display().to_string(),
+                        what: format!("it holds {index} surfels, the scene {n}"),
+                    });
+                }
+                for out in outs {
+                    io.written += out.finish()?;
+                }
+                io.read += n * RADIOSITY_LEN as u64;
+                Ok(())
+            };
+            failure = cut().err();
+        }
+        // Every rank learns whether rank 0 could read it before any waits for its slice.
+        if self.comm.max_u64(failure.is_some() as u64) == 1 {
+            return Err(failure.unwrap_or_else(|| OocError::BadData {
+                source_name: "the checkpoint".to_string(),
+                what: "rank 0 could not read it (see rank 0's message)".to_string(),
+            }));
+        }
+        let outgoing: Vec<Option<PathBuf>> = (0..ranks)
+            .map(|r| (me == 0 && r != 0).then(|| path(r)))
+            .collect();
+        let mine = path(me);
+        let mut received = if me == 0 {
+            None
+        } else {
+            Some(crate::outcore::files::SeqWriter::create(
+                &mine,
+                plan.io_bytes,
+            )?)
+        };
+        exchange_files(
+            self.comm,
+            &outgoing,
+            RADIOSITY_LEN,
+            router.round_bytes(),
+            io,
+            &mut |_, bytes| match received.as_mut() {
+                Some(out) => out.write(bytes),
+                None => Ok(()),
+            },
+        )?;
+        if let Some(out) = received {
+            io.written += out.finish()?;
+        }
+        for p in outgoing.iter().flatten() {
+            std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+        }
+        // The held files with the checkpoint's radiosity.
+        let mut values = SeqReader::<RADIOSITY_LEN>::open(&mine, plan.io_bytes)?;
+        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
+        while let Some(mut w) = reader.next(io)? {
+            let b = values.expect_record()?;
+            w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN].copy_from_slice(&b);
+            writer.write(&w)?;
+        }
+        drop((reader, values));
+        io.read += held.count * RADIOSITY_LEN as u64;
+        std::fs::remove_file(&mine).map_err(|e| OocError::io(&mine, "remove", e))?;
+        held.remove()?;
+        Ok(writer.finish(io)?.0)
+    }
+
     /// Sends every held `(id, B)` to rank 0, which places them in a canonical radiosity file
     /// (returned there; `None` elsewhere).
     fn gather_results(
         &self,
-        held: Held,
+        held: &Held,
         surfels: u64,
         dir: &Path,
         plan: &MemoryPlan,
@@ -665,7 +887,7 @@ impl Solver<'_> {
         };
         let out_path = dir.join("results-out.bin");
         let mut out = crate::outcore::files::SeqWriter::create(&out_path, plan.io_bytes)?;
-        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut reader = HeldReader::open(held, plan.io_bytes)?;
         while let Some(w) = reader.next(io)? {
             let id = held::id(&w) as u64;
             let b = &w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN];
@@ -678,7 +900,6 @@ impl Solver<'_> {
             }
         }
         drop(reader);
-        held.remove()?;
         io.written += out.finish()?;
         let mut outgoing: Vec<Option<PathBuf>> = vec![None; self.comm.size()];
         if me != 0 {
@@ -710,6 +931,27 @@ impl Solver<'_> {
         std::fs::remove_file(&out_path).map_err(|e| OocError::io(&out_path, "remove", e))?;
         Ok(canonical.map(|_| canonical_path))
     }
+}
+
+/// Writes a checkpoint whose radiosity is the canonical file `canonical` (rank 0's; the other
+/// ranks write nothing).
+fn save(
+    saver: &mut Saver,
+    state: State,
+    canonical: Option<&Path>,
+    plan: &MemoryPlan,
+) -> Result<(), crate::checkpoint::CheckpointError> {
+    saver.save(state, plan.io_bytes, |w| {
+        let Some(path) = canonical else {
+            return Ok(());
+        };
+        let mut reader =
+            SeqReader::<RADIOSITY_LEN>::open(path, plan.io_bytes).map_err(std::io::Error::other)?;
+        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+            w.write_all(&record)?;
+        }
+        Ok(())
+    })
 }
 
 /// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
