@@ -1,7 +1,8 @@
 //! The data mode out of core under real `mpirun` (`--distribute data --memory SIZE`; built only
 //! with the `mpi` feature, run by `.ci/run`): every rank count gives the single-process
 //! out-of-core radiosity bit for bit and the in-memory one within 1e-5, each rank's memory stays
-//! within the budget while its share of the scene is larger, and what cannot work is refused.
+//! within the budget while its share of the scene is larger, a run stopped by SIGTERM resumes
+//! (on another rank count) to the same bytes, and what cannot work is refused.
 //!
 //! Memory is read from the report: each rank's peak RSS (`VmHWM`) at the end, minus its peak
 //! before the scene was read (the program and the MPI library, which the budget does not
@@ -10,8 +11,10 @@
 
 mod common;
 
+use common::process::{self, describe, Child};
 use std::path::Path;
 use std::process::{Command, Output};
+use std::time::Duration;
 use voxrad::output::results::read_results;
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 
@@ -21,8 +24,14 @@ const ALLOWANCE_BYTES: u64 = 16 << 20;
 
 /// `mpirun -n ranks voxrad args`, oversubscribed, loopback and shared memory only.
 fn mpirun(ranks: usize, args: &[&str]) -> Output {
-    Command::new("mpirun")
-        .args(["-n", &ranks.to_string(), "--oversubscribe"])
+    mpirun_command(ranks, args)
+        .output()
+        .expect("run mpirun (is Open MPI installed?)")
+}
+
+fn mpirun_command(ranks: usize, args: &[&str]) -> Command {
+    let mut c = Command::new("mpirun");
+    c.args(["-n", &ranks.to_string(), "--oversubscribe"])
         .args([
             "--mca",
             "btl",
@@ -35,9 +44,8 @@ fn mpirun(ranks: usize, args: &[&str]) -> Output {
         .args(args)
         .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
         .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .env("NO_COLOR", "1")
-        .output()
-        .expect("run mpirun (is Open MPI installed?)")
+        .env("NO_COLOR", "1");
+    c
 }
 
 fn ok(o: &Output, what: &str) {
@@ -252,14 +260,10 @@ fn what_cannot_work_out_of_core_is_refused_clearly() {
     let out = tmp.path().join("out");
     let out = out.to_str().unwrap();
     let base = ["solve", set, "--out", out, "--iterations", "1"];
-    let cases: [(&[&str], &[&str]); 3] = [
+    let cases: [(&[&str], &[&str]); 2] = [
         (
             &["--memory", "16KiB", "--distribute", "data"],
             &["too small", "--memory"],
-        ),
-        (
-            &["--memory", "8MiB", "--distribute", "data", "--resume"],
-            &["--resume", "checkpoints"],
         ),
         (
             &["--memory", "8MiB", "--distribute", "hybrid"],
@@ -276,4 +280,82 @@ fn what_cannot_work_out_of_core_is_refused_clearly() {
         }
         assert!(!err.contains("panicked"), "{err}");
     }
+}
+
+#[test]
+fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 48, 2);
+    let set = set.to_str().unwrap();
+    let args = |out: &Path, extra: &[&'static str]| -> Vec<String> {
+        [
+            "solve",
+            set,
+            "--out",
+            out.to_str().unwrap(),
+            "--directions",
+            "49",
+            "--iterations",
+            "8",
+            "--threads",
+            "1",
+            "--memory",
+            "1MiB",
+            "--distribute",
+            "data",
+        ]
+        .iter()
+        .chain(extra)
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let reference = tmp.path().join("reference");
+    let a = args(&reference, &[]);
+    ok(
+        &mpirun(2, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+        "reference",
+    );
+
+    let out = tmp.path().join("out");
+    let log = tmp.path().join("run.log");
+    let a = args(&out, &["--checkpoint-every", "0"]);
+    let mut child = Child::spawn(
+        mpirun_command(2, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+        &log,
+    );
+    assert!(
+        child.wait_for(Duration::from_secs(120), || {
+            std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
+        }),
+        "no iteration 2:\n{}",
+        child.log()
+    );
+    let ranks = process::children_of(child.pid());
+    let rank1 = *ranks
+        .iter()
+        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
+        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
+    // SAFETY: kill(2) on a process this test started (through mpirun).
+    unsafe {
+        libc::kill(rank1, libc::SIGTERM);
+    }
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+    assert!(
+        voxrad::checkpoint::path_in(&out).exists(),
+        "no checkpoint:\n{text}"
+    );
+    // Resumed on three ranks: rank 0 sends each its slice of the checkpoint.
+    let a = args(&out, &["--resume"]);
+    let o = mpirun(3, &a.iter().map(String::as_str).collect::<Vec<_>>());
+    ok(&o, "resume");
+    let text = String::from_utf8_lossy(&o.stderr);
+    assert!(text.contains("resumed from a checkpoint"), "{text}");
+    assert!(
+        radiosity(&out) == radiosity(&reference),
+        "resumed results differ"
+    );
+    assert!(!voxrad::checkpoint::path_in(&out).exists());
 }
