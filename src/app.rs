@@ -734,8 +734,9 @@ fn write_outputs(
 
 /// `mpirun -n P voxrad solve SCENE --distribute data --memory SIZE`: every rank holds its share
 /// of the scene in work files under the out directory, within `budget` (see
-/// `distribute::ooc`); rank 0 writes the outputs. An OBJ scene is first converted to a shard
-/// set by every rank, each in its own work directory, within the budget.
+/// `distribute::ooc`); rank 0 writes the outputs and the checkpoints (those of the one-process
+/// out-of-core solve, so either resumes the other's). An OBJ scene is first converted to a
+/// shard set by every rank, each in its own work directory, within the budget.
 fn run_solve_data_out_of_core(
     cmd: &SolveCommand,
     comm: &dyn Comm,

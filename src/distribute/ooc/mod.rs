@@ -27,6 +27,11 @@
 //! `(id, B)` pairs go to rank 0 in bounded rounds, which places them in a canonical radiosity
 //! file and streams the results from the source as the single-process path does.
 //!
+//! **Checkpoints** ([`DataOocCheckpoints`]) are those of the single-process out-of-core solver:
+//! at a due iteration boundary the radiosity is gathered to rank 0, which writes it; on resume
+//! rank 0 reads it and sends every rank its slice. A stop signal is agreed on between
+//! directions (`max_u64`), and the checkpoint of the last completed iteration written.
+//!
 //! **Memory**: as in `outcore` (one band, one sort piece, or one exchange round at a time, and
 //! fixed I/O buffers), plus per direction its remembered cuts (`P + 1` numbers).
 
