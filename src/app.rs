@@ -70,8 +70,6 @@ pub struct CheckpointOptions {
     pub resume: bool,
     /// `--checkpoint-every`: least time between two checkpoints (zero: every iteration).
     pub every: std::time::Duration,
-    /// Whether `--checkpoint-every` was given (rather than its default).
-    pub every_given: bool,
 }
 
 impl Default for CheckpointOptions {
@@ -79,7 +77,6 @@ impl Default for CheckpointOptions {
         CheckpointOptions {
             resume: false,
             every: std::time::Duration::from_secs(60),
-            every_given: false,
         }
     }
 }

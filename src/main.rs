@@ -99,10 +99,10 @@ enum Command {
         /// solve of the same scene and options); without one, start from the beginning.
         #[arg(long)]
         resume: bool,
-        /// Least seconds between two checkpoints (0: after every iteration; default 60). A stop
-        /// signal always saves the last completed iteration.
-        #[arg(long, value_name = "SECONDS")]
-        checkpoint_every: Option<f64>,
+        /// Least seconds between two checkpoints (0: after every iteration). A stop signal
+        /// always saves the last completed iteration.
+        #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
+        checkpoint_every: f64,
     },
     /// Render a solved result directory to a PNG.
     Render {
@@ -272,8 +272,6 @@ fn run(cli: Cli) -> Result<(), AppError> {
             resume,
             checkpoint_every,
         } => {
-            let every_given = checkpoint_every.is_some();
-            let checkpoint_every = checkpoint_every.unwrap_or(60.0);
             let every = std::time::Duration::try_from_secs_f64(checkpoint_every).map_err(|_| {
                 AppError::BadInput(format!(
                     "--checkpoint-every {checkpoint_every}: must be a number of seconds, 0 or more"
@@ -333,11 +331,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 solve,
                 image_size,
                 memory,
-                checkpoint: CheckpointOptions {
-                    resume,
-                    every,
-                    every_given,
-                },
+                checkpoint: CheckpointOptions { resume, every },
             };
             if groups.is_some() && !matches!(distribute, Some(Distribute::Hybrid)) {
                 return Err(AppError::BadInput(
