@@ -35,8 +35,10 @@
 //! **Memory**: as in `outcore` (one band, one sort piece, or one exchange round at a time, and
 //! fixed I/O buffers), plus per direction its remembered cuts (`P + 1` numbers).
 
+mod canonical;
 pub mod held;
 pub mod route;
+mod slice;
 
 use super::data::{DataStats, PhaseSeconds, RankOutOfCore};
 use super::Comm;
@@ -46,20 +48,18 @@ use crate::geometry::lines::LineFrame;
 use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use crate::outcore::budget::MemoryPlan;
 use crate::outcore::files::{
-    decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, encode_static,
-    IoCounters, RecordFile, SeqReader, StaticRecord, RADIOSITY_LEN, STATIC_LEN,
+    decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, IoCounters, SeqReader,
+    RADIOSITY_LEN, STATIC_LEN,
 };
 use crate::outcore::source::SurfelSource;
 use crate::outcore::workset::AxisCopy;
 use crate::outcore::OocError;
-use crate::solve::coverage::coverage_in_voxel;
 use crate::solve::jacobi::Convergence;
 use crate::solve::normalize::cosine_sums;
-use crate::solve::propagate::PropSurfel;
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
 use held::{AxisKey, Held, HeldReader, HeldWriter, Wire, EARLIER_AT, GATHERED_AT, WIRE_LEN};
-use route::{exchange_files, Router};
+use route::Router;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tempfile::TempDir;
@@ -169,15 +169,6 @@ struct Update {
     total: f64,
     emitted: [f64; 3],
     absorbed: [f64; 3],
-}
-
-/// The rank's slice of the input.
-struct Slice {
-    held: Held,
-    /// Canonical index of its first surfel.
-    first: u64,
-    voxels: u64,
-    any_light: bool,
 }
 
 impl Solver<'_> {
@@ -392,7 +383,9 @@ impl Solver<'_> {
                         let previous = convergence.previous_change;
                         c.saver.save_if_due(
                             |saver| saver.state(iteration, previous, &Default::default()),
-                            |saver, state| save(saver, state, canonical.as_deref(), &plan),
+                            |saver, state| {
+                                canonical::save(saver, state, canonical.as_deref(), &plan)
+                            },
                         );
                     }
                 }
@@ -482,126 +475,6 @@ impl Solver<'_> {
             canonical,
             io_bytes: plan.io_bytes,
         })
-    }
-
-    /// Reads this rank's slice of the source into held files (canonical order), with `B = E`.
-    fn read_slice(
-        &self,
-        plan: &MemoryPlan,
-        dir: &Path,
-        cosine_sum: &[f64],
-        io: &mut IoCounters,
-    ) -> Result<Slice, OocError> {
-        let info = self.source.info();
-        let n = info.count;
-        let (ranks, me) = (self.comm.size() as u64, self.comm.rank() as u64);
-        // A slice starts at the first voxel boundary at or after its nominal start, and ends
-        // where the next one starts: the voxel of the record before the nominal start decides.
-        let lo = n * me / ranks;
-        let hi = n * (me + 1) / ranks;
-        let (stream, mut index) = self
-            .source
-            .stream_from(lo.saturating_sub(1), plan.io_bytes as u64)?;
-        let mut writer = HeldWriter::create(dir, 0, plan.io_bytes, None)?;
-        let mut group: Vec<Surfel> = Vec::new();
-        let mut first_id = 0u64;
-        let mut previous: Option<[i32; 3]> = None;
-        let mut inside = false;
-        let mut slice = Slice {
-            first: 0,
-            held: Held {
-                paths: Default::default(),
-                count: 0,
-            },
-            voxels: 0,
-            any_light: false,
-        };
-        for s in stream {
-            let s = s?;
-            let i = index;
-            index += 1;
-            io.read += crate::storage::RECORD_LEN as u64;
-            let boundary = previous != Some(s.voxel);
-            previous = Some(s.voxel);
-            if i + 1 < lo {
-                continue;
-            }
-            if boundary && i >= lo {
-                if inside || (i >= hi) {
-                    self.write_group(&group, first_id, &mut writer, cosine_sum, &mut slice)?;
-                    group.clear();
-                }
-                if i >= hi {
-                    break;
-                }
-                if !inside {
-                    slice.first = i;
-                }
-                inside = true;
-                first_id = i;
-            }
-            if inside {
-                group.push(s);
-            }
-        }
-        if inside {
-            self.write_group(&group, first_id, &mut writer, cosine_sum, &mut slice)?;
-        }
-        let (held, _) = writer.finish(io)?;
-        if !inside {
-            // Empty: it would start at the next rank's start, or at the end.
-            slice.first = index.min(n);
-        }
-        slice.held = held;
-        Ok(slice)
-    }
-
-    /// Writes the held records of the surfels of one voxel, with canonical ids from `first_id`.
-    fn write_group(
-        &self,
-        group: &[Surfel],
-        first_id: u64,
-        writer: &mut HeldWriter,
-        cosine_sum: &[f64],
-        slice: &mut Slice,
-    ) -> Result<(), OocError> {
-        if group.is_empty() {
-            return Ok(());
-        }
-        let info = self.source.info();
-        slice.voxels += 1;
-        for (k, s) in group.iter().enumerate() {
-            let mut w = [0u8; WIRE_LEN];
-            let r = StaticRecord {
-                prop: PropSurfel {
-                    voxel: s.voxel,
-                    group: s.group,
-                    point: s.point,
-                    normal: s.normal,
-                    extent: s.extent,
-                    coverage: coverage_in_voxel(group, k),
-                },
-                id: (first_id + k as u64) as u32,
-            };
-            let mut statics = [0u8; STATIC_LEN];
-            encode_static(&r, &mut statics);
-            w[..STATIC_LEN].copy_from_slice(&statics);
-            // B = E, computed as the update computes it with no light gathered.
-            let norm = cosine_sum[s.normal_id as usize];
-            let mut b: [[f32; 3]; 2] = [[0.0; 3]; 2];
-            for (side, b_side) in b.iter_mut().enumerate() {
-                let m = &info.materials[s.material[side] as usize];
-                for (ch, value) in b_side.iter_mut().enumerate() {
-                    let e = m.emission[ch] as f32 as f64;
-                    *value = (e + m.reflectance[ch] * 0.0 / norm) as f32;
-                    slice.any_light |= m.emission[ch] > 0.0;
-                }
-            }
-            encode_radiosity(&b, &mut w[held::RADIOSITY_AT..]);
-            held::encode_scene_data(s.normal_id, s.area, s.material, &mut w);
-            writer.write(&w)?;
-        }
-        Ok(())
     }
 
     /// Surfels per line column of `frame`, added over ranks.
@@ -726,237 +599,6 @@ impl Solver<'_> {
         let (held, _) = writer.finish(io)?;
         Ok((held, result))
     }
-
-    /// Ends the solve if any rank was asked to stop: the checkpoint of the last completed
-    /// iteration (`completed`; the held radiosity is still its own) is written by rank 0.
-    #[allow(clippy::too_many_arguments)]
-    fn stop_if_asked(
-        &self,
-        completed: usize,
-        held: &Held,
-        plan: &MemoryPlan,
-        dir: &Path,
-        convergence: &Convergence,
-        checkpoints: &mut Option<DataOocCheckpoints>,
-    ) -> Result<(), OocError> {
-        let signal = self
-            .comm
-            .max_u64(crate::interrupt::requested().unwrap_or(0) as u64) as i32;
-        if signal == 0 {
-            return Ok(());
-        }
-        let writer = self.comm.rank() == 0;
-        let interruption = match checkpoints.as_mut() {
-            Some(c) => {
-                // Collective: every rank sends its radiosity, rank 0 writes.
-                let surfels = self.source.info().count;
-                let mut io = IoCounters::default();
-                let canonical = self.gather_results(held, surfels, dir, plan, &mut io)?;
-                let previous = convergence.previous_change;
-                c.saver.interrupt(signal, completed, |saver| {
-                    let state = saver.state(completed, previous, &Default::default());
-                    save(saver, state, canonical.as_deref(), plan)
-                })
-            }
-            None => crate::checkpoint::Interruption::without_checkpoint(signal, completed, writer),
-        };
-        Err(OocError::Interrupted(interruption))
-    }
-
-    /// Puts the radiosity of a checkpoint (`file`, on rank 0) into the held files of every rank,
-    /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
-    /// sends each rank its slice in bounded rounds.
-    fn restore(
-        &self,
-        held: Held,
-        first: u64,
-        file: Option<CheckpointFile>,
-        generation: u64,
-        router: &Router,
-        io: &mut IoCounters,
-    ) -> Result<Held, OocError> {
-        let (ranks, me) = (self.comm.size(), self.comm.rank());
-        let plan = router.plan;
-        let dir = router.dir;
-        let n = self.source.info().count;
-        let mut starts = vec![0.0f64; ranks];
-        starts[me] = first as f64;
-        self.comm.sum_in_place(&mut starts);
-        let starts: Vec<u64> = starts.iter().map(|&s| s as u64).collect();
-        // Rank 0 cuts the checkpoint's radiosity into one file per rank.
-        let path = |r: usize| dir.join(format!("restore-{r}.bin"));
-        let mut failure = None;
-        if me == 0 {
-            let cut = || -> Result<(), OocError> {
-                let file = file.ok_or_else(|| OocError::BadData {
-                    source_name: "the checkpoint".to_string(),
-                    what: "rank 0 did not open it".to_string(),
-                })?;
-                let buffer = plan.bucket_buffer(ranks as u64);
-                let mut outs = (0..ranks)
-                    .map(|r| crate::outcore::files::SeqWriter::create(&path(r), buffer))
-                    .collect::<Result<Vec<_>, _>>()?;
-                let mut index = 0u64;
-                file.read_radiosity::<OocError>(plan.io_bytes, |piece| {
-                    for b in piece.chunks_exact(RADIOSITY_LEN) {
-                        let owner = starts[1..].partition_point(|&s| s <= index);
-                        outs[owner].write(b)?;
-                        index += 1;
-                    }
-                    Ok(())
-                })?;
-                if index != n {
-                    return Err(OocError::BadData {
-                        source_name: file.path.display().to_string(),
-                        what: format!("it holds {index} surfels, the scene {n}"),
-                    });
-                }
-                for out in outs {
-                    io.written += out.finish()?;
-                }
-                io.read += n * RADIOSITY_LEN as u64;
-                Ok(())
-            };
-            failure = cut().err();
-        }
-        // Every rank learns whether rank 0 could read it before any waits for its slice.
-        if self.comm.max_u64(failure.is_some() as u64) == 1 {
-            return Err(failure.unwrap_or_else(|| OocError::BadData {
-                source_name: "the checkpoint".to_string(),
-                what: "rank 0 could not read it (see rank 0's message)".to_string(),
-            }));
-        }
-        let outgoing: Vec<Option<PathBuf>> = (0..ranks)
-            .map(|r| (me == 0 && r != 0).then(|| path(r)))
-            .collect();
-        let mine = path(me);
-        let mut received = if me == 0 {
-            None
-        } else {
-            Some(crate::outcore::files::SeqWriter::create(
-                &mine,
-                plan.io_bytes,
-            )?)
-        };
-        exchange_files(
-            self.comm,
-            &outgoing,
-            RADIOSITY_LEN,
-            router.round_bytes(),
-            io,
-            &mut |_, bytes| match received.as_mut() {
-                Some(out) => out.write(bytes),
-                None => Ok(()),
-            },
-        )?;
-        if let Some(out) = received {
-            io.written += out.finish()?;
-        }
-        for p in outgoing.iter().flatten() {
-            std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
-        }
-        // The held files with the checkpoint's radiosity.
-        let mut values = SeqReader::<RADIOSITY_LEN>::open(&mine, plan.io_bytes)?;
-        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
-        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
-        while let Some(mut w) = reader.next(io)? {
-            let b = values.expect_record()?;
-            w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN].copy_from_slice(&b);
-            writer.write(&w)?;
-        }
-        drop((reader, values));
-        io.read += held.count * RADIOSITY_LEN as u64;
-        std::fs::remove_file(&mine).map_err(|e| OocError::io(&mine, "remove", e))?;
-        held.remove()?;
-        Ok(writer.finish(io)?.0)
-    }
-
-    /// Sends every held `(id, B)` to rank 0, which places them in a canonical radiosity file
-    /// (returned there; `None` elsewhere).
-    fn gather_results(
-        &self,
-        held: &Held,
-        surfels: u64,
-        dir: &Path,
-        plan: &MemoryPlan,
-        io: &mut IoCounters,
-    ) -> Result<Option<PathBuf>, OocError> {
-        let me = self.comm.rank();
-        let canonical_path = dir.join("radiosity-canonical.bin");
-        let canonical = if me == 0 {
-            let f = RecordFile::create(&canonical_path)?;
-            f.set_len(surfels * RADIOSITY_LEN as u64)?;
-            Some(f)
-        } else {
-            None
-        };
-        let out_path = dir.join("results-out.bin");
-        let mut out = crate::outcore::files::SeqWriter::create(&out_path, plan.io_bytes)?;
-        let mut reader = HeldReader::open(held, plan.io_bytes)?;
-        while let Some(w) = reader.next(io)? {
-            let id = held::id(&w) as u64;
-            let b = &w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN];
-            match canonical.as_ref() {
-                Some(f) => f.write_at(id * RADIOSITY_LEN as u64, b, io)?,
-                None => {
-                    out.write(&(id as u32).to_le_bytes())?;
-                    out.write(b)?;
-                }
-            }
-        }
-        drop(reader);
-        io.written += out.finish()?;
-        let mut outgoing: Vec<Option<PathBuf>> = vec![None; self.comm.size()];
-        if me != 0 {
-            outgoing[0] = Some(out_path.clone());
-        }
-        // The closure's own counter: `io` is lent to the exchange.
-        let mut placed = IoCounters::default();
-        let router = Router {
-            comm: self.comm,
-            plan,
-            dir,
-        };
-        exchange_files(
-            self.comm,
-            &outgoing,
-            RESULT_PAIR_LEN,
-            router.round_bytes(),
-            io,
-            &mut |_, bytes| {
-                let f = canonical.as_ref().expect("only rank 0 receives results");
-                for pair in bytes.chunks_exact(RESULT_PAIR_LEN) {
-                    let id = u32::from_le_bytes([pair[0], pair[1], pair[2], pair[3]]) as u64;
-                    f.write_at(id * RADIOSITY_LEN as u64, &pair[4..], &mut placed)?;
-                }
-                Ok(())
-            },
-        )?;
-        io.written += placed.written;
-        std::fs::remove_file(&out_path).map_err(|e| OocError::io(&out_path, "remove", e))?;
-        Ok(canonical.map(|_| canonical_path))
-    }
-}
-
-/// Writes a checkpoint whose radiosity is the canonical file `canonical` (rank 0's; the other
-/// ranks write nothing).
-fn save(
-    saver: &mut Saver,
-    state: State,
-    canonical: Option<&Path>,
-    plan: &MemoryPlan,
-) -> Result<(), crate::checkpoint::CheckpointError> {
-    saver.save(state, plan.io_bytes, |w| {
-        let Some(path) = canonical else {
-            return Ok(());
-        };
-        let mut reader =
-            SeqReader::<RADIOSITY_LEN>::open(path, plan.io_bytes).map_err(std::io::Error::other)?;
-        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
-            w.write_all(&record)?;
-        }
-        Ok(())
-    })
 }
 
 /// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
