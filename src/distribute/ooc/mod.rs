@@ -39,8 +39,9 @@ mod canonical;
 pub mod held;
 pub mod route;
 mod slice;
+mod summary;
 
-use super::data::{DataStats, PhaseSeconds, RankOutOfCore};
+use super::data::PhaseSeconds;
 use super::Comm;
 use crate::checkpoint::{CheckpointFile, Saver, State};
 use crate::geometry::directions::DirectionSet;
@@ -58,7 +59,7 @@ use crate::solve::jacobi::Convergence;
 use crate::solve::normalize::cosine_sums;
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
-use held::{AxisKey, Held, HeldReader, HeldWriter, Wire, EARLIER_AT, GATHERED_AT, WIRE_LEN};
+use held::{AxisKey, Held, HeldReader, HeldWriter, Wire, EARLIER_AT, GATHERED_AT};
 use route::Router;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -411,65 +412,23 @@ impl Solver<'_> {
         held.remove()?;
         seconds.reduce += t.elapsed().as_secs_f64();
 
-        // Statistics of every rank, added over ranks.
-        let updates = (surfels * d_count as u64 * iterations_done.max(1) as u64).max(1);
-        let mut table = vec![0.0f64; d_count + (PhaseSeconds::FIELDS + 3) * ranks + 1];
-        table[..d_count].copy_from_slice(&moved);
-        let at = d_count + me * (PhaseSeconds::FIELDS + 3);
-        table[at..at + PhaseSeconds::FIELDS].copy_from_slice(&seconds.to_array());
-        table[at + PhaseSeconds::FIELDS] = io.read as f64;
-        table[at + PhaseSeconds::FIELDS + 1] = io.written as f64;
-        table[at + PhaseSeconds::FIELDS + 2] = (largest_share * WIRE_LEN as u64) as f64;
-        table[d_count + (PhaseSeconds::FIELDS + 3) * ranks] = times.bands as f64;
-        self.comm.sum_in_place(&mut table);
-        let fractions: Vec<f64> = table[..d_count]
-            .iter()
-            .map(|&m| m / (surfels.max(1) * iterations_done.max(1) as u64) as f64)
-            .collect();
-        let mut per_rank = Vec::with_capacity(ranks);
-        let mut out_of_core = Vec::with_capacity(ranks);
-        let (mut bytes_read, mut bytes_written) = (0u64, 0u64);
-        for r in 0..ranks {
-            let row =
-                &table[d_count + r * (PhaseSeconds::FIELDS + 3)..][..PhaseSeconds::FIELDS + 3];
-            per_rank.push(PhaseSeconds::from_slice(row));
-            let (read, written) = (row[PhaseSeconds::FIELDS], row[PhaseSeconds::FIELDS + 1]);
-            bytes_read += read as u64;
-            bytes_written += written as u64;
-            out_of_core.push(RankOutOfCore {
-                bytes_read: read as u64,
-                bytes_written: written as u64,
-                bytes_read_per_voxel_direction: read / updates as f64,
-                bytes_written_per_voxel_direction: written / updates as f64,
-                largest_share_bytes: row[PhaseSeconds::FIELDS + 2] as u64,
-                peak_rss_bytes: 0,
-                start_rss_bytes: 0,
-            });
-        }
-        let used: Vec<f64> = imbalance.iter().copied().filter(|&x| x > 0.0).collect();
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-        let max = |v: &[f64]| v.iter().copied().fold(0.0, f64::max);
-        let bytes_moved = (table[..d_count].iter().sum::<f64>() as u64) * WIRE_LEN as u64;
-        stats.data = Some(DataStats {
-            groups: 1,
-            ranks_per_group: ranks,
-            exchanged_fraction: mean(&fractions),
-            max_exchanged_fraction: max(&fractions),
-            exchanged_by_direction: fractions,
-            imbalance: if used.is_empty() { 1.0 } else { mean(&used) },
-            max_imbalance: if used.is_empty() { 1.0 } else { max(&used) },
-            bytes_packed: bytes_moved,
-            bytes_sent: bytes_moved,
-            per_rank,
-            out_of_core,
-        });
+        let tally = summary::Tally {
+            moved,
+            imbalance,
+            seconds,
+            io,
+            largest_share,
+            bands: times.bands,
+        };
+        let totals = self.summarize(&tally, surfels, iterations_done);
+        stats.data = Some(totals.data);
         Ok(DataOocSolution {
             stats,
             voxels,
             surfels,
-            bytes_read,
-            bytes_written,
-            bands: table[d_count + (PhaseSeconds::FIELDS + 3) * ranks] as u64,
+            bytes_read: totals.bytes_read,
+            bytes_written: totals.bytes_written,
+            bands: totals.bands,
             setup_seconds,
             work,
             canonical,
@@ -651,6 +610,7 @@ fn imbalance_of(load: &[f64], cuts: &[u64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use held::WIRE_LEN;
 
     #[test]
     fn columns_are_cut_for_equal_load() {
