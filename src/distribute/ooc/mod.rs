@@ -183,6 +183,15 @@ impl Solver<'_> {
         let dims = info.grid.dims;
         let (ranks, me) = (self.comm.size(), self.comm.rank());
         let plan = MemoryPlan::new(budget, dims, self.threads)?;
+        // At a merge a rank holds its old and new held files and the received runs, about three
+        // times its share; rank 0 also the canonical radiosity.
+        let share = info.count.div_ceil(ranks as u64) * held::WIRE_LEN as u64;
+        let canonical_bytes = if me == 0 {
+            info.count * RADIOSITY_LEN as u64
+        } else {
+            0
+        };
+        crate::outcore::workset::check_free_space(work_parent, 3 * share + canonical_bytes)?;
         let work = tempfile::Builder::new()
             .prefix(&format!(".voxrad-rank{me}-"))
             .tempdir_in(work_parent)
