@@ -146,7 +146,8 @@ impl SurfelSource for ShardSetSource {
         let mut skip = 0;
         for reader in &self.readers {
             let count = reader.info().count;
-            if start + count > first {
+            // From the start, every shard is read (even an empty one: its checksum is checked).
+            if first == 0 || start + count > first {
                 break;
             }
             start += count;
