@@ -86,8 +86,7 @@ impl Record {
         self.area > 0.0 || self.radiosity[side].iter().any(|&b| b != 0.0)
     }
 
-    /// The record's bytes in a results file.
-    pub fn encode(&self) -> [u8; RECORD_LEN as usize] {
+    fn encode(&self) -> [u8; RECORD_LEN as usize] {
         let mut b = [0u8; RECORD_LEN as usize];
         let mut at = 0;
         let mut put = |bytes: [u8; 4]| {
@@ -105,8 +104,7 @@ impl Record {
         b
     }
 
-    /// A record from its bytes in a results file.
-    pub fn decode(b: &[u8; RECORD_LEN as usize]) -> Self {
+    fn decode(b: &[u8; RECORD_LEN as usize]) -> Self {
         let word = |i: usize| [b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]];
         let f = |i: usize| f32::from_le_bytes(word(i));
         Record {
