@@ -245,15 +245,8 @@ impl Solver<'_> {
         }
 
         let d_count = self.directions.len();
-        let by_axis: Vec<Vec<usize>> = (0..3)
-            .map(|m| {
-                (0..d_count)
-                    .filter(|&k| {
-                        crate::geometry::lines::axes(self.directions.directions[k].vector).0 == m
-                    })
-                    .collect()
-            })
-            .collect();
+        // The single-process out-of-core solver's order (the same answer bit for bit).
+        let by_axis = crate::outcore::solver::walk_by_axis(self.directions);
         let mut remembered: Vec<Option<Vec<u64>>> = vec![None; d_count];
         let mut imbalance = vec![0.0f64; d_count];
         let mut moved = vec![0.0f64; d_count];
