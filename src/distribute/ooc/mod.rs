@@ -9,10 +9,11 @@
 //! in the copy order of the current main axis `m`, `(x_m, x_v, x_u, id)`, with the row
 //! histogram of that order: exactly what the band machinery of `outcore::band` reads.
 //!
-//! **Directions** are walked as the single-process out-of-core solver walks them: grouped by
-//! main axis, in set order within an axis. For each direction, rank `r` owns a contiguous range
-//! of line columns `j` (cut for equal surfels from the column histogram added over ranks, in
-//! the first iteration, and remembered). The held records whose column is now another rank's
+//! **Directions** are walked as the single-process out-of-core solver walks them
+//! (`outcore::solver::walk_by_axis`): grouped by main axis, then by the slope of the lines along
+//! `v`, on which the columns depend, so that few records move. For each direction, rank `r`
+//! owns a contiguous range of line columns `j` (cut for equal surfels from the column histogram
+//! added over ranks, in the first iteration, and remembered). The held records whose column is now another rank's
 //! move there ([`route`]): in copy order, so the kept and received runs are merged; at a change
 //! of main axis they are sorted instead. The direction is then solved band by band on the held
 //! files (`outcore::band`); every line lies whole on one rank.
