@@ -105,10 +105,13 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             )));
         }
     }
+    if let (Mode::Data { .. }, Some(budget)) = (mode, cmd.memory) {
+        return run_solve_data_out_of_core(cmd, comm, budget, started);
+    }
     if mode != Mode::Single && cmd.memory.is_some() {
         return Err(AppError::BadInput(format!(
-            "{}: --distribute {} does not work out of core yet (--memory); every rank solves in \
-             memory: leave --memory out, or run one process",
+            "{}: --distribute {} does not work out of core (--memory); only --distribute data \
+             does: use it, or leave --memory out",
             cmd.scene.display(),
             mode.name()
         )));
@@ -452,23 +455,7 @@ fn solve_out_of_core_in(
     options: &SolveOptions,
     budget: u64,
 ) -> Result<crate::outcore::OocSolution, AppError> {
-    let info = source.info();
-    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
-        .map(|p| p.io_bytes as u64)
-        .unwrap_or(1 << 16);
-    let identity = Identity {
-        solver: checkpoint::Solver::OutOfCore,
-        surfels: info.count,
-        dims: info.grid.dims,
-        voxel_size: info.grid.voxel_size,
-        directions: directions.len() as u32,
-        directions_checksum: checkpoint::directions_checksum(directions),
-        // As the solver decides it: one channel for a grey scene (the analysis saw the same
-        // materials the solver checks).
-        channels: if options.grey { 1 } else { 3 },
-        accelerate: options.accelerate,
-        scene_checksum: source.checksum(window).map_err(ooc_error)?,
-    };
+    let identity = out_of_core_identity(source, directions, options, budget)?;
     let path = checkpoint::path_in(&cmd.out);
     let resume = if cmd.checkpoint.resume && path.exists() {
         let file = CheckpointFile::open(&path).map_err(checkpoint_error)?;
@@ -495,6 +482,33 @@ fn solve_out_of_core_in(
     };
     solve_out_of_core_checkpointed(source, directions, options, budget, &cmd.out, checkpoints)
         .map_err(ooc_error)
+}
+
+/// What names an out-of-core run in its checkpoints (one process or the data mode: the same
+/// radiosity, so either resumes the other's).
+fn out_of_core_identity(
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    budget: u64,
+) -> Result<Identity, AppError> {
+    let info = source.info();
+    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
+        .map(|p| p.io_bytes as u64)
+        .unwrap_or(1 << 16);
+    Ok(Identity {
+        solver: checkpoint::Solver::OutOfCore,
+        surfels: info.count,
+        dims: info.grid.dims,
+        voxel_size: info.grid.voxel_size,
+        directions: directions.len() as u32,
+        directions_checksum: checkpoint::directions_checksum(directions),
+        // As the solvers decide it: one channel for a grey scene (checked by the solver on the
+        // materials used, as the analysis did).
+        channels: if options.grey { 1 } else { 3 },
+        accelerate: options.accelerate,
+        scene_checksum: source.checksum(window).map_err(ooc_error)?,
+    })
 }
 
 /// Sets the report's total time and peak RSS, writes it beside the staged outputs and moves
@@ -535,8 +549,35 @@ fn run_solve_obj_out_of_core(
     started: Instant,
 ) -> Result<Report, AppError> {
     create_out_dir(&cmd.out)?;
+    let (_work, shards, converted) = convert_obj(cmd, budget, ".voxrad-shards-")?;
+    let convert_seconds = started.elapsed().as_secs_f64();
+    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
+    let (mut report, staged) = solve_out_of_core_to(cmd, &source, budget)?;
+    report.set_phase("convert", convert_seconds);
+    tracing::info!(
+        surfels = converted.surfels,
+        "solved from a temporary shard set"
+    );
+    finish_report(report, staged, started)
+}
+
+/// Converts the OBJ scene of `cmd` into a shard set in a new temporary directory (named from
+/// `prefix`) inside the out directory: the streaming conversion of `voxrad-shard convert`,
+/// within `budget`. Returns the directory (removed when dropped), the set and its summary.
+fn convert_obj(
+    cmd: &SolveCommand,
+    budget: u64,
+    prefix: &str,
+) -> Result<
+    (
+        tempfile::TempDir,
+        PathBuf,
+        crate::convert::commands::ConvertSummary,
+    ),
+    AppError,
+> {
     let work = tempfile::Builder::new()
-        .prefix(".voxrad-shards-")
+        .prefix(prefix)
         .tempdir_in(&cmd.out)
         .map_err(|e| {
             AppError::Failure(format!(
@@ -558,15 +599,7 @@ fn run_solve_obj_out_of_core(
         crate::convert::ConvertError::BadInput(m) => AppError::BadInput(m),
         crate::convert::ConvertError::Failure(m) => AppError::Failure(m),
     })?;
-    let convert_seconds = started.elapsed().as_secs_f64();
-    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
-    let (mut report, staged) = solve_out_of_core_to(cmd, &source, budget)?;
-    report.set_phase("convert", convert_seconds);
-    tracing::info!(
-        surfels = converted.surfels,
-        "solved from a temporary shard set"
-    );
-    finish_report(report, staged, started)
+    Ok((work, shards, converted))
 }
 
 fn create_out_dir(out: &Path) -> Result<(), AppError> {
@@ -614,35 +647,7 @@ fn solve_out_of_core_to(
     let t = Instant::now();
     let info = source.info();
     let staged = stage(&cmd.out)?;
-    let results_path = staged.path().join(crate::output::RESULTS_FILE);
-    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
-    let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count).map_err(fail)?;
-    solution
-        .for_each(source, |s, b| {
-            writer
-                .push(&crate::output::results::Record::from_surfel(s, *b))
-                .map_err(|e| OocError::BadData {
-                    source_name: results_path.display().to_string(),
-                    what: e.to_string(),
-                })
-        })
-        .map_err(ooc_error)?;
-    writer.finish().map_err(fail)?;
-    // The picture and the PLY need every surfel in memory: only when that fits the budget.
-    let in_memory_bytes = info.count * 400;
-    if in_memory_bytes <= budget {
-        let results = read_results(&results_path).map_err(|e| AppError::Failure(e.to_string()))?;
-        let (set, solution) = from_results(&results);
-        drop(results);
-        write_previews(staged.path(), &set, &solution, cmd.image_size)?;
-    } else {
-        tracing::warn!(
-            "{} surfels: the PLY and the picture are not written within --memory {}; use \
-             `voxrad-shard export` and `voxrad render` with more memory",
-            info.count,
-            crate::outcore::budget::format_bytes(budget)
-        );
-    }
+    write_streamed_outputs(cmd, &staged, info, budget, |f| solution.for_each(source, f))?;
     let write_seconds = t.elapsed().as_secs_f64();
     let resolution = info.grid.dims.iter().copied().max().unwrap_or(0);
     let run = RunInfo {
@@ -688,6 +693,48 @@ fn solve_out_of_core_to(
         ),
     ));
     Ok((report, staged))
+}
+
+/// Writes the results file from `each` (which calls its argument for every surfel in canonical
+/// order) and, when the results fit `budget`, the PLY and the picture, into `staged`.
+fn write_streamed_outputs(
+    cmd: &SolveCommand,
+    staged: &Staging,
+    info: &crate::outcore::source::SourceInfo,
+    budget: u64,
+    each: impl FnOnce(
+        &mut dyn FnMut(&Surfel, &[[f32; 3]; 2]) -> Result<(), OocError>,
+    ) -> Result<(), OocError>,
+) -> Result<(), AppError> {
+    let results_path = staged.path().join(crate::output::RESULTS_FILE);
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count).map_err(fail)?;
+    each(&mut |s, b| {
+        writer
+            .push(&crate::output::results::Record::from_surfel(s, *b))
+            .map_err(|e| OocError::BadData {
+                source_name: results_path.display().to_string(),
+                what: e.to_string(),
+            })
+    })
+    .map_err(ooc_error)?;
+    writer.finish().map_err(fail)?;
+    // The picture and the PLY need every surfel in memory: only when that fits the budget.
+    let in_memory_bytes = info.count * 400;
+    if in_memory_bytes <= budget {
+        let results = read_results(&results_path).map_err(|e| AppError::Failure(e.to_string()))?;
+        let (set, solution) = from_results(&results);
+        drop(results);
+        write_previews(staged.path(), &set, &solution, cmd.image_size)?;
+    } else {
+        tracing::warn!(
+            "{} surfels: the PLY and the picture are not written within --memory {}; use \
+             `voxrad-shard export` and `voxrad render` with more memory",
+            info.count,
+            crate::outcore::budget::format_bytes(budget)
+        );
+    }
+    Ok(())
 }
 
 /// Bytes the in-memory solver holds per surfel (surfel set, solver arrays, voxelization pieces at
@@ -756,6 +803,238 @@ fn write_outputs(
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     write_results(&out.join(crate::output::RESULTS_FILE), set, solution).map_err(fail)?;
     write_previews(out, set, solution, size)
+}
+
+/// `mpirun -n P voxrad solve SCENE --distribute data --memory SIZE`: every rank holds its share
+/// of the scene in work files under the out directory, within `budget` (see
+/// `distribute::ooc`); rank 0 writes the outputs and the checkpoints (those of the one-process
+/// out-of-core solve, so either resumes the other's). An OBJ scene is first converted to a
+/// shard set by every rank, each in its own work directory, within the budget.
+fn run_solve_data_out_of_core(
+    cmd: &SolveCommand,
+    comm: &dyn Comm,
+    budget: u64,
+    started: Instant,
+) -> Result<Report, AppError> {
+    let start_rss = crate::output::report::peak_rss_bytes();
+    create_out_dir(&cmd.out)?;
+    if comm.rank() == 0 {
+        checkpoint::remove_leftovers(&cmd.out);
+    }
+    let (_converted, shards) = if cmd.scene.is_dir() {
+        (None, cmd.scene.clone())
+    } else {
+        let prefix = format!(".voxrad-shards-rank{}-", comm.rank());
+        let (work, shards, _) = convert_obj(cmd, budget, &prefix)?;
+        (Some(work), shards)
+    };
+    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
+    let read_seconds = started.elapsed().as_secs_f64();
+    // Simulate only what the scene calls for, as the one-process solvers do.
+    let analysis = analyse_source(&source, budget)?;
+    let shaped = analysis.shape(&cmd.solve);
+    let directions = DirectionSet::with_count(shaped.directions);
+    let identity = out_of_core_identity(&source, &directions, &shaped, budget)?;
+    let (resume, state) = open_checkpoint_on_rank0(cmd, comm, &identity)?;
+    if comm.rank() == 0 {
+        say_where_it_starts(cmd, &checkpoint::path_in(&cmd.out), state.is_some());
+    }
+    let mut saver = Saver::new(
+        &cmd.out,
+        identity,
+        comm.rank() == 0,
+        cmd.checkpoint.every,
+        comm.size(),
+        state.as_ref().map(|s| s.iteration),
+    );
+    let checkpoints = crate::distribute::ooc::DataOocCheckpoints {
+        saver: &mut saver,
+        resume,
+        state,
+    };
+    let t = Instant::now();
+    let solution = crate::distribute::ooc::solve_data_out_of_core(
+        &source,
+        &directions,
+        &shaped,
+        comm,
+        budget,
+        &cmd.out,
+        Some(checkpoints),
+    )
+    .map_err(ooc_error)?;
+    let solve_seconds = t.elapsed().as_secs_f64();
+    let mut stats = solution.stats.clone();
+    tracing::info!(
+        iterations = stats.iterations,
+        converged = stats.converged,
+        residual = stats.residual,
+        bytes_read = solution.bytes_read,
+        bytes_written = solution.bytes_written,
+        "solved out of core over {} ranks",
+        comm.size()
+    );
+    let t = Instant::now();
+    let info = source.info();
+    let staged = if comm.rank() == 0 {
+        let staged = stage(&cmd.out)?;
+        write_streamed_outputs(cmd, &staged, info, budget, |f| {
+            solution.for_each(&source, f)
+        })?;
+        Some(staged)
+    } else {
+        None
+    };
+    let write_seconds = t.elapsed().as_secs_f64();
+    // Every rank's peak, after its last work.
+    let ranks = comm.size();
+    let mut peaks = vec![0.0; 2 * ranks];
+    peaks[comm.rank()] = crate::output::report::peak_rss_bytes() as f64;
+    peaks[ranks + comm.rank()] = start_rss as f64;
+    comm.sum_in_place(&mut peaks);
+    let starts = peaks.split_off(ranks);
+    if let Some(data) = stats.data.as_mut() {
+        for (r, rank) in data.out_of_core.iter_mut().enumerate() {
+            rank.peak_rss_bytes = peaks[r] as u64;
+            rank.start_rss_bytes = starts[r] as u64;
+        }
+    }
+    let mut report = Report::from_counts(
+        run_info(cmd, comm, info),
+        solution.voxels,
+        solution.surfels,
+        info.grid.voxel_size,
+        &stats,
+    );
+    let Some(staged) = staged else {
+        // Only rank 0 writes the report.
+        return Ok(report);
+    };
+    report.set_phase("read", read_seconds);
+    report.set_phase("setup", solution.setup_seconds);
+    report.set_phase("solve", solve_seconds);
+    report.set_phase("reduce", stats.reduce_seconds);
+    report.set_phase("write", write_seconds);
+    let updates =
+        (solution.surfels * stats.directions as u64 * stats.iterations as u64).max(1) as f64;
+    report.out_of_core = Some(OutOfCoreReport {
+        memory_budget_bytes: budget,
+        bytes_read: solution.bytes_read,
+        bytes_written: solution.bytes_written,
+        bytes_read_per_voxel_direction: solution.bytes_read as f64 / updates,
+        bytes_written_per_voxel_direction: solution.bytes_written as f64 / updates,
+        bands: solution.bands,
+    });
+    report.effects = analysis.effects(
+        &cmd.solve,
+        &stats,
+        Some("the data mode gathers all light along the solve's directions (no direct pass)"),
+    );
+    report.effects.push(Effect::new(
+        "out of core",
+        true,
+        &format!(
+            "every rank held its share of the surfels in files, within {} per rank",
+            crate::outcore::budget::format_bytes(budget)
+        ),
+    ));
+    report.set_total(started.elapsed().as_secs_f64());
+    // What a node must have: the largest rank.
+    report.peak_rss_bytes = peaks.iter().copied().fold(0.0, f64::max) as u64;
+    report
+        .write(staged.path())
+        .map_err(|e| AppError::Failure(e.to_string()))?;
+    drop(solution);
+    publish(staged)?;
+    checkpoint::remove_finished(&cmd.out);
+    Ok(report)
+}
+
+/// Under `--resume`, the checkpoint in the out directory: rank 0 opens it and checks it against
+/// the run (the file, if any, returned there), and every rank gets the state it holds; every
+/// rank returns the same outcome, so none is left waiting in a collective call.
+fn open_checkpoint_on_rank0(
+    cmd: &SolveCommand,
+    comm: &dyn Comm,
+    identity: &Identity,
+) -> Result<(Option<CheckpointFile>, Option<checkpoint::State>), AppError> {
+    let path = checkpoint::path_in(&cmd.out);
+    let (mut status, mut failure, mut file) = (0u64, None, None);
+    if cmd.checkpoint.resume && comm.rank() == 0 && path.exists() {
+        let opened = CheckpointFile::open(&path).and_then(|f| {
+            checkpoint::check(&path, &f.header, identity, cmd.solve.max_iterations).map(|_| f)
+        });
+        match opened {
+            Ok(f) => {
+                file = Some(f);
+                status = 1;
+            }
+            Err(e) => {
+                failure = Some(e);
+                status = 2;
+            }
+        }
+    }
+    match comm.max_u64(status) {
+        0 => return Ok((None, None)),
+        2 => {
+            return Err(checkpoint_error(failure.unwrap_or_else(|| {
+                CheckpointError::Bad {
+                    path: path.clone(),
+                    what: "rank 0 could not read it (see rank 0's message)".to_string(),
+                }
+            })))
+        }
+        _ => {}
+    }
+    // The state, from rank 0 to all (whole numbers and f64s: a sum with zeros keeps them).
+    let mut words = [0.0f64; 7];
+    let mut changes = Vec::new();
+    if let Some(f) = &file {
+        let state = &f.header.state;
+        let (history, count, last_ratio) = state.extrapolation.parts();
+        changes = history.to_vec();
+        words = [
+            state.iteration as f64,
+            state.previous_change.is_some() as u8 as f64,
+            state.previous_change.unwrap_or(0.0),
+            count as f64,
+            last_ratio.is_some() as u8 as f64,
+            last_ratio.unwrap_or(0.0),
+            changes.len() as f64,
+        ];
+    }
+    comm.sum_in_place(&mut words);
+    changes.resize(words[6] as usize, 0.0);
+    comm.sum_in_place(&mut changes);
+    // A checkpoint from inside an iteration (the one-process solver's, between two main axes)
+    // is continued from that iteration's start: the same radiosity, so the same answer.
+    let state = checkpoint::State {
+        iteration: words[0] as u64,
+        ranks: comm.size() as u32,
+        previous_change: (words[1] == 1.0).then_some(words[2]),
+        extrapolation: crate::solve::accelerate::Extrapolation::from_parts(
+            changes,
+            words[3] as usize,
+            (words[4] == 1.0).then_some(words[5]),
+        ),
+        within: None,
+    };
+    Ok((file, Some(state)))
+}
+
+fn run_info(
+    cmd: &SolveCommand,
+    comm: &dyn Comm,
+    info: &crate::outcore::source::SourceInfo,
+) -> RunInfo {
+    RunInfo {
+        scene: cmd.scene.display().to_string(),
+        mode: Mode::Data { compress: false }.name().to_string(),
+        ranks: comm.size(),
+        resolution: info.grid.dims.iter().copied().max().unwrap_or(0),
+        tolerance: cmd.solve.tolerance.unwrap_or(0.0),
+    }
 }
 
 /// The PLY and the picture.

@@ -28,8 +28,10 @@
 //! canonical distribution (blocks of surfel ids), so that the `k`-th rank of every group holds
 //! the same surfels; those ranks add their gathered light, in group order, and all update `B`.
 //!
-//! Every rank still reads and voxelizes the whole scene (the surfel set is the input of this
-//! function) and keeps the scene tables; only the solver's per-surfel state is distributed.
+//! In this in-memory form every rank reads and voxelizes the whole scene (the surfel set is the
+//! input of this function) and keeps the scene tables; only the solver's per-surfel state is
+//! distributed. With `--memory` the data mode runs out of core instead (`super::ooc`): each rank
+//! reads only its slice of the scene and holds its share in work files within the budget.
 
 use super::balance::{self, Distribution, Projection};
 use super::Comm;
@@ -78,6 +80,29 @@ pub struct DataStats {
     pub bytes_sent: u64,
     /// Every rank's seconds per phase, by rank.
     pub per_rank: Vec<PhaseSeconds>,
+    /// The data mode out of core (`--memory`): every rank's work-file traffic, largest share
+    /// and peak memory, by rank.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub out_of_core: Vec<RankOutOfCore>,
+}
+
+/// What one rank of the data mode out of core moved through its disk and held.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct RankOutOfCore {
+    /// Bytes read from and written to the input and the rank's work files.
+    pub bytes_read: u64,
+    pub bytes_written: u64,
+    /// The same per surfel of the scene and direction of every iteration.
+    pub bytes_read_per_voxel_direction: f64,
+    pub bytes_written_per_voxel_direction: f64,
+    /// The most surfel bytes (208 per surfel: static data, radiosity, light) the rank held in
+    /// its files for one direction.
+    pub largest_share_bytes: u64,
+    /// The rank's peak resident memory (`VmHWM`) over the whole run.
+    pub peak_rss_bytes: u64,
+    /// The same before the scene was read: the program and its MPI library, which the budget
+    /// does not cover.
+    pub start_rss_bytes: u64,
 }
 
 /// One rank's seconds in each phase of the data mode.
@@ -93,9 +118,9 @@ pub struct PhaseSeconds {
 }
 
 impl PhaseSeconds {
-    const FIELDS: usize = 7;
+    pub(crate) const FIELDS: usize = 7;
 
-    fn to_array(self) -> [f64; Self::FIELDS] {
+    pub(crate) fn to_array(self) -> [f64; Self::FIELDS] {
         [
             self.balance,
             self.fill,
@@ -107,7 +132,7 @@ impl PhaseSeconds {
         ]
     }
 
-    fn from_slice(v: &[f64]) -> Self {
+    pub(crate) fn from_slice(v: &[f64]) -> Self {
         PhaseSeconds {
             balance: v[0],
             fill: v[1],
@@ -936,6 +961,7 @@ impl<'a> DataSolver<'a> {
                 .chunks(PhaseSeconds::FIELDS)
                 .map(PhaseSeconds::from_slice)
                 .collect(),
+            out_of_core: Vec::new(),
         }
     }
 

@@ -17,6 +17,7 @@ pub mod balance;
 pub mod data;
 #[cfg(feature = "mpi")]
 pub mod mpi_comm;
+pub mod ooc;
 
 /// What the solver needs from the processes it runs on.
 pub trait Comm {

@@ -163,12 +163,37 @@ fn solve_in_pool(
     })
 }
 
+/// The order the directions are solved in: grouped by main axis `m` (each axis reads its own
+/// copy), and within an axis by the slope of their lines along `v` (then along `u`), so that
+/// consecutive directions shift the line columns `j` of every layer little. The data mode out of
+/// core walks the same order (its answer is this solver's bit for bit), where columns are what
+/// ranks own: few surfels change rank from one direction to the next.
+pub fn walk_by_axis(directions: &DirectionSet) -> Vec<Vec<usize>> {
+    (0..3)
+        .map(|m| {
+            let mut axis: Vec<usize> = (0..directions.len())
+                .filter(|&k| crate::geometry::lines::axes(directions.directions[k].vector).0 == m)
+                .collect();
+            let slope = |k: usize| {
+                let d = directions.directions[k].vector;
+                let (main, u, v) = crate::geometry::lines::axes(d);
+                // Lines run through the layers in increasing order of the main axis.
+                let c = d[main].abs() as f64;
+                let sign = d[main].signum() as f64;
+                (sign * d[v] as f64 / c, sign * d[u] as f64 / c)
+            };
+            axis.sort_by(|&x, &y| slope(x).partial_cmp(&slope(y)).unwrap().then(x.cmp(&y)));
+            axis
+        })
+        .collect()
+}
+
 /// Makes glibc's malloc serve every thread from one arena. By default each thread may get its
 /// own arena, which reserves 64 MiB of address space: under an address-space limit below that,
 /// creating it fails, and glibc retries (an `mmap` that fails) on many later allocations. Under
 /// a 48 MiB limit that made a solve ten times slower, mostly in the kernel. The solver's hot
 /// loops do not allocate, so one arena costs nothing measurable.
-fn one_malloc_arena() {
+pub(crate) fn one_malloc_arena() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: `mallopt` only changes allocator settings; M_ARENA_MAX takes any positive count.
     unsafe {
@@ -230,14 +255,7 @@ fn run(
     };
     let mut extrapolation = Extrapolation::default();
 
-    // Directions by main axis, in set order within an axis.
-    let by_axis: Vec<Vec<usize>> = (0..3)
-        .map(|m| {
-            (0..directions.len())
-                .filter(|&k| crate::geometry::lines::axes(directions.directions[k].vector).0 == m)
-                .collect()
-        })
-        .collect();
+    let by_axis = walk_by_axis(directions);
     let files: Vec<CopyFiles> = work
         .copies
         .iter()

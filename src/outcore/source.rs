@@ -30,6 +30,16 @@ pub trait SurfelSource: Sync {
     /// A fresh pass over all surfels. A shard set checks each shard's checksum at its end, so a
     /// consumer must not trust what it read if the stream ends with an error.
     fn stream(&self, window_bytes: u64) -> Result<SurfelStream<'_>, OocError>;
+    /// A pass from about surfel `first` on: the stream and the canonical index of its first
+    /// surfel, at most `first` (by default the whole stream, from 0). A shard set starts at the
+    /// shard that holds `first`, so a rank of the data mode reads little more than its share.
+    fn stream_from(
+        &self,
+        _first: u64,
+        window_bytes: u64,
+    ) -> Result<(SurfelStream<'_>, u64), OocError> {
+        Ok((self.stream(window_bytes)?, 0))
+    }
     /// What to call the source in messages.
     fn describe(&self) -> String;
     /// A CRC-32 of everything of the source that the radiosity depends on (it names the run in
@@ -122,8 +132,29 @@ impl SurfelSource for ShardSetSource {
     }
 
     fn stream(&self, window_bytes: u64) -> Result<SurfelStream<'_>, OocError> {
-        let mut parts = Vec::with_capacity(self.readers.len());
+        Ok(self.stream_from(0, window_bytes)?.0)
+    }
+
+    fn stream_from(
+        &self,
+        first: u64,
+        window_bytes: u64,
+    ) -> Result<(SurfelStream<'_>, u64), OocError> {
+        // Whole shards before `first` are not read at all; the shard holding it is read from its
+        // start, so that its checksum is still checked at its end.
+        let mut start = 0u64;
+        let mut skip = 0;
         for reader in &self.readers {
+            let count = reader.info().count;
+            // From the start, every shard is read (even an empty one: its checksum is checked).
+            if first == 0 || start + count > first {
+                break;
+            }
+            start += count;
+            skip += 1;
+        }
+        let mut parts = Vec::with_capacity(self.readers.len());
+        for reader in &self.readers[skip..] {
             let path = reader.path();
             let records = WindowedRecords::new(reader, window_bytes)?;
             // The checksum is known only at a shard's end, but the solver acts on each record as
@@ -143,7 +174,7 @@ impl SurfelSource for ShardSetSource {
                 }
             }));
         }
-        Ok(Box::new(parts.into_iter().flatten()))
+        Ok((Box::new(parts.into_iter().flatten()), start))
     }
 
     fn describe(&self) -> String {

@@ -296,7 +296,11 @@ pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + RADIOSITY_LEN as
 /// Refuses to start when the work files cannot fit on the disk of `parent`: a long solve must
 /// not find out hours later.
 fn check_disk(parent: &Path, surfels: u64) -> Result<(), OocError> {
-    let needed = surfels * DISK_BYTES_PER_SURFEL;
+    check_free_space(parent, surfels * DISK_BYTES_PER_SURFEL)
+}
+
+/// Refuses to start when `needed` bytes of work files cannot fit on the disk of `parent`.
+pub(crate) fn check_free_space(parent: &Path, needed: u64) -> Result<(), OocError> {
     match free_bytes(parent) {
         Some(free) if free < needed => Err(OocError::DiskTooSmall {
             path: parent.to_path_buf(),

@@ -1,0 +1,248 @@
+//! Radiosity between the ranks and canonical order (data mode out of core): rank 0 gathers
+//! every rank's `(id, B)` into a canonical file for the results and the checkpoints, sends each
+//! rank its slice of a checkpoint on resume, and a stop signal ends every rank together.
+
+use super::held::{self, Held, HeldReader, HeldWriter};
+use super::route::{exchange_files, Router};
+use super::{DataOocCheckpoints, Solver, RESULT_PAIR_LEN};
+use crate::checkpoint::{CheckpointFile, Saver, State};
+use crate::outcore::budget::MemoryPlan;
+use crate::outcore::files::{IoCounters, RecordFile, SeqReader, RADIOSITY_LEN};
+use crate::outcore::OocError;
+use crate::solve::accelerate::Extrapolation;
+use crate::solve::jacobi::Convergence;
+use std::path::{Path, PathBuf};
+
+impl Solver<'_> {
+    /// Ends the solve if any rank was asked to stop: the checkpoint of the last completed
+    /// iteration (`completed`; the held radiosity is still its own) is written by rank 0.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn stop_if_asked(
+        &self,
+        completed: usize,
+        held: &Held,
+        plan: &MemoryPlan,
+        dir: &Path,
+        convergence: &Convergence,
+        extrapolation: &Extrapolation,
+        checkpoints: &mut Option<DataOocCheckpoints>,
+    ) -> Result<(), OocError> {
+        let signal = self
+            .comm
+            .max_u64(crate::interrupt::requested().unwrap_or(0) as u64) as i32;
+        if signal == 0 {
+            return Ok(());
+        }
+        let writer = self.comm.rank() == 0;
+        let interruption = match checkpoints.as_mut() {
+            Some(c) => {
+                // Collective: every rank sends its radiosity, rank 0 writes.
+                let surfels = self.source.info().count;
+                let mut io = IoCounters::default();
+                let canonical = self.gather_results(held, surfels, dir, plan, &mut io)?;
+                let previous = convergence.previous_change;
+                c.saver.interrupt(signal, completed, |saver| {
+                    let state = saver.state(completed, previous, extrapolation);
+                    save(saver, state, canonical.as_deref(), plan)
+                })
+            }
+            None => crate::checkpoint::Interruption::without_checkpoint(signal, completed, writer),
+        };
+        Err(OocError::Interrupted(interruption))
+    }
+
+    /// Puts the radiosity of a checkpoint (`file`, on rank 0) into the held files of every rank,
+    /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
+    /// sends each rank its slice in bounded rounds.
+    pub(super) fn restore(
+        &self,
+        held: Held,
+        first: u64,
+        file: Option<CheckpointFile>,
+        generation: u64,
+        router: &Router,
+        io: &mut IoCounters,
+    ) -> Result<Held, OocError> {
+        let (ranks, me) = (self.comm.size(), self.comm.rank());
+        let plan = router.plan;
+        let dir = router.dir;
+        let n = self.source.info().count;
+        let mut starts = vec![0.0f64; ranks];
+        starts[me] = first as f64;
+        self.comm.sum_in_place(&mut starts);
+        let starts: Vec<u64> = starts.iter().map(|&s| s as u64).collect();
+        // Rank 0 cuts the checkpoint's radiosity into one file per rank.
+        let path = |r: usize| dir.join(format!("restore-{r}.bin"));
+        let mut failure = None;
+        if me == 0 {
+            let cut = || -> Result<(), OocError> {
+                let file = file.ok_or_else(|| OocError::BadData {
+                    source_name: "the checkpoint".to_string(),
+                    what: "rank 0 did not open it".to_string(),
+                })?;
+                let buffer = plan.bucket_buffer(ranks as u64);
+                let mut outs = (0..ranks)
+                    .map(|r| crate::outcore::files::SeqWriter::create(&path(r), buffer))
+                    .collect::<Result<Vec<_>, _>>()?;
+                let mut index = 0u64;
+                file.read_radiosity::<OocError>(plan.io_bytes, |piece| {
+                    for b in piece.chunks_exact(RADIOSITY_LEN) {
+                        let owner = starts[1..].partition_point(|&s| s <= index);
+                        outs[owner].write(b)?;
+                        index += 1;
+                    }
+                    Ok(())
+                })?;
+                if index != n {
+                    return Err(OocError::BadData {
+                        source_name: file.path.display().to_string(),
+                        what: format!("it holds {index} surfels, the scene {n}"),
+                    });
+                }
+                for out in outs {
+                    io.written += out.finish()?;
+                }
+                io.read += n * RADIOSITY_LEN as u64;
+                Ok(())
+            };
+            failure = cut().err();
+        }
+        // Every rank learns whether rank 0 could read it before any waits for its slice.
+        if self.comm.max_u64(failure.is_some() as u64) == 1 {
+            return Err(failure.unwrap_or_else(|| OocError::BadData {
+                source_name: "the checkpoint".to_string(),
+                what: "rank 0 could not read it (see rank 0's message)".to_string(),
+            }));
+        }
+        let outgoing: Vec<Option<PathBuf>> = (0..ranks)
+            .map(|r| (me == 0 && r != 0).then(|| path(r)))
+            .collect();
+        let mine = path(me);
+        let mut received = if me == 0 {
+            None
+        } else {
+            Some(crate::outcore::files::SeqWriter::create(
+                &mine,
+                plan.io_bytes,
+            )?)
+        };
+        exchange_files(
+            self.comm,
+            &outgoing,
+            RADIOSITY_LEN,
+            router.round_bytes(),
+            io,
+            &mut |_, bytes| match received.as_mut() {
+                Some(out) => out.write(bytes),
+                None => Ok(()),
+            },
+        )?;
+        if let Some(out) = received {
+            io.written += out.finish()?;
+        }
+        for p in outgoing.iter().flatten() {
+            std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+        }
+        // The held files with the checkpoint's radiosity.
+        let mut values = SeqReader::<RADIOSITY_LEN>::open(&mine, plan.io_bytes)?;
+        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
+        while let Some(mut w) = reader.next(io)? {
+            let b = values.expect_record()?;
+            w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN].copy_from_slice(&b);
+            writer.write(&w)?;
+        }
+        drop((reader, values));
+        io.read += held.count * RADIOSITY_LEN as u64;
+        std::fs::remove_file(&mine).map_err(|e| OocError::io(&mine, "remove", e))?;
+        held.remove()?;
+        Ok(writer.finish(io)?.0)
+    }
+
+    /// Sends every held `(id, B)` to rank 0, which places them in a canonical radiosity file
+    /// (returned there; `None` elsewhere).
+    pub(super) fn gather_results(
+        &self,
+        held: &Held,
+        surfels: u64,
+        dir: &Path,
+        plan: &MemoryPlan,
+        io: &mut IoCounters,
+    ) -> Result<Option<PathBuf>, OocError> {
+        let me = self.comm.rank();
+        let canonical_path = dir.join("radiosity-canonical.bin");
+        let canonical = if me == 0 {
+            let f = RecordFile::create(&canonical_path)?;
+            f.set_len(surfels * RADIOSITY_LEN as u64)?;
+            Some(f)
+        } else {
+            None
+        };
+        let out_path = dir.join("results-out.bin");
+        let mut out = crate::outcore::files::SeqWriter::create(&out_path, plan.io_bytes)?;
+        let mut reader = HeldReader::open(held, plan.io_bytes)?;
+        while let Some(w) = reader.next(io)? {
+            let id = held::id(&w) as u64;
+            let b = &w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN];
+            match canonical.as_ref() {
+                Some(f) => f.write_at(id * RADIOSITY_LEN as u64, b, io)?,
+                None => {
+                    out.write(&(id as u32).to_le_bytes())?;
+                    out.write(b)?;
+                }
+            }
+        }
+        drop(reader);
+        io.written += out.finish()?;
+        let mut outgoing: Vec<Option<PathBuf>> = vec![None; self.comm.size()];
+        if me != 0 {
+            outgoing[0] = Some(out_path.clone());
+        }
+        // The closure's own counter: `io` is lent to the exchange.
+        let mut placed = IoCounters::default();
+        let router = Router {
+            comm: self.comm,
+            plan,
+            dir,
+        };
+        exchange_files(
+            self.comm,
+            &outgoing,
+            RESULT_PAIR_LEN,
+            router.round_bytes(),
+            io,
+            &mut |_, bytes| {
+                let f = canonical.as_ref().expect("only rank 0 receives results");
+                for pair in bytes.chunks_exact(RESULT_PAIR_LEN) {
+                    let id = u32::from_le_bytes([pair[0], pair[1], pair[2], pair[3]]) as u64;
+                    f.write_at(id * RADIOSITY_LEN as u64, &pair[4..], &mut placed)?;
+                }
+                Ok(())
+            },
+        )?;
+        io.written += placed.written;
+        std::fs::remove_file(&out_path).map_err(|e| OocError::io(&out_path, "remove", e))?;
+        Ok(canonical.map(|_| canonical_path))
+    }
+}
+
+/// Writes a checkpoint whose radiosity is the canonical file `canonical` (rank 0's; the other
+/// ranks write nothing).
+pub(super) fn save(
+    saver: &mut Saver,
+    state: State,
+    canonical: Option<&Path>,
+    plan: &MemoryPlan,
+) -> Result<(), crate::checkpoint::CheckpointError> {
+    saver.save(state, plan.io_bytes, |w| {
+        let Some(path) = canonical else {
+            return Ok(());
+        };
+        let mut reader =
+            SeqReader::<RADIOSITY_LEN>::open(path, plan.io_bytes).map_err(std::io::Error::other)?;
+        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+            w.write_all(&record)?;
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,497 @@
+//! The surfels one rank holds in the data mode out of core: four work files in one order, the
+//! record layout they travel in between ranks, and the sorted merge and external sort that put
+//! them back in order.
+//!
+//! The four files are what the band machinery of `outcore::band` reads and writes (static
+//! records, radiosity, the light gathered by the directions of the current main axis), plus one
+//! file the rest of the loop needs (the light of the earlier axes of this iteration, and what
+//! the update of `B` takes from the scene's tables). Between ranks and in run files a surfel is
+//! the four records one after another:
+//!
+//! ```text
+//! wire record (208 bytes)
+//!   0 static       72 bytes   outcore::files layout (voxel, ..., canonical id at 68)
+//!  72 radiosity    24 bytes   f32 x 6
+//!  96 gathered     48 bytes   f64 x 6, this axis's directions so far
+//! 144 earlier      48 bytes   f64 x 6, the earlier axes of this iteration
+//! 192 normal id    u32
+//! 196 area         f32
+//! 200 materials    u32 x 2    front, back
+//! ```
+
+use crate::outcore::files::{
+    IoCounters, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
+};
+use crate::outcore::OocError;
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+use std::path::{Path, PathBuf};
+
+/// Bytes of the fourth file's record: earlier axes' light and the update's scene data.
+pub const REST_LEN: usize = GATHER_LEN + 16;
+pub const WIRE_LEN: usize = STATIC_LEN + RADIOSITY_LEN + GATHER_LEN + REST_LEN;
+pub type Wire = [u8; WIRE_LEN];
+
+pub const RADIOSITY_AT: usize = STATIC_LEN;
+pub const GATHERED_AT: usize = RADIOSITY_AT + RADIOSITY_LEN;
+pub const EARLIER_AT: usize = GATHERED_AT + GATHER_LEN;
+pub const SCENE_AT: usize = EARLIER_AT + GATHER_LEN;
+const LENGTHS: [usize; 4] = [STATIC_LEN, RADIOSITY_LEN, GATHER_LEN, REST_LEN];
+const OFFSETS: [usize; 4] = [0, RADIOSITY_AT, GATHERED_AT, EARLIER_AT];
+
+fn word(w: &[u8], at: usize) -> [u8; 4] {
+    [w[at], w[at + 1], w[at + 2], w[at + 3]]
+}
+
+pub fn voxel(w: &[u8]) -> [i32; 3] {
+    [0, 4, 8].map(|at| i32::from_le_bytes(word(w, at)))
+}
+
+pub fn id(w: &[u8]) -> u32 {
+    u32::from_le_bytes(word(w, 68))
+}
+
+/// Normal id, area and the two materials.
+pub fn scene_data(w: &[u8]) -> (u32, f32, [u32; 2]) {
+    let u = |k: usize| u32::from_le_bytes(word(w, SCENE_AT + 4 * k));
+    (u(0), f32::from_bits(u(1)), [u(2), u(3)])
+}
+
+pub fn encode_scene_data(normal_id: u32, area: f32, material: [u32; 2], out: &mut [u8]) {
+    let words = [normal_id, area.to_bits(), material[0], material[1]];
+    for (k, v) in words.iter().enumerate() {
+        out[SCENE_AT + 4 * k..SCENE_AT + 4 * k + 4].copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+/// The order of the axis copy of main axis `main` (see the `outcore` module header):
+/// `(x_m, x_v, x_u)`, then the canonical id.
+#[derive(Clone, Copy, Debug)]
+pub struct AxisKey {
+    pub main: usize,
+    pub u: usize,
+    pub v: usize,
+    dims: [u64; 3],
+}
+
+impl AxisKey {
+    pub fn new(main: usize, dims: [u32; 3]) -> Self {
+        AxisKey {
+            main,
+            u: (main + 1) % 3,
+            v: (main + 2) % 3,
+            dims: dims.map(u64::from),
+        }
+    }
+
+    pub fn layers(&self) -> usize {
+        self.dims[self.main] as usize
+    }
+
+    pub fn rows(&self) -> usize {
+        self.dims[self.v] as usize
+    }
+
+    /// Index of the record's row `(x_m, x_v)` in a layer-major histogram.
+    #[inline]
+    pub fn row(&self, v: [i32; 3]) -> usize {
+        (v[self.main] as u64 * self.dims[self.v] + v[self.v] as u64) as usize
+    }
+
+    #[inline]
+    pub fn key(&self, w: &[u8]) -> (u64, u32) {
+        let v = voxel(w);
+        let row = self.row(v) as u64;
+        (row * self.dims[self.u] + v[self.u] as u64, id(w))
+    }
+}
+
+/// A rank's held surfels: four files of `count` records each, in one order.
+pub struct Held {
+    pub paths: [PathBuf; 4],
+    pub count: u64,
+}
+
+impl Held {
+    pub fn statics(&self) -> &Path {
+        &self.paths[0]
+    }
+
+    pub fn radiosity(&self) -> &Path {
+        &self.paths[1]
+    }
+
+    pub fn gathered(&self) -> &Path {
+        &self.paths[2]
+    }
+
+    pub fn remove(self) -> Result<(), OocError> {
+        for p in &self.paths {
+            std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+        }
+        Ok(())
+    }
+}
+
+/// Fills its argument with the next record of one file; false at the end.
+type RecordReader = Box<dyn FnMut(&mut [u8]) -> Result<bool, OocError>>;
+
+/// Reads held files record by record, in wire form.
+pub struct HeldReader {
+    readers: [RecordReader; 4],
+}
+
+impl HeldReader {
+    pub fn open(held: &Held, buffer_bytes: usize) -> Result<Self, OocError> {
+        fn reader<const L: usize>(path: &Path, buffer: usize) -> Result<RecordReader, OocError> {
+            let mut r = SeqReader::<L>::open(path, buffer)?;
+            Ok(Box::new(move |out: &mut [u8]| match r.next_record()? {
+                Some(rec) => {
+                    out.copy_from_slice(&rec);
+                    Ok(true)
+                }
+                None => Ok(false),
+            }))
+        }
+        let b = buffer_bytes;
+        Ok(HeldReader {
+            readers: [
+                reader::<STATIC_LEN>(&held.paths[0], b)?,
+                reader::<RADIOSITY_LEN>(&held.paths[1], b)?,
+                reader::<GATHER_LEN>(&held.paths[2], b)?,
+                reader::<REST_LEN>(&held.paths[3], b)?,
+            ],
+        })
+    }
+
+    /// The next record, or `None` at the end.
+    pub fn next(&mut self, io: &mut IoCounters) -> Result<Option<Wire>, OocError> {
+        let mut w = [0u8; WIRE_LEN];
+        for (k, r) in self.readers.iter_mut().enumerate() {
+            if !r(&mut w[OFFSETS[k]..OFFSETS[k] + LENGTHS[k]])? {
+                return Ok(None);
+            }
+        }
+        io.read += WIRE_LEN as u64;
+        Ok(Some(w))
+    }
+}
+
+/// Writes held files (generation `generation` in `dir`), counting records per row of `key`'s
+/// copy order when given one.
+pub struct HeldWriter {
+    writers: [SeqWriter; 4],
+    paths: [PathBuf; 4],
+    count: u64,
+    histogram: Option<(AxisKey, Vec<u32>)>,
+}
+
+impl HeldWriter {
+    pub fn create(
+        dir: &Path,
+        generation: u64,
+        buffer_bytes: usize,
+        histogram: Option<(AxisKey, Vec<u32>)>,
+    ) -> Result<Self, OocError> {
+        let paths = ["static", "radiosity", "gathered", "rest"]
+            .map(|name| dir.join(format!("held-{generation}-{name}.bin")));
+        let writers = [
+            SeqWriter::create(&paths[0], buffer_bytes)?,
+            SeqWriter::create(&paths[1], buffer_bytes)?,
+            SeqWriter::create(&paths[2], buffer_bytes)?,
+            SeqWriter::create(&paths[3], buffer_bytes)?,
+        ];
+        let histogram = histogram.map(|(key, mut h)| {
+            h.clear();
+            h.resize(key.layers() * key.rows(), 0);
+            (key, h)
+        });
+        Ok(HeldWriter {
+            writers,
+            paths,
+            count: 0,
+            histogram,
+        })
+    }
+
+    pub fn write(&mut self, w: &Wire) -> Result<(), OocError> {
+        for (k, out) in self.writers.iter_mut().enumerate() {
+            out.write(&w[OFFSETS[k]..OFFSETS[k] + LENGTHS[k]])?;
+        }
+        if let Some((key, h)) = self.histogram.as_mut() {
+            h[key.row(voxel(w))] += 1;
+        }
+        self.count += 1;
+        Ok(())
+    }
+
+    /// Closes the files; returns them and the row histogram.
+    pub fn finish(self, io: &mut IoCounters) -> Result<(Held, Option<Vec<u32>>), OocError> {
+        for w in self.writers {
+            io.written += w.finish()?;
+        }
+        Ok((
+            Held {
+                paths: self.paths,
+                count: self.count,
+            },
+            self.histogram.map(|(_, h)| h),
+        ))
+    }
+}
+
+/// Appends wire records to a run file.
+pub struct RunWriter {
+    out: SeqWriter,
+    pub count: u64,
+}
+
+impl RunWriter {
+    pub fn create(path: &Path, buffer_bytes: usize) -> Result<Self, OocError> {
+        Ok(RunWriter {
+            out: SeqWriter::create(path, buffer_bytes)?,
+            count: 0,
+        })
+    }
+
+    /// Appends whole records (`bytes` holds a multiple of [`WIRE_LEN`]).
+    pub fn write(&mut self, bytes: &[u8]) -> Result<(), OocError> {
+        self.count += (bytes.len() / WIRE_LEN) as u64;
+        self.out.write(bytes)
+    }
+
+    pub fn finish(self, io: &mut IoCounters) -> Result<PathBuf, OocError> {
+        let path = self.out.path().to_path_buf();
+        io.written += self.out.finish()?;
+        Ok(path)
+    }
+}
+
+/// A stream of wire records (a run file, or the held files read through a filter).
+pub type Source<'a> = Box<dyn FnMut() -> Result<Option<Wire>, OocError> + 'a>;
+
+/// A run file as a [`Source`].
+pub fn run_source<'a>(path: &Path, buffer_bytes: usize) -> Result<Source<'a>, OocError> {
+    let mut reader = SeqReader::<WIRE_LEN>::open(path, buffer_bytes)?;
+    Ok(Box::new(move || reader.next_record()))
+}
+
+/// Merges `first` (if any) and the run files `runs`, each sorted by `key`, into `sink` in that
+/// order, `fan_in` sources at a time at most (earlier passes merge groups of runs into new runs
+/// in `dir`). Removes the runs.
+#[allow(clippy::too_many_arguments)]
+pub fn merge_runs(
+    first: Option<Source>,
+    mut runs: Vec<PathBuf>,
+    key: AxisKey,
+    fan_in: usize,
+    buffer_bytes: usize,
+    dir: &Path,
+    io: &mut IoCounters,
+    sink: &mut dyn FnMut(&Wire) -> Result<(), OocError>,
+) -> Result<(), OocError> {
+    let fan_in = fan_in.max(2);
+    let mut pass = 0;
+    while runs.len() + first.is_some() as usize > fan_in {
+        let mut next = Vec::new();
+        for (g, group) in runs.chunks(fan_in).enumerate() {
+            let path = dir.join(format!("merge-{pass}-{g}.run"));
+            let mut out = RunWriter::create(&path, buffer_bytes)?;
+            let sources = group
+                .iter()
+                .map(|p| run_source(p, buffer_bytes))
+                .collect::<Result<Vec<_>, _>>()?;
+            merge_sources(sources, key, io, &mut |w| out.write(w))?;
+            next.push(out.finish(io)?);
+            remove_all(group)?;
+        }
+        runs = next;
+        pass += 1;
+    }
+    let mut sources: Vec<Source> = first.into_iter().collect();
+    for p in &runs {
+        sources.push(run_source(p, buffer_bytes)?);
+    }
+    merge_sources(sources, key, io, sink)?;
+    remove_all(&runs)
+}
+
+fn remove_all(paths: &[PathBuf]) -> Result<(), OocError> {
+    for p in paths {
+        std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+    }
+    Ok(())
+}
+
+/// One k-way merge of sorted sources (keys are unique: they end with the canonical id).
+fn merge_sources(
+    mut sources: Vec<Source>,
+    key: AxisKey,
+    io: &mut IoCounters,
+    sink: &mut dyn FnMut(&Wire) -> Result<(), OocError>,
+) -> Result<(), OocError> {
+    let mut heads: Vec<Wire> = Vec::with_capacity(sources.len());
+    let mut heap = BinaryHeap::with_capacity(sources.len());
+    for (k, source) in sources.iter_mut().enumerate() {
+        let head = source()?;
+        if let Some(w) = head {
+            heap.push(Reverse((key.key(&w), k)));
+        }
+        heads.push(head.unwrap_or([0u8; WIRE_LEN]));
+    }
+    while let Some(Reverse((_, k))) = heap.pop() {
+        sink(&heads[k])?;
+        io.read += WIRE_LEN as u64;
+        if let Some(w) = sources[k]()? {
+            heap.push(Reverse((key.key(&w), k)));
+            heads[k] = w;
+        }
+    }
+    Ok(())
+}
+
+/// Sorts the records of `first` and of the run files `inputs` (in any order) by `key` into
+/// `sink`: pieces of `chunk_records` sorted in memory into runs, then merged. Removes the
+/// inputs.
+#[allow(clippy::too_many_arguments)]
+pub fn sort_runs(
+    first: Option<Source>,
+    inputs: Vec<PathBuf>,
+    key: AxisKey,
+    chunk_records: usize,
+    fan_in: usize,
+    buffer_bytes: usize,
+    dir: &Path,
+    io: &mut IoCounters,
+    sink: &mut dyn FnMut(&Wire) -> Result<(), OocError>,
+) -> Result<(), OocError> {
+    let chunk_records = chunk_records.max(1);
+    let mut runs = Vec::new();
+    let mut piece: Vec<((u64, u32), Wire)> = Vec::new();
+    let flush = |piece: &mut Vec<((u64, u32), Wire)>,
+                 runs: &mut Vec<PathBuf>,
+                 io: &mut IoCounters|
+     -> Result<(), OocError> {
+        if piece.is_empty() {
+            return Ok(());
+        }
+        piece.sort_unstable_by_key(|e| e.0);
+        let path = dir.join(format!("sorted-{}.run", runs.len()));
+        let mut out = RunWriter::create(&path, buffer_bytes)?;
+        for (_, w) in piece.iter() {
+            out.write(w)?;
+        }
+        runs.push(out.finish(io)?);
+        piece.clear();
+        Ok(())
+    };
+    let mut sources: Vec<Source> = first.into_iter().collect();
+    for p in &inputs {
+        sources.push(run_source(p, buffer_bytes)?);
+    }
+    for mut source in sources {
+        while let Some(w) = source()? {
+            io.read += WIRE_LEN as u64;
+            if piece.is_empty() {
+                // Exactly one piece: growth by doubling could overshoot the budget.
+                piece.reserve_exact(chunk_records);
+            }
+            piece.push((key.key(&w), w));
+            if piece.len() == chunk_records {
+                flush(&mut piece, &mut runs, io)?;
+            }
+        }
+    }
+    remove_all(&inputs)?;
+    flush(&mut piece, &mut runs, io)?;
+    drop(piece);
+    merge_runs(None, runs, key, fan_in, buffer_bytes, dir, io, sink)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn record(voxel: [i32; 3], id: u32) -> Wire {
+        let mut w = [0u8; WIRE_LEN];
+        for (k, v) in voxel.iter().enumerate() {
+            w[4 * k..4 * k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        w[68..72].copy_from_slice(&id.to_le_bytes());
+        w[WIRE_LEN - 1] = id as u8;
+        w
+    }
+
+    #[test]
+    fn external_sort_gives_copy_order_with_small_pieces_and_fan_in() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = AxisKey::new(1, [5, 6, 7]);
+        let mut expected = Vec::new();
+        let mut inputs = Vec::new();
+        let mut io = IoCounters::default();
+        for part in 0..3u32 {
+            let path = dir.path().join(format!("in-{part}"));
+            let mut out = RunWriter::create(&path, 4096).unwrap();
+            for k in 0..50u32 {
+                let id = part * 50 + k;
+                let v = [(id * 7 % 5) as i32, (id * 3 % 6) as i32, (id % 7) as i32];
+                let w = record(v, id);
+                out.write(&w).unwrap();
+                expected.push(w);
+            }
+            inputs.push(out.finish(&mut io).unwrap());
+        }
+        expected.sort_by_key(|w| key.key(w));
+        let mut got = Vec::new();
+        // The first part as a source, the others as run files.
+        let first = run_source(&inputs[0], 4096).unwrap();
+        let rest = inputs[1..].to_vec();
+        sort_runs(
+            Some(first),
+            rest,
+            key,
+            7,
+            2,
+            4096,
+            dir.path(),
+            &mut io,
+            &mut |w| {
+                got.push(*w);
+                Ok(())
+            },
+        )
+        .unwrap();
+        assert_eq!(got.len(), expected.len());
+        assert!(got == expected);
+        // Nothing left behind but the first input, which the caller owns.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn held_files_round_trip_and_count_rows() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = AxisKey::new(0, [3, 4, 5]);
+        let mut io = IoCounters::default();
+        let mut writer = HeldWriter::create(dir.path(), 0, 4096, Some((key, Vec::new()))).unwrap();
+        let records: Vec<Wire> = (0..10u32)
+            .map(|id| {
+                let mut w = record([(id % 3) as i32, 1, (id % 5) as i32], id);
+                encode_scene_data(id, 0.5, [1, 2], &mut w);
+                w
+            })
+            .collect();
+        for w in &records {
+            writer.write(w).unwrap();
+        }
+        let (held, histogram) = writer.finish(&mut io).unwrap();
+        let histogram = histogram.unwrap();
+        assert_eq!(histogram.iter().sum::<u32>(), 10);
+        assert_eq!(histogram[key.row([1, 0, 4])], 1);
+        let mut reader = HeldReader::open(&held, 4096).unwrap();
+        for w in &records {
+            assert!(reader.next(&mut io).unwrap().unwrap() == *w);
+            assert_eq!(scene_data(w).1, 0.5);
+        }
+        assert!(reader.next(&mut io).unwrap().is_none());
+    }
+}

@@ -1,0 +1,711 @@
+//! The data mode out of core (`--distribute data --memory SIZE`): every rank holds only its
+//! share of the scene, in work files on its own disk, and its memory stays within the budget.
+//!
+//! **Input.** Rank `r` reads its slice of the canonical stream: about `n r / P .. n (r + 1) / P`,
+//! both ends moved to the next voxel boundary so that voxel-mates (for the coverage) stay
+//! together. From a shard set it opens only the shards that hold its slice.
+//!
+//! **Held files** ([`held`]): the rank's surfels with their radiosity and gathered light, sorted
+//! in the copy order of the current main axis `m`, `(x_m, x_v, x_u, id)`, with the row
+//! histogram of that order: exactly what the band machinery of `outcore::band` reads.
+//!
+//! **Directions** are walked as the single-process out-of-core solver walks them
+//! (`outcore::solver::walk_by_axis`): grouped by main axis, then by the slope of the lines along
+//! `v`, on which the columns depend, so that few records move. For each direction, rank `r`
+//! owns a contiguous range of line columns `j` (cut for equal surfels from the column histogram
+//! added over ranks, in the first iteration, and remembered). The held records whose column is now another rank's
+//! move there ([`route`]): in copy order, so the kept and received runs are merged; at a change
+//! of main axis they are sorted instead. The direction is then solved band by band on the held
+//! files (`outcore::band`); every line lies whole on one rank.
+//!
+//! Every line is gathered from the same surfels in the same order as in the single-process
+//! out-of-core solve, and every surfel adds its directions, and then its axes, in the same
+//! order: the radiosity is that of `voxrad solve SET --memory SIZE` bit for bit (the stopping
+//! rule's sums are added in another grouping).
+//!
+//! **Iteration end**: each rank updates `B` of its held surfels (their materials, normal and
+//! area travel with them); the stopping rule's sums are added over ranks. **Output**: the
+//! `(id, B)` pairs go to rank 0 in bounded rounds, which places them in a canonical radiosity
+//! file and streams the results from the source as the single-process path does.
+//!
+//! **Checkpoints** ([`DataOocCheckpoints`]) are those of the single-process out-of-core solver:
+//! at a due iteration boundary the radiosity is gathered to rank 0, which writes it; on resume
+//! rank 0 reads it and sends every rank its slice. A stop signal is agreed on between
+//! directions (`max_u64`), and the checkpoint of the last completed iteration written.
+//!
+//! **Memory**: as in `outcore` (one band, one sort piece, or one exchange round at a time, and
+//! fixed I/O buffers), plus per direction its remembered cuts (`P + 1` numbers).
+
+mod canonical;
+pub mod held;
+pub mod route;
+mod slice;
+mod summary;
+
+use super::data::PhaseSeconds;
+use super::Comm;
+use crate::checkpoint::{CheckpointFile, Saver, State};
+use crate::geometry::directions::DirectionSet;
+use crate::geometry::lines::LineFrame;
+use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
+use crate::outcore::budget::MemoryPlan;
+use crate::outcore::files::{
+    decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, IoCounters, SeqReader,
+    RADIOSITY_LEN, STATIC_LEN,
+};
+use crate::outcore::source::SurfelSource;
+use crate::outcore::workset::AxisCopy;
+use crate::outcore::OocError;
+use crate::solve::accelerate::Extrapolation;
+use crate::solve::jacobi::Convergence;
+use crate::solve::normalize::cosine_sums;
+use crate::solve::{SolveOptions, SolveStats};
+use crate::voxel::Surfel;
+use held::{AxisKey, Held, HeldReader, HeldWriter, Wire, EARLIER_AT, GATHERED_AT};
+use route::Router;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+use tempfile::TempDir;
+
+/// Bytes of one `(id, B)` pair sent to rank 0 for the output.
+const RESULT_PAIR_LEN: usize = 4 + RADIOSITY_LEN;
+
+/// The outcome on one rank: statistics (the same on every rank) and, on rank 0, the radiosity
+/// in canonical order.
+pub struct DataOocSolution {
+    pub stats: SolveStats,
+    pub voxels: u64,
+    pub surfels: u64,
+    pub bytes_read: u64,
+    pub bytes_written: u64,
+    pub bands: u64,
+    pub setup_seconds: f64,
+    work: TempDir,
+    canonical: Option<PathBuf>,
+    io_bytes: usize,
+}
+
+impl DataOocSolution {
+    /// On rank 0: calls `f(surfel, radiosity)` for every surfel of `source` in canonical order.
+    pub fn for_each<F>(&self, source: &dyn SurfelSource, mut f: F) -> Result<(), OocError>
+    where
+        F: FnMut(&Surfel, &[[f32; 3]; 2]) -> Result<(), OocError>,
+    {
+        let path = self.canonical.as_ref().ok_or_else(|| OocError::BadData {
+            source_name: source.describe(),
+            what: "only rank 0 holds the results".to_string(),
+        })?;
+        let mut radiosity = SeqReader::<RADIOSITY_LEN>::open(path, self.io_bytes)?;
+        for s in source.stream(self.io_bytes as u64)? {
+            let b = decode_radiosity(&radiosity.expect_record()?);
+            f(&s?, &b)?;
+        }
+        Ok(())
+    }
+
+    /// The rank's work directory (removed when the solution is dropped).
+    pub fn work_dir(&self) -> &Path {
+        self.work.path()
+    }
+}
+
+/// The checkpoints of a data-mode out-of-core solve: at iteration boundaries the radiosity is
+/// gathered to canonical order on rank 0, which writes it (`Saver`); a resumed run starts from
+/// one, which rank 0 reads and sends to the ranks in slices.
+pub struct DataOocCheckpoints<'a> {
+    pub saver: &'a mut Saver,
+    /// On rank 0: the checkpoint to start from, opened and checked against the run.
+    pub resume: Option<CheckpointFile>,
+    /// On every rank: the state that checkpoint holds (`None`: start afresh).
+    pub state: Option<State>,
+}
+
+/// Solves `source` over the ranks of `comm`, each within `budget` bytes, with its work files
+/// in a new directory under `work_parent`.
+pub fn solve_data_out_of_core(
+    source: &dyn SurfelSource,
+    directions: &DirectionSet,
+    options: &SolveOptions,
+    comm: &dyn Comm,
+    budget: u64,
+    work_parent: &Path,
+    checkpoints: Option<DataOocCheckpoints>,
+) -> Result<DataOocSolution, OocError> {
+    let threads = if options.threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        options.threads
+    };
+    crate::outcore::solver::one_malloc_arena();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| OocError::Threads {
+            threads,
+            message: e.to_string(),
+        })?;
+    // The pool runs the threaded parts; every call of `comm` stays on this thread.
+    let solver = Solver {
+        source,
+        directions,
+        options,
+        comm,
+        threads,
+        pool: &pool,
+    };
+    solver.run(budget, work_parent, checkpoints)
+}
+
+struct Solver<'a> {
+    source: &'a dyn SurfelSource,
+    directions: &'a DirectionSet,
+    options: &'a SolveOptions,
+    comm: &'a dyn Comm,
+    threads: usize,
+    pool: &'a rayon::ThreadPool,
+}
+
+/// What one update of `B` found on this rank.
+#[derive(Clone, Copy, Default)]
+struct Update {
+    change: f64,
+    total: f64,
+    emitted: [f64; 3],
+    absorbed: [f64; 3],
+}
+
+impl Solver<'_> {
+    fn run(
+        &self,
+        budget: u64,
+        work_parent: &Path,
+        mut checkpoints: Option<DataOocCheckpoints>,
+    ) -> Result<DataOocSolution, OocError> {
+        let info = self.source.info();
+        let dims = info.grid.dims;
+        let (ranks, me) = (self.comm.size(), self.comm.rank());
+        let plan = MemoryPlan::new(budget, dims, self.threads)?;
+        // At a merge a rank holds its old and new held files and the received runs, about three
+        // times its share; rank 0 also the canonical radiosity.
+        let share = info.count.div_ceil(ranks as u64) * held::WIRE_LEN as u64;
+        let canonical_bytes = if me == 0 {
+            info.count * RADIOSITY_LEN as u64
+        } else {
+            0
+        };
+        crate::outcore::workset::check_free_space(work_parent, 3 * share + canonical_bytes)?;
+        let work = tempfile::Builder::new()
+            .prefix(&format!(".voxrad-rank{me}-"))
+            .tempdir_in(work_parent)
+            .map_err(|e| OocError::io(work_parent, "create a work directory in", e))?;
+        let dir = work.path();
+        let router = Router {
+            comm: self.comm,
+            plan: &plan,
+            dir,
+        };
+        let mut io = IoCounters::default();
+        let mut seconds = PhaseSeconds::default();
+        let started = Instant::now();
+        let t = Instant::now();
+        let cosine_sum = self
+            .pool
+            .install(|| cosine_sums(&info.normals, self.directions));
+        let normalize_seconds = t.elapsed().as_secs_f64();
+        let slice = self.read_slice(&plan, dir, &cosine_sum, &mut io)?;
+        let mut counts = [slice.voxels as f64, slice.held.count as f64];
+        self.comm.sum_in_place(&mut counts);
+        let [voxels, surfels] = counts.map(|c| c as u64);
+        let any_light = self.comm.max_u64(slice.any_light as u64) == 1;
+        let setup_seconds = started.elapsed().as_secs_f64();
+        let mut held = slice.held;
+        let mut largest_share = held.count;
+        let mut generation = 0u64;
+        let mut convergence = Convergence::new();
+        let mut stats = SolveStats {
+            directions: self.directions.len(),
+            threads: self.threads,
+            channels: self.channels(),
+            normalize_seconds,
+            ..Default::default()
+        };
+        let mut first_iteration = 1;
+        let mut extrapolation = Extrapolation::default();
+        if let Some(c) = checkpoints.as_mut() {
+            if let Some(state) = c.state.take() {
+                extrapolation = state.extrapolation.clone();
+                generation += 1;
+                held = self.restore(
+                    held,
+                    slice.first,
+                    c.resume.take(),
+                    generation,
+                    &router,
+                    &mut io,
+                )?;
+                first_iteration = convergence.resume(&state, c.saver.path(), &mut stats);
+            }
+            crate::interrupt::start_iterating();
+        }
+
+        let d_count = self.directions.len();
+        // The single-process out-of-core solver's order (the same answer bit for bit).
+        let by_axis = crate::outcore::solver::walk_by_axis(self.directions);
+        let mut remembered: Vec<Option<Vec<u64>>> = vec![None; d_count];
+        let mut imbalance = vec![0.0f64; d_count];
+        let mut moved = vec![0.0f64; d_count];
+        let mut histogram: Vec<u32> = Vec::new();
+        let mut times = BandTimes::default();
+        let mut last = Update::default();
+        let mut iterations_done = first_iteration - 1;
+        let progress = crate::progress::bar(d_count as u64, "iteration 1");
+        for iteration in first_iteration..=self.options.max_iterations {
+            if !any_light {
+                stats.converged = true;
+                break;
+            }
+            progress.reset();
+            progress.set_message(format!("iteration {iteration}"));
+            // `earlier` holds the light of the axes done this iteration; `gathered` that of the
+            // axis in progress, added to `earlier` when the next axis starts (or at the update).
+            let mut earlier_any = false;
+            let mut pending = false;
+            for (m, axis) in by_axis.iter().enumerate() {
+                if axis.is_empty() {
+                    continue;
+                }
+                let key = AxisKey::new(m, dims);
+                for (k, &d) in axis.iter().enumerate() {
+                    // The ranks exchange surfels for every direction: they stop together.
+                    self.stop_if_asked(
+                        iteration - 1,
+                        &held,
+                        &plan,
+                        dir,
+                        &convergence,
+                        &extrapolation,
+                        &mut checkpoints,
+                    )?;
+                    let direction = &self.directions.directions[d];
+                    let frame = LineFrame::new(direction.vector, dims);
+                    let t = Instant::now();
+                    if remembered[d].is_none() {
+                        let load = self.column_load(&held, &frame, &plan, &mut io)?;
+                        let cuts = cut_columns(&load, ranks);
+                        imbalance[d] = imbalance_of(&load, &cuts);
+                        remembered[d] = Some(cuts);
+                    }
+                    seconds.balance += t.elapsed().as_secs_f64();
+                    let cuts = remembered[d].as_deref().expect("just cut");
+                    let owner = |w: &Wire| {
+                        let v = held::voxel(w);
+                        let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
+                        cuts[1..ranks].partition_point(|&c| c <= j)
+                    };
+                    let fold = k == 0 && pending;
+                    let first_fold = !earlier_any;
+                    let mut transform = |w: &mut Wire| {
+                        if fold {
+                            fold_axis(w, first_fold);
+                        }
+                    };
+                    generation += 1;
+                    let (next, rows, sent) = router.redistribute(
+                        held,
+                        generation,
+                        key,
+                        k > 0,
+                        histogram,
+                        &owner,
+                        &mut transform,
+                        &mut io,
+                        &mut seconds,
+                    )?;
+                    if fold {
+                        earlier_any = true;
+                        pending = false;
+                    }
+                    held = next;
+                    histogram = rows;
+                    moved[d] += sent as f64;
+                    largest_share = largest_share.max(held.count);
+                    self.solve_direction(
+                        &held,
+                        &histogram,
+                        key,
+                        d,
+                        k == 0,
+                        &plan,
+                        &mut io,
+                        &mut times,
+                    )?;
+                    progress.inc(1);
+                }
+                pending = true;
+            }
+            // A pass stopped early by a signal leaves this iteration's light incomplete.
+            self.stop_if_asked(
+                iteration - 1,
+                &held,
+                &plan,
+                dir,
+                &convergence,
+                &extrapolation,
+                &mut checkpoints,
+            )?;
+            let t = Instant::now();
+            generation += 1;
+            let (next, result) = self.update(
+                held,
+                generation,
+                dir,
+                &plan,
+                &cosine_sum,
+                pending.then_some(!earlier_any),
+                &mut io,
+            )?;
+            held = next;
+            stats.updates += surfels * d_count as u64;
+            let mut sums = [result.change, result.total];
+            self.comm.sum_in_place(&mut sums);
+            seconds.reduce += t.elapsed().as_secs_f64();
+            let stop = convergence.record(
+                iteration,
+                sums[0],
+                sums[1],
+                self.options,
+                &mut stats,
+                |relative| extrapolation.error_estimate(relative),
+            );
+            last = result;
+            iterations_done = iteration;
+            if stop {
+                break;
+            }
+            if self.options.accelerate {
+                if let Some(factor) = extrapolation.observe(sums[0], stats.last_change) {
+                    let t = Instant::now();
+                    generation += 1;
+                    held = self.extrapolate(held, generation, dir, &plan, factor, &mut io)?;
+                    seconds.reduce += t.elapsed().as_secs_f64();
+                    // The jump is not an iteration's change: the stopping rule starts again.
+                    convergence.restart();
+                }
+            }
+            // A boundary the solve goes on from; rank 0's clock decides for all (the radiosity
+            // is gathered from every rank).
+            if iteration < self.options.max_iterations {
+                if let Some(c) = checkpoints.as_mut() {
+                    let due = self.comm.max_u64((me == 0 && c.saver.due()) as u64) == 1;
+                    if due {
+                        let canonical = self.gather_results(&held, surfels, dir, &plan, &mut io)?;
+                        let previous = convergence.previous_change;
+                        c.saver.save_if_due(
+                            |saver| saver.state(iteration, previous, &extrapolation),
+                            |saver, state| {
+                                canonical::save(saver, state, canonical.as_deref(), &plan)
+                            },
+                        );
+                    }
+                }
+            }
+        }
+        progress.finish_and_clear();
+        if self.options.tolerance.is_none() {
+            stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
+        }
+        let mut energy = [last.emitted, last.absorbed].concat();
+        self.comm.sum_in_place(&mut energy);
+        stats.emitted_power.copy_from_slice(&energy[..3]);
+        stats.absorbed_power.copy_from_slice(&energy[3..]);
+        // A band's reading counts with its dispatch, writing its light with its propagation.
+        seconds.dispatch = times.dispatch + times.read;
+        seconds.propagate = times.propagate + times.write;
+        stats.dispatch_seconds = times.dispatch;
+        stats.propagate_seconds = times.propagate;
+        stats.reduce_seconds = seconds.reduce;
+
+        let t = Instant::now();
+        let canonical = self.gather_results(&held, surfels, dir, &plan, &mut io)?;
+        held.remove()?;
+        seconds.reduce += t.elapsed().as_secs_f64();
+
+        let tally = summary::Tally {
+            moved,
+            imbalance,
+            seconds,
+            io,
+            largest_share,
+            bands: times.bands,
+        };
+        let totals = self.summarize(&tally, surfels, iterations_done);
+        stats.data = Some(totals.data);
+        stats.extrapolations = extrapolation.count;
+        Ok(DataOocSolution {
+            stats,
+            voxels,
+            surfels,
+            bytes_read: totals.bytes_read,
+            bytes_written: totals.bytes_written,
+            bands: totals.bands,
+            setup_seconds,
+            work,
+            canonical,
+            io_bytes: plan.io_bytes,
+        })
+    }
+
+    /// Surfels per line column of `frame`, added over ranks.
+    fn column_load(
+        &self,
+        held: &Held,
+        frame: &LineFrame,
+        plan: &MemoryPlan,
+        io: &mut IoCounters,
+    ) -> Result<Vec<f64>, OocError> {
+        let mut load = vec![0.0f64; frame.nj as usize];
+        let mut reader = SeqReader::<STATIC_LEN>::open(held.statics(), plan.io_bytes)?;
+        while let Some(r) = reader.next_record()? {
+            let v = held::voxel(&r);
+            let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
+            load[j as usize] += 1.0;
+        }
+        io.read += held.count * STATIC_LEN as u64;
+        self.comm.sum_in_place(&mut load);
+        Ok(load)
+    }
+
+    /// Direction `d` over the held files, band by band (`outcore::band`).
+    #[allow(clippy::too_many_arguments)]
+    fn solve_direction(
+        &self,
+        held: &Held,
+        histogram: &[u32],
+        key: AxisKey,
+        d: usize,
+        first: bool,
+        plan: &MemoryPlan,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
+        let rows = key.rows();
+        let mut layer_start = Vec::with_capacity(key.layers() + 1);
+        let mut start = 0u64;
+        layer_start.push(0);
+        for layer in histogram.chunks(rows.max(1)).take(key.layers()) {
+            start += layer.iter().map(|&h| h as u64).sum::<u64>();
+            layer_start.push(start);
+        }
+        let copy = AxisCopy {
+            main: key.main,
+            u: key.u,
+            v: key.v,
+            layers: key.layers(),
+            rows,
+            statics: held.statics().to_path_buf(),
+            radiosity: held.radiosity().to_path_buf(),
+            ids: PathBuf::new(),
+            positions: PathBuf::new(),
+            histogram: PathBuf::new(),
+            layer_start,
+        };
+        let files = CopyFiles::open(&copy, held.gathered())?;
+        let pass = DirectionPass {
+            copy: &copy,
+            files: &files,
+            histogram,
+            dims: self.source.info().grid.dims,
+            plan,
+            threads: self.threads,
+            channels: self.channels(),
+            first,
+        };
+        // Fresh band arrays: they must not hold their memory through the next merge.
+        let mut buffers = BandBuffers::default();
+        self.pool
+            .install(|| pass.run(&self.directions.directions[d], &mut buffers, io, times))
+    }
+
+    /// `B = E + rho H / S(n)` on the held surfels, after adding the last axis's light to the
+    /// earlier ones (`fold`: `Some(first)` when an axis is pending, `first` when it is the only
+    /// one). Writes new held files (generation `generation`) with the light cleared.
+    #[allow(clippy::too_many_arguments)]
+    fn update(
+        &self,
+        held: Held,
+        generation: u64,
+        dir: &Path,
+        plan: &MemoryPlan,
+        cosine_sum: &[f64],
+        fold: Option<bool>,
+        io: &mut IoCounters,
+    ) -> Result<(Held, Update), OocError> {
+        let info = self.source.info();
+        let area_unit = info.grid.voxel_size * info.grid.voxel_size;
+        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
+        let mut result = Update::default();
+        while let Some(mut w) = reader.next(io)? {
+            if let Some(first) = fold {
+                fold_axis(&mut w, first);
+            }
+            let mut h = decode_gathered(&w[EARLIER_AT..]);
+            if self.channels() == 1 {
+                for side in &mut h {
+                    *side = [side[0]; 3];
+                }
+            }
+            let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
+            let (normal_id, area, material) = held::scene_data(&w);
+            let norm = cosine_sum[normal_id as usize];
+            let area = area as f64;
+            let mut b_new = [[0.0f32; 3]; 2];
+            for side in 0..2 {
+                let m = &info.materials[material[side] as usize];
+                for ch in 0..3 {
+                    // As `outcore::solver` computes it, term by term.
+                    let e = m.emission[ch] as f32 as f64;
+                    let b = e + m.reflectance[ch] * h[side][ch] / norm;
+                    result.change += area * (b - previous[side][ch] as f64).abs();
+                    result.total += area * b;
+                    b_new[side][ch] = b as f32;
+                    result.emitted[ch] += m.emission[ch] * area * area_unit;
+                    result.absorbed[ch] +=
+                        (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
+                }
+            }
+            encode_radiosity(&b_new, &mut w[held::RADIOSITY_AT..]);
+            w[GATHERED_AT..held::SCENE_AT].fill(0);
+            if self.options.accelerate {
+                // Kept for the tail extrapolation; the next iteration's first axis overwrites it.
+                encode_radiosity(&previous, &mut w[EARLIER_AT..]);
+            }
+            writer.write(&w)?;
+        }
+        drop(reader);
+        held.remove()?;
+        let (held, _) = writer.finish(io)?;
+        Ok((held, result))
+    }
+
+    /// Channels gathered: 1 for a grey scene (`options.grey` comes from the analysis of the
+    /// materials the surfels use, as for the one-process solver), else 3.
+    fn channels(&self) -> usize {
+        if self.options.grey {
+            1
+        } else {
+            3
+        }
+    }
+
+    /// Adds the geometric tail `factor * (B - B_previous)` to the held surfels' radiosity with
+    /// `accelerate::extrapolate`'s rules (the previous radiosity was kept in the earlier-axes
+    /// slot by [`Solver::update`]). Writes new held files (generation `generation`).
+    fn extrapolate(
+        &self,
+        held: Held,
+        generation: u64,
+        dir: &Path,
+        plan: &MemoryPlan,
+        factor: f64,
+        io: &mut IoCounters,
+    ) -> Result<Held, OocError> {
+        let info = self.source.info();
+        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
+        while let Some(mut w) = reader.next(io)? {
+            let mut b = [decode_radiosity(&w[held::RADIOSITY_AT..])];
+            let previous = [decode_radiosity(&w[EARLIER_AT..])];
+            let (_, _, material) = held::scene_data(&w);
+            let emission =
+                [material.map(|m| info.materials[m as usize].emission.map(|e| e as f32))];
+            crate::solve::accelerate::extrapolate(&mut b, &previous, &emission, factor);
+            encode_radiosity(&b[0], &mut w[held::RADIOSITY_AT..]);
+            w[EARLIER_AT..held::SCENE_AT].fill(0);
+            writer.write(&w)?;
+        }
+        drop(reader);
+        held.remove()?;
+        let (held, _) = writer.finish(io)?;
+        Ok(held)
+    }
+}
+
+/// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
+/// were none; the sum starts with this axis), as `outcore::solver` folds its axes.
+fn fold_axis(w: &mut Wire, first: bool) {
+    let mut sum = decode_gathered(&w[GATHERED_AT..]);
+    if !first {
+        let before = decode_gathered(&w[EARLIER_AT..]);
+        for (t, b) in sum.iter_mut().flatten().zip(before.iter().flatten()) {
+            *t += *b;
+        }
+    }
+    encode_gathered(&sum, &mut w[EARLIER_AT..]);
+}
+
+/// Cuts columns into `ranks` contiguous ranges of about equal `load`: `ranks + 1` bounds, rank
+/// `r` owning `cuts[r]..cuts[r + 1]`.
+fn cut_columns(load: &[f64], ranks: usize) -> Vec<u64> {
+    let total: f64 = load.iter().sum();
+    let mut cuts = Vec::with_capacity(ranks + 1);
+    cuts.push(0u64);
+    let (mut j, mut before) = (0usize, 0.0f64);
+    for r in 1..ranks {
+        let target = total * r as f64 / ranks as f64;
+        // Advance while taking the next column brings the prefix closer to the target.
+        while j < load.len() && (before + load[j] - target).abs() <= (before - target).abs() {
+            before += load[j];
+            j += 1;
+        }
+        cuts.push(j as u64);
+    }
+    cuts.push(load.len() as u64);
+    cuts
+}
+
+/// The largest rank's load over the mean (1 is perfect; 1 when there is nothing).
+fn imbalance_of(load: &[f64], cuts: &[u64]) -> f64 {
+    let ranks = cuts.len() - 1;
+    let total: f64 = load.iter().sum();
+    if total == 0.0 {
+        return 1.0;
+    }
+    let largest = cuts
+        .windows(2)
+        .map(|c| load[c[0] as usize..c[1] as usize].iter().sum::<f64>())
+        .fold(0.0, f64::max);
+    largest / (total / ranks as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use held::WIRE_LEN;
+
+    #[test]
+    fn columns_are_cut_for_equal_load() {
+        let load = [1.0, 1.0, 1.0, 1.0, 4.0, 0.0, 2.0, 2.0];
+        let cuts = cut_columns(&load, 3);
+        assert_eq!(cuts.len(), 4);
+        assert_eq!((cuts[0], cuts[3]), (0, 8));
+        assert!(cuts.windows(2).all(|c| c[0] <= c[1]));
+        assert!(imbalance_of(&load, &cuts) <= 1.25, "{cuts:?}");
+        assert_eq!(cut_columns(&load, 1), vec![0, 8]);
+        assert_eq!(imbalance_of(&[0.0; 4], &[0, 2, 4]), 1.0);
+    }
+
+    #[test]
+    fn axes_fold_as_the_single_process_solver_folds_them() {
+        let mut w = [0u8; WIRE_LEN];
+        encode_gathered(&[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], &mut w[GATHERED_AT..]);
+        fold_axis(&mut w, true);
+        assert_eq!(decode_gathered(&w[EARLIER_AT..])[1], [4.0, 5.0, 6.0]);
+        encode_gathered(&[[0.5; 3], [0.25; 3]], &mut w[GATHERED_AT..]);
+        fold_axis(&mut w, false);
+        assert_eq!(
+            decode_gathered(&w[EARLIER_AT..]),
+            [[1.5, 2.5, 3.5], [4.25, 5.25, 6.25]]
+        );
+    }
+}

@@ -1,0 +1,255 @@
+//! Moving held surfels between ranks without holding them: fill (every held record goes to the
+//! kept run or to the outgoing run of the rank that owns it now, in held order), exchange (the
+//! outgoing runs sent in rounds of bounded bytes, the received pieces appended to one run per
+//! source), merge (the kept run and the received runs, each sorted in copy order, merged k-way
+//! into the new held files; an external sort instead when the held order was another axis's).
+
+use super::held::WIRE_LEN;
+use super::held::{
+    merge_runs, sort_runs, AxisKey, Held, HeldReader, HeldWriter, RunWriter, Source, Wire,
+};
+use crate::distribute::data::PhaseSeconds;
+use crate::distribute::Comm;
+use crate::outcore::budget::MemoryPlan;
+use crate::outcore::files::IoCounters;
+use crate::outcore::OocError;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Where and within what a rank moves its records.
+pub struct Router<'a> {
+    pub comm: &'a dyn Comm,
+    pub plan: &'a MemoryPlan,
+    pub dir: &'a Path,
+}
+
+impl Router<'_> {
+    /// Bytes a rank sends in one exchange round, over all destinations. A round holds the
+    /// outgoing pieces, their packed copy, the received bytes and their unpacked copy: four
+    /// times this, an eighth of the working memory each.
+    pub fn round_bytes(&self) -> u64 {
+        (self.plan.working / 8).max(WIRE_LEN as u64)
+    }
+
+    /// Runs merged at once, and the read buffer of each: a quarter of the working memory.
+    fn fan_in(&self) -> (usize, usize) {
+        let quarter = (self.plan.working / 4) as usize;
+        let fan_in = (quarter / (16 << 10)).clamp(2, 256);
+        let buffer = (quarter / fan_in).clamp(4 << 10, self.plan.io_bytes.max(4 << 10));
+        (fan_in, buffer)
+    }
+
+    /// Records of a sort piece: half the working memory.
+    fn sort_records(&self) -> usize {
+        (self.plan.working / 2 / (WIRE_LEN as u64 + 32)).max(1) as usize
+    }
+
+    /// Sends every record of `held` to the rank `owner` names, after `transform`; returns the
+    /// new held files (generation `generation`, sorted by `key`), their row histogram (in the
+    /// reused vector `histogram`) and the records this rank sent away. `sorted`: `held` is
+    /// sorted by `key` already, so the received runs are merged rather than sorted.
+    #[allow(clippy::too_many_arguments)]
+    pub fn redistribute(
+        &self,
+        held: Held,
+        generation: u64,
+        key: AxisKey,
+        sorted: bool,
+        histogram: Vec<u32>,
+        owner: &dyn Fn(&Wire) -> usize,
+        transform: &mut dyn FnMut(&mut Wire),
+        io: &mut IoCounters,
+        seconds: &mut PhaseSeconds,
+    ) -> Result<(Held, Vec<u32>, u64), OocError> {
+        let (ranks, me) = (self.comm.size(), self.comm.rank());
+        if ranks == 1 && sorted {
+            // Alone, in order already: nothing to move, nothing to read.
+            return Ok((held, histogram, 0));
+        }
+        // Fill: only the records that leave are written; the kept ones are read again from
+        // the held files by the merge (a write and a read of every kept record saved).
+        let t = Instant::now();
+        let buffer = self.plan.bucket_buffer(ranks as u64 + 1);
+        let mut outgoing: Vec<Option<RunWriter>> = (0..ranks)
+            .map(|d| {
+                (d != me)
+                    .then(|| RunWriter::create(&self.dir.join(format!("out-{d}.run")), buffer))
+                    .transpose()
+            })
+            .collect::<Result<_, _>>()?;
+        let mut reader = HeldReader::open(&held, self.plan.io_bytes)?;
+        let mut moved = 0u64;
+        while let Some(mut w) = reader.next(io)? {
+            transform(&mut w);
+            if let Some(out) = outgoing[owner(&w)].as_mut() {
+                out.write(&w)?;
+                moved += 1;
+            }
+        }
+        drop(reader);
+        let outgoing: Vec<Option<PathBuf>> = outgoing
+            .into_iter()
+            .map(|o| o.map(|o| o.finish(&mut *io)).transpose())
+            .collect::<Result<_, _>>()?;
+        seconds.fill += t.elapsed().as_secs_f64();
+
+        // Exchange.
+        let t = Instant::now();
+        let mut incoming: Vec<Option<RunWriter>> = (0..ranks)
+            .map(|s| {
+                (s != me)
+                    .then(|| RunWriter::create(&self.dir.join(format!("in-{s}.run")), buffer))
+                    .transpose()
+            })
+            .collect::<Result<_, _>>()?;
+        exchange_files(
+            self.comm,
+            &outgoing,
+            WIRE_LEN,
+            self.round_bytes(),
+            io,
+            &mut |source, bytes| match incoming[source].as_mut() {
+                Some(run) => run.write(bytes),
+                None => Ok(()),
+            },
+        )?;
+        for path in outgoing.iter().flatten() {
+            std::fs::remove_file(path).map_err(|e| OocError::io(path, "remove", e))?;
+        }
+        let received: u64 = incoming.iter().flatten().map(|r| r.count).sum();
+        let mut runs = Vec::new();
+        for run in incoming.into_iter().flatten() {
+            runs.push(run.finish(io)?);
+        }
+        seconds.exchange += t.elapsed().as_secs_f64();
+        if sorted && moved == 0 && received == 0 {
+            // Nothing left or arrived, and the order holds: the held files stay as they are
+            // (`transform` changes records only when the order changes).
+            for path in &runs {
+                std::fs::remove_file(path).map_err(|e| OocError::io(path, "remove", e))?;
+            }
+            return Ok((held, histogram, 0));
+        }
+
+        // Merge (or sort) the kept records and the received runs into the new held files.
+        let t = Instant::now();
+        let mut writer = HeldWriter::create(
+            self.dir,
+            generation,
+            self.plan.io_bytes,
+            Some((key, histogram)),
+        )?;
+        let (fan_in, read_buffer) = self.fan_in();
+        let mut sink = |w: &Wire| writer.write(w);
+        {
+            // The merge counts the kept records it takes; the ones that left are counted below.
+            let mut uncounted = IoCounters::default();
+            let mut reader = HeldReader::open(&held, self.plan.io_bytes)?;
+            let kept: Source = Box::new(move || {
+                while let Some(mut w) = reader.next(&mut uncounted)? {
+                    transform(&mut w);
+                    if owner(&w) == me {
+                        return Ok(Some(w));
+                    }
+                }
+                Ok(None)
+            });
+            if sorted {
+                merge_runs(
+                    Some(kept),
+                    runs,
+                    key,
+                    fan_in,
+                    read_buffer,
+                    self.dir,
+                    io,
+                    &mut sink,
+                )?;
+            } else {
+                let records = self.sort_records();
+                sort_runs(
+                    Some(kept),
+                    runs,
+                    key,
+                    records,
+                    fan_in,
+                    read_buffer,
+                    self.dir,
+                    io,
+                    &mut sink,
+                )?;
+            }
+        }
+        io.read += moved * WIRE_LEN as u64;
+        held.remove()?;
+        let (held, histogram) = writer.finish(io)?;
+        seconds.merge += t.elapsed().as_secs_f64();
+        Ok((held, histogram.unwrap_or_default(), moved))
+    }
+}
+
+/// Takes the bytes that arrived from one source rank.
+pub type Received<'a> = dyn FnMut(usize, &[u8]) -> Result<(), OocError> + 'a;
+
+/// Sends the file `outgoing[d]` to rank `d` (none: nothing) in rounds of at most `round_bytes`
+/// per rank in all, cut at whole records of `record` bytes; hands what arrives to
+/// `received(source, bytes)`, in order for each source. Collective: the number of rounds is
+/// agreed with `max_u64`.
+pub fn exchange_files(
+    comm: &dyn Comm,
+    outgoing: &[Option<PathBuf>],
+    record: usize,
+    round_bytes: u64,
+    io: &mut IoCounters,
+    received: &mut Received,
+) -> Result<(), OocError> {
+    let ranks = comm.size();
+    let record = record as u64;
+    // Each destination gets at most its share of a round, so each rank also receives at most
+    // a round's bytes.
+    let piece = (round_bytes / (ranks.saturating_sub(1).max(1)) as u64 / record).max(1) * record;
+    let mut files = Vec::with_capacity(ranks);
+    let mut left = Vec::with_capacity(ranks);
+    for path in outgoing {
+        match path {
+            Some(p) => {
+                let f = std::fs::File::open(p).map_err(|e| OocError::io(p, "open", e))?;
+                let len = f.metadata().map_err(|e| OocError::io(p, "read", e))?.len();
+                files.push(Some((
+                    p.as_path(),
+                    std::io::BufReader::with_capacity(1 << 12, f),
+                )));
+                left.push(len);
+            }
+            None => {
+                files.push(None);
+                left.push(0);
+            }
+        }
+    }
+    let mine = left.iter().map(|&l| l.div_ceil(piece)).max().unwrap_or(0);
+    let rounds = comm.max_u64(mine);
+    for _ in 0..rounds {
+        let mut packs = Vec::with_capacity(ranks);
+        for (file, left) in files.iter_mut().zip(left.iter_mut()) {
+            let take = piece.min(*left) as usize;
+            let mut pack = vec![0u8; take];
+            if let Some((path, reader)) = file.as_mut() {
+                reader
+                    .read_exact(&mut pack)
+                    .map_err(|e| OocError::io(path, "read", e))?;
+                io.read += take as u64;
+            }
+            *left -= take as u64;
+            packs.push(pack);
+        }
+        let arrived = comm.exchange(packs);
+        for (source, bytes) in arrived.iter().enumerate() {
+            if !bytes.is_empty() {
+                received(source, bytes)?;
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,146 @@
+//! A rank's slice of the input (data mode out of core): about `n / P` surfels of the canonical
+//! stream, both ends moved to the next voxel boundary so that voxel-mates (for the coverage)
+//! stay together, written as held files with `B = E`.
+
+use super::held::{self, Held, HeldWriter, WIRE_LEN};
+use super::Solver;
+use crate::outcore::budget::MemoryPlan;
+use crate::outcore::files::{
+    encode_radiosity, encode_static, IoCounters, StaticRecord, STATIC_LEN,
+};
+use crate::outcore::OocError;
+use crate::solve::coverage::coverage_in_voxel;
+use crate::solve::propagate::PropSurfel;
+use crate::voxel::Surfel;
+use std::path::Path;
+
+/// The rank's slice of the input.
+pub(super) struct Slice {
+    pub held: Held,
+    /// Canonical index of its first surfel.
+    pub first: u64,
+    pub voxels: u64,
+    pub any_light: bool,
+}
+
+impl Solver<'_> {
+    /// Reads this rank's slice of the source into held files (canonical order), with `B = E`.
+    pub(super) fn read_slice(
+        &self,
+        plan: &MemoryPlan,
+        dir: &Path,
+        cosine_sum: &[f64],
+        io: &mut IoCounters,
+    ) -> Result<Slice, OocError> {
+        let info = self.source.info();
+        let n = info.count;
+        let (ranks, me) = (self.comm.size() as u64, self.comm.rank() as u64);
+        // A slice starts at the first voxel boundary at or after its nominal start, and ends
+        // where the next one starts: the voxel of the record before the nominal start decides.
+        let lo = n * me / ranks;
+        let hi = n * (me + 1) / ranks;
+        let (stream, mut index) = self
+            .source
+            .stream_from(lo.saturating_sub(1), plan.io_bytes as u64)?;
+        let mut writer = HeldWriter::create(dir, 0, plan.io_bytes, None)?;
+        let mut group: Vec<Surfel> = Vec::new();
+        let mut first_id = 0u64;
+        let mut previous: Option<[i32; 3]> = None;
+        let mut inside = false;
+        let mut slice = Slice {
+            first: 0,
+            held: Held {
+                paths: Default::default(),
+                count: 0,
+            },
+            voxels: 0,
+            any_light: false,
+        };
+        for s in stream {
+            let s = s?;
+            let i = index;
+            index += 1;
+            io.read += crate::storage::RECORD_LEN as u64;
+            let boundary = previous != Some(s.voxel);
+            previous = Some(s.voxel);
+            if i + 1 < lo {
+                continue;
+            }
+            if boundary && i >= lo {
+                if inside || (i >= hi) {
+                    self.write_group(&group, first_id, &mut writer, cosine_sum, &mut slice)?;
+                    group.clear();
+                }
+                if i >= hi {
+                    break;
+                }
+                if !inside {
+                    slice.first = i;
+                }
+                inside = true;
+                first_id = i;
+            }
+            if inside {
+                group.push(s);
+            }
+        }
+        if inside {
+            self.write_group(&group, first_id, &mut writer, cosine_sum, &mut slice)?;
+        }
+        let (held, _) = writer.finish(io)?;
+        if !inside {
+            // Empty: it would start at the next rank's start, or at the end.
+            slice.first = index.min(n);
+        }
+        slice.held = held;
+        Ok(slice)
+    }
+
+    /// Writes the held records of the surfels of one voxel, with canonical ids from `first_id`.
+    fn write_group(
+        &self,
+        group: &[Surfel],
+        first_id: u64,
+        writer: &mut HeldWriter,
+        cosine_sum: &[f64],
+        slice: &mut Slice,
+    ) -> Result<(), OocError> {
+        if group.is_empty() {
+            return Ok(());
+        }
+        let info = self.source.info();
+        slice.voxels += 1;
+        for (k, s) in group.iter().enumerate() {
+            let mut w = [0u8; WIRE_LEN];
+            let r = StaticRecord {
+                prop: PropSurfel {
+                    voxel: s.voxel,
+                    group: s.group,
+                    point: s.point,
+                    normal: s.normal,
+                    extent: s.extent,
+                    coverage: coverage_in_voxel(group, k),
+                },
+                id: (first_id + k as u64) as u32,
+            };
+            let mut statics = [0u8; STATIC_LEN];
+            encode_static(&r, &mut statics);
+            w[..STATIC_LEN].copy_from_slice(&statics);
+            // B = E, computed as the update computes it with no light gathered.
+            let norm = cosine_sum[s.normal_id as usize];
+            let mut b: [[f32; 3]; 2] = [[0.0; 3]; 2];
+            for (side, b_side) in b.iter_mut().enumerate() {
+                let m = &info.materials[s.material[side] as usize];
+                for (ch, value) in b_side.iter_mut().enumerate() {
+                    let e = m.emission[ch] as f32 as f64;
+                    *value = (e + m.reflectance[ch] * 0.0 / norm) as f32;
+                    slice.any_light |= m.emission[ch] > 0.0;
+                }
+            }
+            encode_radiosity(&b, &mut w[held::RADIOSITY_AT..]);
+            held::encode_scene_data(s.normal_id, s.area, s.material, &mut w);
+            writer.write(&w)?;
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,428 @@
+//! The data mode out of core under real `mpirun` (`--distribute data --memory SIZE`; built only
+//! with the `mpi` feature, run by `.ci/run`): every rank count gives the single-process
+//! out-of-core radiosity bit for bit and the in-memory one within 1e-5, each rank's memory stays
+//! within the budget while its share of the scene is larger, a run stopped by SIGTERM resumes
+//! (on another rank count) to the same bytes, and what cannot work is refused.
+//!
+//! Memory is read from the report: each rank's peak RSS (`VmHWM`) at the end, minus its peak
+//! before the scene was read (the program and the MPI library, which the budget does not
+//! cover).
+#![cfg(feature = "mpi")]
+
+mod common;
+
+use common::process::{self, describe, Child};
+use std::path::Path;
+use std::process::{Command, Output};
+use std::time::Duration;
+use voxrad::output::results::read_results;
+use voxrad::voxel::voxelize::{voxelize, GridSpec};
+
+/// As in the single-process out-of-core tests (`tests/memory_limit.rs`): code, stacks, the
+/// allocator's bookkeeping and fragmentation beyond the budget.
+const ALLOWANCE_BYTES: u64 = 16 << 20;
+
+/// `mpirun -n ranks voxrad args`, oversubscribed, loopback and shared memory only.
+fn mpirun(ranks: usize, args: &[&str]) -> Output {
+    mpirun_command(ranks, args)
+        .output()
+        .expect("run mpirun (is Open MPI installed?)")
+}
+
+fn mpirun_command(ranks: usize, args: &[&str]) -> Command {
+    let mut c = Command::new("mpirun");
+    c.args(["-n", &ranks.to_string(), "--oversubscribe"])
+        .args([
+            "--mca",
+            "btl",
+            "self,vader",
+            "--mca",
+            "btl_vader_single_copy_mechanism",
+            "none",
+        ])
+        .arg(env!("CARGO_BIN_EXE_voxrad"))
+        .args(args)
+        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
+        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
+        .env("NO_COLOR", "1");
+    c
+}
+
+fn ok(o: &Output, what: &str) {
+    assert!(
+        o.status.success(),
+        "{what}: status {:?}\n{}",
+        o.status,
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn radiosity(out: &Path) -> Vec<[[f32; 3]; 2]> {
+    read_results(&out.join("surfels.bin"))
+        .expect("results")
+        .records
+        .iter()
+        .map(|r| r.radiosity)
+        .collect()
+}
+
+fn report(out: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+}
+
+/// The Cornell box voxelized at `resolution`, written as a shard set of `shards` shards.
+fn cornell_set(dir: &Path, resolution: u32, shards: usize) -> usize {
+    let obj = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/cornell_box.obj");
+    let scene = voxrad::scene::obj::load_obj(&obj).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(resolution)).unwrap();
+    common::write_shard_set(&set, dir, shards);
+    set.surfels.len()
+}
+
+/// Each rank's peak RSS beyond its peak before the scene was read, and its largest share.
+fn rank_memory(report: &serde_json::Value) -> Vec<(u64, u64)> {
+    report["data_distribution"]["out_of_core"]
+        .as_array()
+        .expect("out_of_core per rank")
+        .iter()
+        .map(|r| {
+            let peak = r["peak_rss_bytes"].as_u64().unwrap();
+            let start = r["start_rss_bytes"].as_u64().unwrap();
+            assert!(peak >= start && start > 0, "{r}");
+            (peak - start, r["largest_share_bytes"].as_u64().unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    // Three shards: ranks start reading at the shard that holds their slice.
+    let surfels = cornell_set(&set, 48, 3);
+    let set = set.to_str().unwrap();
+    let budget = 512u64 << 10;
+    let common_args = [
+        "--directions",
+        "49",
+        "--iterations",
+        "3",
+        "--memory",
+        "512KiB",
+    ];
+    let solve = |out: &Path, threads: &str| -> Vec<String> {
+        [
+            "solve",
+            set,
+            "--out",
+            out.to_str().unwrap(),
+            "--threads",
+            threads,
+        ]
+        .iter()
+        .chain(&common_args)
+        .map(|s| s.to_string())
+        .collect()
+    };
+    // One process, out of core.
+    let single = tmp.path().join("single");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(solve(&single, "1"))
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap();
+    ok(&o, "one process out of core");
+    let reference = radiosity(&single);
+    assert_eq!(reference.len(), surfels);
+    // The in-memory data mode.
+    let memory = tmp.path().join("memory");
+    let o = mpirun(
+        2,
+        &[
+            "solve",
+            set,
+            "--out",
+            memory.to_str().unwrap(),
+            "--directions",
+            "49",
+            "--iterations",
+            "3",
+            "--threads",
+            "1",
+            "--distribute",
+            "data",
+        ],
+    );
+    ok(&o, "in memory");
+    let in_memory = radiosity(&memory);
+    for ranks in 1..=4 {
+        let out = tmp.path().join(format!("ranks{ranks}"));
+        // Threads inside ranks too: the answer must not depend on them.
+        let threads = if ranks % 2 == 0 { "1" } else { "2" };
+        let mut args = solve(&out, threads);
+        args.extend(["--distribute", "data"].map(String::from));
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = mpirun(ranks, &args);
+        ok(&o, &format!("{ranks} ranks"));
+        let got = radiosity(&out);
+        let worst = common::worst_relative_difference(&got, &in_memory);
+        let r = report(&out);
+        let data = &r["data_distribution"];
+        let memory = rank_memory(&r);
+        println!(
+            "{ranks} ranks: against in memory {worst:.2e}, exchanged {:.4}, imbalance {:.4}, \
+             peak beyond start and largest share per rank {memory:?}",
+            r["exchanged_fraction"], r["imbalance"]
+        );
+        // Every line gathered from the same surfels in the same order, every surfel's
+        // directions and axes added in the same order as in one process.
+        assert!(got == reference, "{ranks} ranks differ from one process");
+        assert!(worst <= 1e-5, "{ranks} ranks: {worst:e}");
+        assert_eq!(r["mode"], "data");
+        assert_eq!(r["ranks"], ranks);
+        assert_eq!(memory.len(), ranks);
+        for (beyond, share) in &memory {
+            assert!(*beyond <= budget + ALLOWANCE_BYTES, "{r}");
+            assert!(*share > budget, "the share must not fit the budget: {r}");
+        }
+        let exchanged = r["exchanged_fraction"].as_f64().unwrap();
+        let imbalance = r["imbalance"].as_f64().unwrap();
+        if ranks == 1 {
+            assert_eq!((exchanged, imbalance), (0.0, 1.0));
+        } else {
+            assert!(exchanged > 0.0 && exchanged < 0.5, "{r}");
+            assert!((1.0..1.1).contains(&imbalance), "{r}");
+        }
+        for rank in data["out_of_core"].as_array().unwrap() {
+            assert!(rank["bytes_read_per_voxel_direction"].as_f64().unwrap() > 0.0);
+            assert!(rank["bytes_written_per_voxel_direction"].as_f64().unwrap() > 0.0);
+        }
+        // The energy balance is that of one process (its sums added in another grouping).
+        let one = report(&single);
+        for what in ["emitted_power", "absorbed_power"] {
+            for ch in 0..3 {
+                let (a, b) = (
+                    r["energy"][what][ch].as_f64().unwrap(),
+                    one["energy"][what][ch].as_f64().unwrap(),
+                );
+                assert!((a - b).abs() <= 1e-9 * b.abs(), "{what}: {a} {b}");
+            }
+        }
+    }
+}
+
+#[test]
+fn each_rank_stays_within_the_budget_while_its_share_is_larger() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 192, 2);
+    let out = tmp.path().join("out");
+    let budget = 4u64 << 20;
+    let o = mpirun(
+        2,
+        &[
+            "solve",
+            set.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--directions",
+            "13",
+            "--iterations",
+            "1",
+            "--threads",
+            "1",
+            "--memory",
+            "4MiB",
+            "--distribute",
+            "data",
+        ],
+    );
+    ok(&o, "2 ranks at 4 MiB");
+    let r = report(&out);
+    for (rank, (beyond, share)) in rank_memory(&r).into_iter().enumerate() {
+        println!(
+            "rank {rank}: peak {:.1} MiB beyond its start, share {:.1} MiB, budget 4 MiB",
+            beyond as f64 / (1 << 20) as f64,
+            share as f64 / (1 << 20) as f64
+        );
+        // The share would not fit even in the budget and the allowance together.
+        assert!(share > budget + ALLOWANCE_BYTES, "{r}");
+        assert!(beyond <= budget + ALLOWANCE_BYTES, "rank {rank}: {r}");
+    }
+}
+
+#[test]
+fn what_cannot_work_out_of_core_is_refused_clearly() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 16, 1);
+    let set = set.to_str().unwrap();
+    let out = tmp.path().join("out");
+    let out = out.to_str().unwrap();
+    let base = ["solve", set, "--out", out, "--iterations", "1"];
+    let cases: [(&[&str], &[&str]); 2] = [
+        (
+            &["--memory", "16KiB", "--distribute", "data"],
+            &["too small", "--memory"],
+        ),
+        (
+            &["--memory", "8MiB", "--distribute", "hybrid"],
+            &["hybrid", "--distribute data"],
+        ),
+    ];
+    for (extra, words) in cases {
+        let args: Vec<&str> = base.iter().chain(extra).copied().collect();
+        let o = mpirun(2, &args);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}: {err}");
+        for w in words {
+            assert!(err.contains(w), "{extra:?}: no '{w}' in {err}");
+        }
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}
+
+#[test]
+fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 48, 2);
+    let set = set.to_str().unwrap();
+    let args = |out: &Path, extra: &[&'static str]| -> Vec<String> {
+        [
+            "solve",
+            set,
+            "--out",
+            out.to_str().unwrap(),
+            "--directions",
+            "49",
+            "--iterations",
+            "8",
+            "--threads",
+            "1",
+            "--memory",
+            "1MiB",
+            "--distribute",
+            "data",
+        ]
+        .iter()
+        .chain(extra)
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let reference = tmp.path().join("reference");
+    let a = args(&reference, &[]);
+    ok(
+        &mpirun(2, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+        "reference",
+    );
+
+    let out = tmp.path().join("out");
+    let log = tmp.path().join("run.log");
+    let a = args(&out, &["--checkpoint-every", "0"]);
+    let mut child = Child::spawn(
+        mpirun_command(2, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+        &log,
+    );
+    assert!(
+        child.wait_for(Duration::from_secs(120), || {
+            std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
+        }),
+        "no iteration 2:\n{}",
+        child.log()
+    );
+    let ranks = process::children_of(child.pid());
+    let rank1 = *ranks
+        .iter()
+        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
+        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
+    // SAFETY: kill(2) on a process this test started (through mpirun).
+    unsafe {
+        libc::kill(rank1, libc::SIGTERM);
+    }
+    let status = child.wait_at_most(Duration::from_secs(60));
+    let text = child.log();
+    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+    assert!(
+        voxrad::checkpoint::path_in(&out).exists(),
+        "no checkpoint:\n{text}"
+    );
+    // Resumed on three ranks: rank 0 sends each its slice of the checkpoint.
+    let a = args(&out, &["--resume"]);
+    let o = mpirun(3, &a.iter().map(String::as_str).collect::<Vec<_>>());
+    ok(&o, "resume");
+    let text = String::from_utf8_lossy(&o.stderr);
+    assert!(text.contains("resumed from a checkpoint"), "{text}");
+    assert!(
+        radiosity(&out) == radiosity(&reference),
+        "resumed results differ"
+    );
+    assert!(!voxrad::checkpoint::path_in(&out).exists());
+}
+
+/// The data mode out of core simulates what the one-process solvers do: a grey furnace
+/// (`rho = 0.99`, about 900 plain iterations to 1e-4) is solved in one channel with the tail
+/// extrapolated, lands on `E / (1 - rho)` in a few iterations, and gives the one-process
+/// out-of-core bytes at 2 ranks; the report lists the effects.
+#[test]
+fn grey_furnace_is_extrapolated_as_in_one_process() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("set");
+    let (e, rho) = (1.0, 0.99);
+    let set = voxelize(&common::furnace(e, rho), GridSpec::Resolution(16)).unwrap();
+    common::write_shard_set(&set, &dir, 2);
+    let dir = dir.to_str().unwrap();
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "solve",
+            dir,
+            "--out",
+            out.to_str().unwrap(),
+            "--directions",
+            "49",
+            "--tolerance",
+            "1e-4",
+            "--direct-directions",
+            "0",
+            "--memory",
+            "512KiB",
+            "--threads",
+            "1",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let single = tmp.path().join("single");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(args(&single))
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap();
+    ok(&o, "one process out of core");
+    let ranks = tmp.path().join("ranks");
+    let mut a = args(&ranks);
+    a.extend(["--distribute".to_string(), "data".to_string()]);
+    let a: Vec<&str> = a.iter().map(|s| s.as_str()).collect();
+    let o = mpirun(2, &a);
+    ok(&o, "data mode out of core, 2 ranks");
+    let (one, two) = (radiosity(&single), radiosity(&ranks));
+    assert!(one == two, "2 ranks differ from one process");
+    let expected = e / (1.0 - rho);
+    let mut worst = 0.0f64;
+    for (s, b) in set.surfels.iter().zip(&one) {
+        for &v in &b[common::inner_side(s, &set)] {
+            worst = worst.max((v as f64 - expected).abs() / expected);
+        }
+    }
+    let r = report(&ranks);
+    let iterations = r["iterations"].as_u64().unwrap();
+    println!(
+        "furnace rho {rho}, data mode out of core: {iterations} iterations, worst {worst:.2e}"
+    );
+    assert!(worst < 1e-4, "worst error {worst}");
+    assert!(iterations <= 10, "{iterations} iterations");
+    let effects = r["effects"].to_string();
+    assert!(effects.contains("one channel"), "{effects}");
+    assert!(effects.contains("extrapolations"), "{effects}");
+}
