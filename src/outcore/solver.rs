@@ -241,7 +241,7 @@ fn run(
     send_to_copies(&work, &plan, &mut io)?;
     let mut fold_seconds = 0.0;
     stats.update_seconds += t.elapsed().as_secs_f64();
-    let any_light = first.emitted.iter().any(|&e| e > 0.0);
+    let any_light = first.sums.emitted.iter().any(|&e| e > 0.0);
     // As `solve::jacobi`: one channel for a grey scene, checked here on the materials used.
     let channels = if options.grey && first.grey { 1 } else { 3 };
     stats.solve.channels = channels;
@@ -399,8 +399,8 @@ fn run(
         // Right after an extrapolation the change history starts again (see `accelerate`).
         let stop = convergence.record(
             iteration,
-            result.change,
-            result.total,
+            result.sums.change,
+            result.sums.total,
             options,
             &mut stats.solve,
             |relative| extrapolation.error_estimate(relative),
@@ -411,7 +411,8 @@ fn run(
             break;
         }
         if let Some(path) = &previous {
-            if let Some(factor) = extrapolation.observe(result.change, stats.solve.last_change) {
+            if let Some(factor) = extrapolation.observe(result.sums.change, stats.solve.last_change)
+            {
                 extrapolate_canonical(source, &work, &plan, path, factor, &mut io)?;
                 // The jump is not an iteration's change: the stopping rule starts again.
                 convergence.restart();
@@ -435,8 +436,8 @@ fn run(
             stats.solve.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
     }
     stats.solve.extrapolations = extrapolation.count;
-    stats.solve.emitted_power = last.emitted;
-    stats.solve.absorbed_power = last.absorbed;
+    stats.solve.emitted_power = last.sums.emitted;
+    stats.solve.absorbed_power = last.sums.absorbed;
     stats.solve.dispatch_seconds = times.dispatch;
     stats.solve.propagate_seconds = times.propagate;
     stats.read_seconds = times.read;
@@ -571,12 +572,55 @@ fn restore(
 /// What one update of the radiosity found.
 #[derive(Clone, Copy, Debug, Default)]
 struct Update {
-    change: f64,
-    total: f64,
-    emitted: [f64; 3],
-    absorbed: [f64; 3],
+    sums: UpdateSums,
     /// Every material on a surfel side has three equal channels (see `solve::effects`).
     grey: bool,
+}
+
+/// What an update of `B` adds up over the surfels it updates: the change and the total (for the
+/// stopping rule) and the power emitted and absorbed, by channel.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct UpdateSums {
+    pub change: f64,
+    pub total: f64,
+    pub emitted: [f64; 3],
+    pub absorbed: [f64; 3],
+}
+
+/// One surfel's new radiosity `B = E + rho H / S(n)` from its light `h` (only the first channel
+/// gathered when `channels` is 1), adding to `sums`. Both out-of-core solvers (one process and
+/// the data mode) update through this function, so their answers agree bit for bit.
+#[allow(clippy::too_many_arguments)]
+pub fn update_surfel(
+    materials: &[crate::scene::Material],
+    material: [u32; 2],
+    mut h: crate::outcore::files::Gathered,
+    channels: usize,
+    previous: &Radiosity,
+    norm: f64,
+    area: f64,
+    area_unit: f64,
+    sums: &mut UpdateSums,
+) -> Radiosity {
+    if channels == 1 {
+        for side in &mut h {
+            *side = [side[0]; 3];
+        }
+    }
+    let mut b_new: Radiosity = [[0.0; 3]; 2];
+    for side in 0..2 {
+        let m = &materials[material[side] as usize];
+        for ch in 0..3 {
+            let e = m.emission[ch] as f32 as f64;
+            let b = e + m.reflectance[ch] * h[side][ch] / norm;
+            sums.change += area * (b - previous[side][ch] as f64).abs();
+            sums.total += area * b;
+            b_new[side][ch] = b as f32;
+            sums.emitted[ch] += m.emission[ch] * area * area_unit;
+            sums.absorbed[ch] += (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
+        }
+    }
+    b_new
 }
 
 /// Adds the light gathered in `copy`'s order (the shared gathered file) to the canonical sum,
@@ -685,30 +729,20 @@ fn update(
                 source_name: source.describe(),
                 what: "it ended before its stated count of surfels".to_string(),
             })??;
-            let mut h = decode_gathered(h_slot);
-            if channels == 1 {
-                for side in &mut h {
-                    *side = [side[0]; 3];
-                }
+            for m in s.material {
+                used[m as usize] = true;
             }
-            let previous = decode_radiosity(slot);
-            let norm = cosine_sum[s.normal_id as usize];
-            let area = s.area as f64;
-            let mut b_new: Radiosity = [[0.0; 3]; 2];
-            for side in 0..2 {
-                used[s.material[side] as usize] = true;
-                let m = &info.materials[s.material[side] as usize];
-                for ch in 0..3 {
-                    let e = m.emission[ch] as f32 as f64;
-                    let b = e + m.reflectance[ch] * h[side][ch] / norm;
-                    result.change += area * (b - previous[side][ch] as f64).abs();
-                    result.total += area * b;
-                    b_new[side][ch] = b as f32;
-                    result.emitted[ch] += m.emission[ch] * area * area_unit;
-                    result.absorbed[ch] +=
-                        (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
-                }
-            }
+            let b_new = update_surfel(
+                &info.materials,
+                s.material,
+                decode_gathered(h_slot),
+                channels,
+                &decode_radiosity(slot),
+                cosine_sum[s.normal_id as usize],
+                s.area as f64,
+                area_unit,
+                &mut result.sums,
+            );
             encode_radiosity(&b_new, slot);
         }
         if let Some(kept) = &kept {

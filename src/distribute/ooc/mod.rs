@@ -166,13 +166,7 @@ struct Solver<'a> {
 }
 
 /// What one update of `B` found on this rank.
-#[derive(Clone, Copy, Default)]
-struct Update {
-    change: f64,
-    total: f64,
-    emitted: [f64; 3],
-    absorbed: [f64; 3],
-}
+type Update = crate::outcore::solver::UpdateSums;
 
 impl Solver<'_> {
     fn run(
@@ -549,31 +543,20 @@ impl Solver<'_> {
             if let Some(first) = fold {
                 fold_axis(&mut w, first);
             }
-            let mut h = decode_gathered(&w[EARLIER_AT..]);
-            if self.channels() == 1 {
-                for side in &mut h {
-                    *side = [side[0]; 3];
-                }
-            }
             let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
             let (normal_id, area, material) = held::scene_data(&w);
-            let norm = cosine_sum[normal_id as usize];
-            let area = area as f64;
-            let mut b_new = [[0.0f32; 3]; 2];
-            for side in 0..2 {
-                let m = &info.materials[material[side] as usize];
-                for ch in 0..3 {
-                    // As `outcore::solver` computes it, term by term.
-                    let e = m.emission[ch] as f32 as f64;
-                    let b = e + m.reflectance[ch] * h[side][ch] / norm;
-                    result.change += area * (b - previous[side][ch] as f64).abs();
-                    result.total += area * b;
-                    b_new[side][ch] = b as f32;
-                    result.emitted[ch] += m.emission[ch] * area * area_unit;
-                    result.absorbed[ch] +=
-                        (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
-                }
-            }
+            // The one-process out-of-core update, term by term.
+            let b_new = crate::outcore::solver::update_surfel(
+                &info.materials,
+                material,
+                decode_gathered(&w[EARLIER_AT..]),
+                self.channels(),
+                &previous,
+                cosine_sum[normal_id as usize],
+                area as f64,
+                area_unit,
+                &mut result,
+            );
             encode_radiosity(&b_new, &mut w[held::RADIOSITY_AT..]);
             w[GATHERED_AT..held::SCENE_AT].fill(0);
             if self.options.accelerate {
