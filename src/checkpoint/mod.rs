@@ -239,6 +239,13 @@ pub struct State {
     /// `jacobi`) of iteration `iteration + 1` are gathered; the file then holds every rank's
     /// partial sums. `None` at an iteration boundary.
     pub within: Option<u64>,
+    /// Whose partial sums a mid-iteration checkpoint holds. 0: each rank's light gathered from
+    /// its own directions, for every surfel (one process, `--distribute directions`, out of
+    /// core). `G` of 1 or more: the data mode (1) or the hybrid mode with `G` groups
+    /// (`distribute::data`), each rank's light of the surfels it held at that direction, by
+    /// surfel id (zero for the others); `within` then counts the steps of the group's
+    /// directions. Only a run of the same layout and rank count continues inside the iteration.
+    pub data_groups: u32,
 }
 
 /// Everything in a checkpoint but the radiosity.
@@ -337,25 +344,31 @@ pub struct Loaded {
 impl Loaded {
     /// The mid-iteration position and this rank's sums to continue from, or `None` (and, if the
     /// checkpoint is a mid-iteration one, a log line saying that its iteration starts again)
-    /// when `usable` is false (a mode that cannot continue inside an iteration) or the rank
-    /// counts differ.
-    pub fn take_within(&mut self, usable: bool, ranks: usize) -> Option<(u64, Vec<Gathered>)> {
+    /// when the layout of its sums (`data_groups`, see [`State::data_groups`]) or the rank
+    /// count differs from this solve's.
+    pub fn take_within(&mut self, data_groups: u32, ranks: usize) -> Option<(u64, Vec<Gathered>)> {
         let done = self.state.within?;
         let partial = self.partial.take();
+        let layout = |groups: u32| match groups {
+            0 => "by directions".to_string(),
+            1 => "in the data mode".to_string(),
+            g => format!("in the hybrid mode with {g} groups"),
+        };
         match partial {
-            Some(acc) if usable && self.state.ranks as usize == ranks => Some((done, acc)),
+            Some(acc)
+                if self.state.data_groups == data_groups && self.state.ranks as usize == ranks =>
+            {
+                Some((done, acc))
+            }
             _ => {
                 tracing::info!(
                     "the checkpoint is {done} directions into iteration {} (written by {} \
-                     rank(s)); this solve ({ranks} rank(s){}) cannot continue inside it, so \
-                     that iteration starts from its beginning",
+                     rank(s) distributed {}); this solve ({ranks} rank(s) distributed {}) \
+                     cannot continue inside it, so that iteration starts from its beginning",
                     self.state.iteration + 1,
                     self.state.ranks,
-                    if usable {
-                        ""
-                    } else {
-                        ", a mode that distributes the data"
-                    }
+                    layout(self.state.data_groups),
+                    layout(data_groups),
                 );
                 None
             }
@@ -409,8 +422,10 @@ pub fn load_shared(
     };
     check(path, &parsed.header, this, max_iterations)?;
     let steps = (this.directions as u64).div_ceil(comm.size() as u64);
+    // (The data and hybrid modes check their own positions: their steps are per group.)
     if let Some(done) = parsed.header.state.within {
-        if parsed.header.state.ranks as usize == comm.size() && done >= steps {
+        let by_directions = parsed.header.state.data_groups == 0;
+        if by_directions && parsed.header.state.ranks as usize == comm.size() && done >= steps {
             return Err(CheckpointError::Bad {
                 path: path.to_path_buf(),
                 what: format!(
@@ -623,6 +638,7 @@ impl Saver {
             previous_change,
             extrapolation: extrapolation.clone(),
             within: None,
+            data_groups: 0,
         }
     }
 
@@ -978,15 +994,15 @@ mod tests {
             .unwrap();
         assert_eq!((loaded.state.iteration, loaded.state.within), (2, Some(5)));
         let mut other = loaded.clone();
-        let (done, sums) = loaded.take_within(true, 1).unwrap();
+        let (done, sums) = loaded.take_within(0, 1).unwrap();
         assert_eq!(done, 5);
         let bits = |v: &[Gathered]| -> Vec<u64> {
             v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
         };
         assert_eq!(bits(&sums), bits(&acc));
         // Another rank count or a mode that cannot use them: the iteration starts again.
-        assert!(other.clone().take_within(true, 2).is_none());
-        assert!(other.take_within(false, 1).is_none());
+        assert!(other.clone().take_within(0, 2).is_none());
+        assert!(other.take_within(1, 1).is_none());
         // Its interruption message names the position.
         let i = saver.interrupt_at(libc::SIGTERM, 2, Some(5), |_| unreachable!("on disk"));
         let text = i.to_string();
