@@ -19,10 +19,13 @@
 //! gives the uninterrupted run's bits. Such a checkpoint is written when one is due between two
 //! directions (see [`Saver::due_within`]) and on a stop signal in mid-iteration; under MPI the
 //! ranks agree between directions on whether to write one ([`Saver::agree_within`]), and rank 0
-//! gathers the other ranks' sums in bounded pieces ([`Saver::save_within`]). A resume on another
-//! rank count, or in the data or hybrid modes, starts that iteration from its beginning (the
-//! radiosity it starts from is in the file) and says so. The out-of-core solver writes the same
-//! layout between two main axes, with its canonical sum as the one rank's (`outcore::solver`).
+//! gathers the other ranks' sums in bounded pieces ([`Saver::save_within`]). The data and
+//! hybrid modes (`distribute::data`) write the same layout between two steps, each rank's array
+//! holding the light of the surfels it holds, by id ([`State::data_groups`] says which layout a
+//! file has). A resume on another rank count or layout starts that iteration from its beginning
+//! (the radiosity it starts from is in the file) and says so. The out-of-core solver writes the
+//! same layout between two main axes, with its canonical sum as the one rank's
+//! (`outcore::solver`).
 //!
 //! A checkpoint names the run it belongs to ([`Identity`]: solver, grid, surfels, directions,
 //! channels, extrapolation, and a checksum of the voxelized scene or of the shard set): one from
@@ -587,8 +590,8 @@ impl Saver {
         }
     }
 
-    /// Also writes checkpoints inside iterations, between two directions (the in-memory solver
-    /// in one process or with `--distribute directions`; the other loops save boundaries only).
+    /// Also writes checkpoints inside iterations, between two directions (or steps, or main
+    /// axes out of core).
     pub fn within(mut self, on: bool) -> Self {
         self.within = on;
         self
@@ -726,6 +729,12 @@ impl Saver {
             exchange();
         }
         result
+    }
+
+    /// Counts `took` (a whole save, with the gathering the caller did before [`Saver::save`]) as
+    /// the last checkpoint's writing time, when longer, for the spacing of the next ones.
+    pub fn took(&mut self, took: Duration) {
+        self.last_write = self.last_write.max(took);
     }
 
     /// At a boundary the solve goes on from: saves if due, and on failure warns and goes on

@@ -28,6 +28,13 @@
 //! canonical distribution (blocks of surfel ids), so that the `k`-th rank of every group holds
 //! the same surfels; those ranks add their gathered light, in group order, and all update `B`.
 //!
+//! **Checkpoints.** At an iteration boundary the radiosity is gathered by id and rank 0 writes
+//! it. Inside an iteration the whole world agrees between two steps (one direction of every
+//! group) on a stop signal and on saving; a save holds each rank's light of the surfels it holds,
+//! by id. A resume rebuilds every rank's surfels from the first iteration's distributions of the
+//! directions done (found again: they depend on the scene only), so the rest of the iteration
+//! sees the same lines in the same order and the result is the uninterrupted run's bits.
+//!
 //! Every rank still reads and voxelizes the whole scene (the surfel set is the input of this
 //! function) and keeps the scene tables; only the solver's per-surfel state is distributed.
 
@@ -727,6 +734,7 @@ impl<'a> DataSolver<'a> {
         done: usize,
         held: &Held,
     ) -> Result<(), CheckpointError> {
+        let t = Instant::now();
         let radiosity = self.gather_radiosity(held, world);
         let mut acc: Vec<Gathered> = vec![[[0.0; 3]; 2]; self.set.surfels.len()];
         for e in &held.order {
@@ -734,7 +742,10 @@ impl<'a> DataSolver<'a> {
             acc[held.ids[slot] as usize] = held.acc[slot];
         }
         state.data_groups = self.groups as u32;
-        saver.save_within(world, state, done as u64, &radiosity, &acc)
+        let result = saver.save_within(world, state, done as u64, &radiosity, &acc);
+        // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
+        saver.took(t.elapsed());
+        result
     }
 
     /// Rebuilds what this rank held after its group's directions `done` (the first ones of an
