@@ -493,7 +493,8 @@ impl<'a> DataSolver<'a> {
             extrapolation = loaded.state.extrapolation;
             match resume_within {
                 // Every rank has the same header: all continue inside, or none.
-                Some((done, sums)) if (done as usize) < steps && sums.len() == n => {
+                Some((done, sums)) if (done as usize) < steps => {
+                    assert_eq!(sums.len(), n, "a checkpoint is checked against the scene");
                     tracing::info!(
                         iteration = first,
                         within = done,
