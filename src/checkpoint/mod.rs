@@ -1010,6 +1010,12 @@ mod tests {
         };
         assert_eq!(bits(&sums), bits(&acc));
         // Another rank count or a mode that cannot use them: the iteration starts again.
+        // The sums of the hybrid mode's layout (2 groups) continue only in that layout.
+        let mut hybrid = other.clone();
+        hybrid.state.data_groups = 2;
+        assert!(hybrid.clone().take_within(1, 1).is_none());
+        assert!(hybrid.clone().take_within(0, 1).is_none());
+        assert_eq!(hybrid.take_within(2, 1).map(|(done, _)| done), Some(5));
         assert!(other.clone().take_within(0, 2).is_none());
         assert!(other.take_within(1, 1).is_none());
         // Its interruption message names the position.
