@@ -22,18 +22,18 @@
 //! mode gives the single-process radiosity bit for bit (the stopping rule's sums are added in
 //! another grouping, which can only move a borderline stop by one iteration).
 //!
-//! **Hybrid.** The ranks form `G` groups of equal size; group `g` takes the `g`-th contiguous
-//! block of directions (contiguous, so that the directions a group walks stay close) and spreads
-//! the data over its ranks. At the end of an iteration every group brings its surfels to one
-//! canonical distribution (blocks of surfel ids), so that the `k`-th rank of every group holds
-//! the same surfels; those ranks add their gathered light, in group order, and all update `B`.
-//!
 //! **Checkpoints.** At an iteration boundary the radiosity is gathered by id and rank 0 writes
 //! it. Inside an iteration the whole world agrees between two steps (one direction of every
 //! group) on a stop signal and on saving; a save holds each rank's light of the surfels it holds,
 //! by id. A resume rebuilds every rank's surfels from the first iteration's distributions of the
 //! directions done (found again: they depend on the scene only), so the rest of the iteration
 //! sees the same lines in the same order and the result is the uninterrupted run's bits.
+//!
+//! **Hybrid.** The ranks form `G` groups of equal size; group `g` takes the `g`-th contiguous
+//! block of directions (contiguous, so that the directions a group walks stay close) and spreads
+//! the data over its ranks. At the end of an iteration every group brings its surfels to one
+//! canonical distribution (blocks of surfel ids), so that the `k`-th rank of every group holds
+//! the same surfels; those ranks add their gathered light, in group order, and all update `B`.
 //!
 //! Every rank still reads and voxelizes the whole scene (the surfel set is the input of this
 //! function) and keeps the scene tables; only the solver's per-surfel state is distributed.
