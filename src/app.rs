@@ -309,9 +309,8 @@ fn solve_in_memory(
         comm.size(),
         resume.as_ref().map(|l| l.state.iteration),
     )
-    // Inside iterations too where each rank's sums are whole arrays (see `checkpoint`); the
-    // data and hybrid modes save their boundaries only.
-    .within(matches!(mode, Mode::Single | Mode::Directions));
+    // Inside iterations too, in every mode (see `checkpoint`).
+    .within(true);
     let checkpoints = Checkpoints {
         saver: &mut saver,
         resume,

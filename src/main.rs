@@ -106,12 +106,12 @@ enum Command {
         /// Continue from OUT/checkpoint.bin if there is one (left by an interrupted or killed
         /// solve of the same scene and options), at the iteration or the direction it holds;
         /// without one, start from the beginning. A checkpoint written inside an iteration by
-        /// another rank count, or resumed in the data or hybrid modes, restarts that iteration.
+        /// another rank count, another --distribute mode or another --groups restarts that
+        /// iteration.
         #[arg(long)]
         resume: bool,
         /// Least seconds between two checkpoints, written after an iteration or, inside one,
-        /// between directions (in one process and --distribute directions; out of core between
-        /// main axes; data and hybrid modes: after iterations only). 0: after every iteration,
+        /// between directions (out of core: between main axes). 0: after every iteration,
         /// and inside iterations as often as their writing time allows (at most a fifth of the
         /// time). A stop signal always saves what is done.
         #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]

@@ -295,8 +295,13 @@ fn mpirun_solve(out: &Path, extra: &[&str]) -> Command {
 
 /// As [`mpirun_solve`] in the mode `mode` gives (`--distribute ...` and its options).
 fn mpirun_solve_in(mode: &[&str], out: &Path, extra: &[&str]) -> Command {
+    mpirun_solve_on(2, mode, out, extra)
+}
+
+/// As [`mpirun_solve_in`] on `ranks` ranks.
+fn mpirun_solve_on(ranks: usize, mode: &[&str], out: &Path, extra: &[&str]) -> Command {
     let mut c = Command::new("mpirun");
-    c.args(["-n", "2", "--oversubscribe"])
+    c.args(["-n", &ranks.to_string(), "--oversubscribe"])
         .args([
             "--mca",
             "btl",
@@ -375,7 +380,17 @@ fn resume_to_the_end(out: &Path, reference: &Path, log: &Path) {
 
 /// As [`resume_to_the_end`] with the options `extra`; returns the log.
 fn resume_to_the_end_with(extra: &[&str], out: &Path, reference: &Path, log: &Path) -> String {
-    let mut child = Child::spawn(mpirun_solve(out, &[extra, &["--resume"]].concat()), log);
+    resume_to_the_end_in(
+        mpirun_solve(out, &[extra, &["--resume"]].concat()),
+        out,
+        reference,
+        log,
+    )
+}
+
+/// As [`resume_to_the_end`] with the command `resume` (a `--resume` into `out`).
+fn resume_to_the_end_in(resume: Command, out: &Path, reference: &Path, log: &Path) -> String {
+    let mut child = Child::spawn(resume, log);
     let status = child.wait_at_most(Duration::from_secs(120));
     let text = child.log();
     assert!(status.success(), "{}:\n{text}", describe(&status));
@@ -408,11 +423,32 @@ fn directions_mode_killed_inside_long_iterations_resumes_to_the_same_bytes() {
     assert!(inside >= 1, "no run continued inside an iteration");
 }
 
+#[test]
+fn data_mode_killed_inside_long_iterations_resumes_to_the_same_bytes() {
+    // As the directions mode's: each rank's light of the surfels it holds is saved, and the
+    // resumed run rebuilds what every rank held there.
+    let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "0.05"]].concat();
+    let inside = killed_under_mpirun_in(&["--distribute", "data"], &options, 0x5eed_0007, 5, 0.2);
+    assert!(inside >= 1, "no run continued inside an iteration");
+}
+
 /// Kills `mpirun -n 2 voxrad solve ... --resume` (options `extra`) at random moments, up to
 /// `longest` of the uninterrupted run's time, `kills` times unless it finishes first, then lets
 /// it finish: the results must be the uninterrupted run's, byte for byte. Returns how many runs
 /// continued inside an iteration.
 fn killed_under_mpirun(extra: &[&str], seed: u64, kills: usize, longest: f64) -> usize {
+    killed_under_mpirun_in(&["--distribute", "directions"], extra, seed, kills, longest)
+}
+
+/// As [`killed_under_mpirun`] in the mode `mode` gives.
+fn killed_under_mpirun_in(
+    mode: &[&str],
+    extra: &[&str],
+    seed: u64,
+    kills: usize,
+    longest: f64,
+) -> usize {
+    let mpirun_solve = |out: &Path, extra: &[&str]| mpirun_solve_in(mode, out, extra);
     let tmp = tempfile::tempdir().unwrap();
     let reference = tmp.path().join("reference");
     let mut child = Child::spawn(
@@ -470,7 +506,12 @@ fn killed_under_mpirun(extra: &[&str], seed: u64, kills: usize, longest: f64) ->
     if finished {
         assert_same_results(&out, &reference);
     } else {
-        let text = resume_to_the_end_with(extra, &out, &reference, &tmp.path().join("final.log"));
+        let text = resume_to_the_end_in(
+            mpirun_solve(&out, &resume),
+            &out,
+            &reference,
+            &tmp.path().join("final.log"),
+        );
         resumed += 1;
         if text.contains(CONTINUED_INSIDE) {
             inside += 1;
@@ -489,7 +530,13 @@ fn killed_under_mpirun(extra: &[&str], seed: u64, kills: usize, longest: f64) ->
 /// returns the log.
 fn sigterm_rank_1_in_iteration_2(out: &Path, log: &Path) -> String {
     let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "1000"]].concat();
-    let mut child = Child::spawn(mpirun_solve(out, &options), log);
+    sigterm_rank_1_after_iteration_1(mpirun_solve(out, &options), log)
+}
+
+/// Runs `solve` (an `mpirun` of a long solve), sends SIGTERM to its rank 1 0.1 s after the
+/// first iteration ended; expects exit status 3 and returns the log.
+fn sigterm_rank_1_after_iteration_1(solve: Command, log: &Path) -> String {
+    let mut child = Child::spawn(solve, log);
     assert!(
         child.wait_for(Duration::from_secs(120), || {
             std::fs::read_to_string(log).is_ok_and(|t| t.contains("iteration=1 "))
@@ -585,6 +632,104 @@ fn directions_mode_sigterm_inside_an_iteration_resumes_to_the_same_bytes() {
         text.contains(CONTINUED_INSIDE) && text.contains(&format!("within={done}")),
         "{text}"
     );
+}
+
+#[test]
+fn data_mode_sigterm_inside_an_iteration_resumes_to_the_same_bytes() {
+    let mode = ["--distribute", "data"];
+    let (tmp, stopped, reference) = sigterm_inside_then_resume(2, &mode, 1);
+
+    // One process cannot continue inside the 2-rank iteration: it starts it again, says so,
+    // and ends at the uninterrupted answer (the data mode gives the one-process radiosity).
+    let args = solve_args(&stopped, &LONG_ITERATIONS);
+    let one = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(&args)
+        .args(LONG_ITERATIONS)
+        .args(mode)
+        .arg("--resume")
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&one.stderr);
+    assert!(one.status.success(), "{text}");
+    assert!(
+        text.contains("resumed from a checkpoint")
+            && text.contains("that iteration starts from its beginning")
+            && !text.contains(CONTINUED_INSIDE),
+        "{text}"
+    );
+    let radiosity = |dir: &Path| -> Vec<_> {
+        let results = read_results(&dir.join("surfels.bin")).unwrap();
+        results.records.iter().map(|r| r.radiosity).collect()
+    };
+    let worst = common::worst_relative_difference(&radiosity(&stopped), &radiosity(&reference));
+    println!("resumed by one process: worst relative difference {worst:.2e}");
+    assert!(worst <= 1e-5, "{worst:e}");
+    drop(tmp);
+}
+
+#[test]
+fn hybrid_mode_sigterm_inside_an_iteration_resumes_to_the_same_bytes() {
+    sigterm_inside_then_resume(4, &["--distribute", "hybrid", "--groups", "2"], 2);
+}
+
+/// A `ranks`-rank solve of [`LONG_ITERATIONS`] in `mode` (with `groups` groups) stopped by
+/// SIGTERM to rank 1 inside an iteration (retried if it came between two) resumes on `ranks`
+/// ranks, inside that iteration, to the uninterrupted run's bytes. Returns the temporary
+/// directory, a directory holding a copy of the stopped run's checkpoint, and the reference's.
+fn sigterm_inside_then_resume(
+    ranks: usize,
+    mode: &[&str],
+    groups: u32,
+) -> (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) {
+    let tmp = tempfile::tempdir().unwrap();
+    let reference = tmp.path().join("reference");
+    let mut child = Child::spawn(
+        mpirun_solve_on(ranks, mode, &reference, &LONG_ITERATIONS),
+        &tmp.path().join("reference.log"),
+    );
+    let status = child.wait_at_most(Duration::from_secs(120));
+    assert!(status.success(), "{}:\n{}", describe(&status), child.log());
+    let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "1000"]].concat();
+    let (out, done) = (1..=4)
+        .find_map(|attempt| {
+            let out = tmp.path().join(format!("out{attempt}"));
+            let log = tmp.path().join(format!("run{attempt}.log"));
+            let solve = mpirun_solve_on(ranks, mode, &out, &options);
+            let text = sigterm_rank_1_after_iteration_1(solve, &log);
+            let file = voxrad::checkpoint::CheckpointFile::open(&voxrad::checkpoint::path_in(&out))
+                .unwrap();
+            let state = &file.header.state;
+            match state.within {
+                Some(done) => {
+                    assert!(text.contains("directions of the next"), "{text}");
+                    assert_eq!((state.ranks, state.data_groups), (ranks as u32, groups));
+                    Some((out, done))
+                }
+                None => {
+                    println!("attempt {attempt}: stopped between two iterations, again");
+                    None
+                }
+            }
+        })
+        .expect("four SIGTERMs, none inside an iteration");
+    let copy = tmp.path().join("copy");
+    std::fs::create_dir_all(&copy).unwrap();
+    let ckpt = voxrad::checkpoint::path_in(&out);
+    std::fs::copy(&ckpt, voxrad::checkpoint::path_in(&copy)).unwrap();
+    let resume = [&LONG_ITERATIONS[..], &["--resume"]].concat();
+    let text = resume_to_the_end_in(
+        mpirun_solve_on(ranks, mode, &out, &resume),
+        &out,
+        &reference,
+        &tmp.path().join("resume.log"),
+    );
+    assert!(
+        text.contains(CONTINUED_INSIDE) && text.contains(&format!("within={done}")),
+        "{text}"
+    );
+    println!("{mode:?} on {ranks} ranks: stopped {done} steps into an iteration, same bytes");
+    (tmp, copy, reference)
 }
 
 #[test]

@@ -450,8 +450,8 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
     let mut mid_flipped = mid.clone();
     let at = mid.len() - 100;
     mid_flipped[at] ^= 0x40;
-    let mut version_3 = mid.clone();
-    version_3[8] = 3;
+    let mut version_4 = mid.clone();
+    version_4[8] = 4;
     // A finished result in the directory the bad checkpoints go into: it must survive.
     let out = tmp.path().join("out");
     run_to_end(solve_command(&out, &[]), &tmp.path().join("out.log"));
@@ -512,9 +512,9 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
         ),
         (
             "a format version this voxrad does not know",
-            version_3,
+            version_4,
             &[],
-            &["version 3"],
+            &["version 4"],
         ),
         (
             "other directions",

@@ -2,10 +2,11 @@
 //!
 //! ```text
 //!  0  magic         8 bytes  "VXRDCKPT"
-//!  8  version       u32      FORMAT_VERSION (2; version 1 is still read)
+//!  8  version       u32      FORMAT_VERSION (3; versions 1 and 2 are still read)
 //! 12  header_len    u32      bytes of the header body that follows
 //! 16  header body            Identity then State (see `encode_header`), little-endian;
-//!                            version 2 ends it with the mid-iteration position
+//!                            version 2 ends it with the mid-iteration position, version 3
+//!                            then with the layout of the partial sums (`State::data_groups`)
 //!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
 //!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
 //!                            back RGB), in the solver's surfel order
@@ -32,7 +33,7 @@ use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
 /// The version written; [`OLDEST_VERSION`] up to it are read.
-pub const FORMAT_VERSION: u32 = 2;
+pub const FORMAT_VERSION: u32 = 3;
 /// Version 1: iteration boundaries only (no position, no partial sums).
 pub const OLDEST_VERSION: u32 = 1;
 /// Bytes per surfel of the radiosity payload.
@@ -134,6 +135,8 @@ fn encode_header(header: &Header) -> Vec<u8> {
     // Version 2: the mid-iteration position (present flag, directions done).
     u32s(&mut b, state.within.is_some() as u32);
     u64s(&mut b, state.within.unwrap_or(0));
+    // Version 3: whose partial sums they are (by directions, or by held surfels, see `State`).
+    u32s(&mut b, state.data_groups);
     b
 }
 
@@ -214,6 +217,7 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
     } else {
         None
     };
+    let data_groups = if version >= 3 { f.u32()? } else { 0 };
     if f.at != body.len() {
         return None;
     }
@@ -225,6 +229,7 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
             previous_change,
             extrapolation: Extrapolation::from_parts(changes, count, last_ratio),
             within,
+            data_groups,
         },
     })
 }
@@ -596,6 +601,7 @@ mod tests {
                 previous_change: Some(0.125),
                 extrapolation,
                 within,
+                data_groups: if within.is_some() { 2 } else { 0 },
             },
         }
     }
@@ -676,33 +682,39 @@ mod tests {
         }
     }
 
-    /// A version 1 file (the layout before mid-iteration checkpoints) made from a version 2
-    /// boundary one: the version, without the position at the header's end, checksum redone.
-    fn as_version_1(v2: &[u8]) -> Vec<u8> {
-        let header_len = u32::from_le_bytes(v2[12..16].try_into().unwrap()) as usize;
+    /// An older file made from a current boundary one: the version, without the fields later
+    /// versions added at the header's end (version 2 the layout of the sums, version 1 also the
+    /// position), checksum redone.
+    fn as_version(v3: &[u8], version: u32) -> Vec<u8> {
+        let header_len = u32::from_le_bytes(v3[12..16].try_into().unwrap()) as usize;
         let end = PREFIX_LEN + header_len;
-        let mut v1 = v2[..end - 12].to_vec();
-        v1[8..12].copy_from_slice(&1u32.to_le_bytes());
-        v1[12..16].copy_from_slice(&((header_len - 12) as u32).to_le_bytes());
-        let crc = crc32fast::hash(&v1);
-        v1.extend_from_slice(&crc.to_le_bytes());
-        v1.extend_from_slice(&v2[end + 4..]);
-        v1
+        let cut = if version == 1 { 16 } else { 4 };
+        let mut old = v3[..end - cut].to_vec();
+        old[8..12].copy_from_slice(&version.to_le_bytes());
+        old[12..16].copy_from_slice(&((header_len - cut) as u32).to_le_bytes());
+        let crc = crc32fast::hash(&old);
+        old.extend_from_slice(&crc.to_le_bytes());
+        old.extend_from_slice(&v3[end + 4..]);
+        old
     }
 
     #[test]
-    fn version_1_is_read_and_an_unknown_version_is_refused() {
+    fn versions_1_and_2_are_read_and_an_unknown_version_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
         let h = header(5, None);
         write_one(&path, &h, &radiosity(5));
-        let v1 = as_version_1(&std::fs::read(&path).unwrap());
-        let got = parse(&path, &v1, 0).unwrap();
-        assert_eq!(got.header, h);
-        assert_eq!(bits(&got.radiosity), bits(&radiosity(5)));
-        std::fs::write(&path, &v1).unwrap();
-        assert_eq!(CheckpointFile::open(&path).unwrap().header, h);
-        for version in [0u32, 3, 99] {
+        let current = std::fs::read(&path).unwrap();
+        for old in [1, 2] {
+            let bytes = as_version(&current, old);
+            let got = parse(&path, &bytes, 0).unwrap();
+            assert_eq!(got.header, h);
+            assert_eq!(bits(&got.radiosity), bits(&radiosity(5)));
+            std::fs::write(&path, &bytes).unwrap();
+            assert_eq!(CheckpointFile::open(&path).unwrap().header, h);
+        }
+        let v1 = as_version(&current, 1);
+        for version in [0u32, 4, 99] {
             let mut b = v1.clone();
             b[8..12].copy_from_slice(&version.to_le_bytes());
             let err = parse(&path, &b, 0).unwrap_err();

@@ -19,10 +19,13 @@
 //! gives the uninterrupted run's bits. Such a checkpoint is written when one is due between two
 //! directions (see [`Saver::due_within`]) and on a stop signal in mid-iteration; under MPI the
 //! ranks agree between directions on whether to write one ([`Saver::agree_within`]), and rank 0
-//! gathers the other ranks' sums in bounded pieces ([`Saver::save_within`]). A resume on another
-//! rank count, or in the data or hybrid modes, starts that iteration from its beginning (the
-//! radiosity it starts from is in the file) and says so. The out-of-core solver writes the same
-//! layout between two main axes, with its canonical sum as the one rank's (`outcore::solver`).
+//! gathers the other ranks' sums in bounded pieces ([`Saver::save_within`]). The data and
+//! hybrid modes (`distribute::data`) write the same layout between two steps, each rank's array
+//! holding the light of the surfels it holds, by id ([`State::data_groups`] says which layout a
+//! file has). A resume on another rank count or layout starts that iteration from its beginning
+//! (the radiosity it starts from is in the file) and says so. The out-of-core solver writes the
+//! same layout between two main axes, with its canonical sum as the one rank's
+//! (`outcore::solver`).
 //!
 //! A checkpoint names the run it belongs to ([`Identity`]: solver, grid, surfels, directions,
 //! channels, extrapolation, and a checksum of the voxelized scene or of the shard set): one from
@@ -258,6 +261,13 @@ pub struct State {
     /// `jacobi`) of iteration `iteration + 1` are gathered; the file then holds every rank's
     /// partial sums. `None` at an iteration boundary.
     pub within: Option<u64>,
+    /// Whose partial sums a mid-iteration checkpoint holds. 0: each rank's light gathered from
+    /// its own directions, for every surfel (one process, `--distribute directions`, out of
+    /// core). `G` of 1 or more: the data mode (1) or the hybrid mode with `G` groups
+    /// (`distribute::data`), each rank's light of the surfels it held at that direction, by
+    /// surfel id (zero for the others); `within` then counts the steps of the group's
+    /// directions. Only a run of the same layout and rank count continues inside the iteration.
+    pub data_groups: u32,
 }
 
 /// Everything in a checkpoint but the radiosity.
@@ -356,25 +366,31 @@ pub struct Loaded {
 impl Loaded {
     /// The mid-iteration position and this rank's sums to continue from, or `None` (and, if the
     /// checkpoint is a mid-iteration one, a log line saying that its iteration starts again)
-    /// when `usable` is false (a mode that cannot continue inside an iteration) or the rank
-    /// counts differ.
-    pub fn take_within(&mut self, usable: bool, ranks: usize) -> Option<(u64, Vec<Gathered>)> {
+    /// when the layout of its sums (`data_groups`, see [`State::data_groups`]) or the rank
+    /// count differs from this solve's.
+    pub fn take_within(&mut self, data_groups: u32, ranks: usize) -> Option<(u64, Vec<Gathered>)> {
         let done = self.state.within?;
         let partial = self.partial.take();
+        let layout = |groups: u32| match groups {
+            0 => "by directions".to_string(),
+            1 => "in the data mode".to_string(),
+            g => format!("in the hybrid mode with {g} groups"),
+        };
         match partial {
-            Some(acc) if usable && self.state.ranks as usize == ranks => Some((done, acc)),
+            Some(acc)
+                if self.state.data_groups == data_groups && self.state.ranks as usize == ranks =>
+            {
+                Some((done, acc))
+            }
             _ => {
                 tracing::info!(
                     "the checkpoint is {done} directions into iteration {} (written by {} \
-                     rank(s)); this solve ({ranks} rank(s){}) cannot continue inside it, so \
-                     that iteration starts from its beginning",
+                     rank(s) distributed {}); this solve ({ranks} rank(s) distributed {}) \
+                     cannot continue inside it, so that iteration starts from its beginning",
                     self.state.iteration + 1,
                     self.state.ranks,
-                    if usable {
-                        ""
-                    } else {
-                        ", a mode that distributes the data"
-                    }
+                    layout(self.state.data_groups),
+                    layout(data_groups),
                 );
                 None
             }
@@ -428,8 +444,10 @@ pub fn load_shared(
     };
     check(path, &parsed.header, this, max_iterations)?;
     let steps = (this.directions as u64).div_ceil(comm.size() as u64);
+    // (The data and hybrid modes check their own positions: their steps are per group.)
     if let Some(done) = parsed.header.state.within {
-        if parsed.header.state.ranks as usize == comm.size() && done >= steps {
+        let by_directions = parsed.header.state.data_groups == 0;
+        if by_directions && parsed.header.state.ranks as usize == comm.size() && done >= steps {
             return Err(CheckpointError::Bad {
                 path: path.to_path_buf(),
                 what: format!(
@@ -591,8 +609,8 @@ impl Saver {
         }
     }
 
-    /// Also writes checkpoints inside iterations, between two directions (the in-memory solver
-    /// in one process or with `--distribute directions`; the other loops save boundaries only).
+    /// Also writes checkpoints inside iterations, between two directions (or steps, or main
+    /// axes out of core).
     pub fn within(mut self, on: bool) -> Self {
         self.within = on;
         self
@@ -642,6 +660,7 @@ impl Saver {
             previous_change,
             extrapolation: extrapolation.clone(),
             within: None,
+            data_groups: 0,
         }
     }
 
@@ -729,6 +748,12 @@ impl Saver {
             exchange();
         }
         result
+    }
+
+    /// Counts `took` (a whole save, with the gathering the caller did before [`Saver::save`]) as
+    /// the last checkpoint's writing time, when longer, for the spacing of the next ones.
+    pub fn took(&mut self, took: Duration) {
+        self.last_write = self.last_write.max(took);
     }
 
     /// At a boundary the solve goes on from: saves if due, and on failure warns and goes on
@@ -997,15 +1022,21 @@ mod tests {
             .unwrap();
         assert_eq!((loaded.state.iteration, loaded.state.within), (2, Some(5)));
         let mut other = loaded.clone();
-        let (done, sums) = loaded.take_within(true, 1).unwrap();
+        let (done, sums) = loaded.take_within(0, 1).unwrap();
         assert_eq!(done, 5);
         let bits = |v: &[Gathered]| -> Vec<u64> {
             v.iter().flatten().flatten().map(|x| x.to_bits()).collect()
         };
         assert_eq!(bits(&sums), bits(&acc));
         // Another rank count or a mode that cannot use them: the iteration starts again.
-        assert!(other.clone().take_within(true, 2).is_none());
-        assert!(other.take_within(false, 1).is_none());
+        // The sums of the hybrid mode's layout (2 groups) continue only in that layout.
+        let mut hybrid = other.clone();
+        hybrid.state.data_groups = 2;
+        assert!(hybrid.clone().take_within(1, 1).is_none());
+        assert!(hybrid.clone().take_within(0, 1).is_none());
+        assert_eq!(hybrid.take_within(2, 1).map(|(done, _)| done), Some(5));
+        assert!(other.clone().take_within(0, 2).is_none());
+        assert!(other.take_within(1, 1).is_none());
         // Its interruption message names the position.
         let i = saver.interrupt_at(libc::SIGTERM, 2, Some(5), |_| unreachable!("on disk"));
         let text = i.to_string();

@@ -22,6 +22,13 @@
 //! mode gives the single-process radiosity bit for bit (the stopping rule's sums are added in
 //! another grouping, which can only move a borderline stop by one iteration).
 //!
+//! **Checkpoints.** At an iteration boundary the radiosity is gathered by id and rank 0 writes
+//! it. Inside an iteration the whole world agrees between two steps (one direction of every
+//! group) on a stop signal and on saving; a save holds each rank's light of the surfels it holds,
+//! by id. A resume rebuilds every rank's surfels from the first iteration's distributions of the
+//! directions done (found again: they depend on the scene only), so the rest of the iteration
+//! sees the same lines in the same order and the result is the uninterrupted run's bits.
+//!
 //! **Hybrid.** The ranks form `G` groups of equal size; group `g` takes the `g`-th contiguous
 //! block of directions (contiguous, so that the directions a group walks stay close) and spreads
 //! the data over its ranks. At the end of an iteration every group brings its surfels to one
@@ -35,7 +42,7 @@
 
 use super::balance::{self, Distribution, Projection};
 use super::Comm;
-use crate::checkpoint::Interruption;
+use crate::checkpoint::{CheckpointError, Gathered, Interruption, Radiosity, Saver, State};
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
@@ -493,13 +500,15 @@ impl<'a> DataSolver<'a> {
         let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
         let mut iterations_done = 0;
         let mut first = 1;
+        // Steps of an iteration: one direction of every group each (a group with one direction
+        // fewer idles in the last), so that the whole world can agree between two steps.
+        let steps = d_count.div_ceil(self.groups);
+        let within = checkpoints.as_ref().is_some_and(|c| c.saver.saves_within());
+        // Where the first iteration starts (a mid-iteration checkpoint's position).
+        let mut start = 0;
         if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
-            // The boundary the checkpoint holds (every rank has the whole of it). A
-            // mid-iteration checkpoint's sums are by direction-mode rank, not by owned line:
-            // its iteration starts again (and rank 0 says so).
-            if world.rank() == 0 {
-                let _ = loaded.take_within(false, world.size());
-            }
+            // The boundary the checkpoint holds (every rank has the whole of it).
+            let resume_within = loaded.take_within(self.groups as u32, world.size());
             for e in &held.order {
                 let slot = e.index as usize;
                 held.radiosity[slot] = loaded.radiosity[held.ids[slot] as usize];
@@ -507,6 +516,32 @@ impl<'a> DataSolver<'a> {
             first = convergence.resume(&loaded.state, &loaded.path, &mut stats);
             iterations_done = first - 1;
             extrapolation = loaded.state.extrapolation;
+            match resume_within {
+                // Every rank has the same header: all continue inside, or none.
+                Some((done, sums)) if (done as usize) < steps => {
+                    assert_eq!(sums.len(), n, "a checkpoint is checked against the scene");
+                    tracing::info!(
+                        iteration = first,
+                        within = done,
+                        "continuing inside an iteration from the checkpoint's partial sums"
+                    );
+                    let done_here = (done as usize).min(mine.len());
+                    held_order = self.rebuild_within(
+                        &mut held,
+                        &mine[..done_here],
+                        &mut remembered,
+                        group_comm,
+                        &loaded.radiosity,
+                        &sums,
+                    );
+                    start = done as usize;
+                }
+                Some((done, _)) => tracing::warn!(
+                    "the checkpoint's position ({done} steps into an iteration of {steps}) does \
+                     not fit this run: that iteration starts from its beginning"
+                ),
+                None => {}
+            }
         }
         if checkpoints.is_some() {
             crate::interrupt::start_iterating();
@@ -517,17 +552,46 @@ impl<'a> DataSolver<'a> {
                 stats.converged = true;
                 break;
             }
-            held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+            let begin = std::mem::take(&mut start);
+            if begin == 0 {
+                held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+            }
             progress.reset();
+            progress.set_position(begin.min(mine.len()) as u64);
             progress.set_message(format!("iteration {iteration}"));
-            let mut signal = 0;
-            for &k in &mine {
-                // The ranks of a group exchange surfels for every direction: they stop together,
-                // then (after the loop) with the other groups.
-                signal = group_comm.max_u64(crate::interrupt::requested().unwrap_or(0) as u64);
-                if signal != 0 {
-                    break;
+            let mut signal = 0u64;
+            let mut stopped_at = 0;
+            for step in begin..steps {
+                if let Some(c) = checkpoints.as_mut().filter(|_| within) {
+                    // Between two steps the whole world agrees on stopping and on saving.
+                    let asked = crate::interrupt::requested().unwrap_or(0);
+                    let (agreed, save) = c.saver.agree_within(world, asked);
+                    if agreed != 0 {
+                        (signal, stopped_at) = (agreed as u64, step);
+                        break;
+                    }
+                    // Not at the iteration's start (its boundary was saved, or is the one
+                    // resumed from) nor where this run resumed.
+                    if save && step > begin {
+                        let state = c.saver.state(
+                            iteration - 1,
+                            convergence.previous_change,
+                            &extrapolation,
+                        );
+                        let result = self.save_within(world, c.saver, state, step, &held);
+                        c.saver.warn_on_failure(result);
+                    }
+                } else {
+                    // The ranks of a group exchange surfels for every direction: they stop
+                    // together, then (after the loop) with the other groups.
+                    signal = group_comm.max_u64(crate::interrupt::requested().unwrap_or(0) as u64);
+                    if signal != 0 {
+                        break;
+                    }
                 }
+                let Some(&k) = mine.get(step) else {
+                    continue;
+                };
                 let d = &self.directions.directions[k];
                 let o = order::order_of(d.vector);
                 let t = Instant::now();
@@ -554,7 +618,28 @@ impl<'a> DataSolver<'a> {
                 self.propagate(k, &mut held, &mut lines, &mut tally);
                 progress.inc(1);
             }
-            let signal = world.max_u64(signal);
+            // (With mid-iteration checkpoints the world agreed between the steps already.)
+            let signal = if within {
+                signal
+            } else {
+                world.max_u64(signal)
+            };
+            if signal != 0 && stopped_at > 0 {
+                progress.finish_and_clear();
+                let completed = iteration - 1;
+                let c = checkpoints.as_mut().expect("mid-iteration stops save");
+                // Every rank decides alike whether to save: `interrupt_at` skips only a
+                // position already saved, and a save at a step is never followed by a stop
+                // at that same step.
+                let interruption =
+                    c.saver
+                        .interrupt_at(signal as i32, completed, Some(stopped_at as u64), |s| {
+                            let state =
+                                s.state(completed, convergence.previous_change, &extrapolation);
+                            self.save_within(world, s, state, stopped_at, &held)
+                        });
+                return Err(SolveError::Interrupted(interruption));
+            }
             if signal != 0 {
                 progress.finish_and_clear();
                 return Err(self.interrupted(
@@ -662,6 +747,86 @@ impl<'a> DataSolver<'a> {
             None => Interruption::without_checkpoint(signal, completed, world.rank() == 0),
         };
         SolveError::Interrupted(interruption)
+    }
+
+    /// A mid-iteration checkpoint `done` steps into iteration `state.iteration + 1`: the
+    /// radiosity it gathers from and every rank's light of the surfels it holds, by surfel id
+    /// (see `checkpoint::State::data_groups`). Collective: every rank calls it.
+    fn save_within(
+        &self,
+        world: &dyn Comm,
+        saver: &mut Saver,
+        mut state: State,
+        done: usize,
+        held: &Held,
+    ) -> Result<(), CheckpointError> {
+        let t = Instant::now();
+        let radiosity = self.gather_radiosity(held, world);
+        let mut acc: Vec<Gathered> = vec![[[0.0; 3]; 2]; self.set.surfels.len()];
+        for e in &held.order {
+            let slot = e.index as usize;
+            acc[held.ids[slot] as usize] = held.acc[slot];
+        }
+        state.data_groups = self.groups as u32;
+        let result = saver.save_within(world, state, done as u64, &radiosity, &acc);
+        // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
+        saver.took(t.elapsed());
+        result
+    }
+
+    /// Rebuilds what this rank held after its group's directions `done` (the first ones of an
+    /// iteration) from a mid-iteration checkpoint: their distributions, found again as the first
+    /// iteration found them (each from the histograms, which do not depend on who holds the
+    /// surfels, and the bands of the one before), then the surfels the last one gives this rank,
+    /// with the checkpoint's `radiosity` and this rank's `sums`, in that direction's order; the
+    /// uninterrupted run held exactly these there. Returns the octant order `held` is sorted in
+    /// (`None`: still by id, when the group had no direction yet). Collective in the group.
+    fn rebuild_within(
+        &self,
+        held: &mut Held,
+        done: &[usize],
+        remembered: &mut [Option<Distribution>],
+        group_comm: &dyn Comm,
+        radiosity: &[Radiosity],
+        sums: &[Gathered],
+    ) -> Option<usize> {
+        for (i, &k) in done.iter().enumerate() {
+            if remembered[k].is_none() {
+                let previous = i
+                    .checked_sub(1)
+                    .and_then(|p| remembered[done[p]].as_ref())
+                    .map(Distribution::bands);
+                remembered[k] = Some(self.balance(k, held, group_comm, previous));
+            }
+        }
+        let Some(&last) = done.last() else {
+            for e in &held.order {
+                let slot = e.index as usize;
+                held.acc[slot] = sums[held.ids[slot] as usize];
+            }
+            return None;
+        };
+        let d = &self.directions.directions[last];
+        let o = order::order_of(d.vector);
+        let bins = self.projection(last).lines(&self.frames[last], d.vector);
+        let distribution = remembered[last].as_ref()?;
+        let table = distribution.table();
+        let me = group_comm.rank();
+        let mut rebuilt = Held::default();
+        for (id, prop) in self.surfels.iter().enumerate() {
+            let (row, col) = bins.bin(prop.voxel);
+            if group_comm.size() == 1 || table.owner(row, col) == me {
+                let slot = rebuilt.store(id as u32, *prop, radiosity[id], sums[id]);
+                rebuilt.order.push(OrderedEntry {
+                    voxel: prop.voxel,
+                    index: slot,
+                });
+            }
+        }
+        let ids = &rebuilt.ids;
+        rebuilt.order.sort_unstable_by(|x, y| compare(o, ids, x, y));
+        *held = rebuilt;
+        Some(o)
     }
 
     /// The radiosity of every surfel by id, on every rank (group 0's surfels added over the

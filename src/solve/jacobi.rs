@@ -274,7 +274,7 @@ fn run(
     // A mid-iteration checkpoint resumed from: the steps done and this rank's sums.
     let mut resume_within = None;
     if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
-        resume_within = loaded.take_within(true, comm.size());
+        resume_within = loaded.take_within(0, comm.size());
         if let Some((done, _)) = &resume_within {
             tracing::info!(
                 iteration = loaded.state.iteration + 1,
