@@ -1018,6 +1018,7 @@ fn open_checkpoint_on_rank0(
             (words[4] == 1.0).then_some(words[5]),
         ),
         within: None,
+        data_groups: 0,
     };
     Ok((file, Some(state)))
 }
