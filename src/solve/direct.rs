@@ -480,12 +480,12 @@ pub fn add_absorbed(set: &SurfelSet, direct: &DirectLight, stats: &mut super::So
     }
 }
 
-/// What the pass gained where it was measured, for the report (README, "What a solve
-/// simulates").
+/// What the pass gained where it was measured, for the report (README, "Accuracy against
+/// time": the Cornell study; the time from "What a solve simulates").
 pub const MEASURED_GAIN: &str = "at resolution 32 with 193 bounce directions the mean error \
-     at the study's probes falls from 13.3 % to 6.7 % (the largest from 96 % to 36 %) with \
-     20,173 dense directions, for 28 % more time; 49 bounce directions with the pass (7.4 %) beat \
-     589 without it (8.6 %)";
+     at the study's probes falls from 11.5 % to 5.3 % (the largest from 76 % to 35 %) with \
+     20,173 dense directions, for about 28 % more time; 49 bounce directions with the pass \
+     (6.5 %) beat 589 without it (7.2 %)";
 
 #[cfg(test)]
 mod tests {
