@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::process::{self, describe, Child, Ended, Rng};
+use common::process::{self, describe, Child, Ended, Rng, HANG_LIMIT};
 use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
@@ -354,7 +354,7 @@ const CONTINUED_INSIDE: &str = "continuing inside an iteration";
 /// Runs an uninterrupted 2-rank solve into `out`; returns its wall time in seconds.
 fn mpi_reference(out: &Path, log: &Path) -> f64 {
     let mut child = Child::spawn(mpirun_solve(out, &[]), log);
-    let status = child.wait_at_most(Duration::from_secs(120));
+    let status = child.wait_at_most(HANG_LIMIT);
     assert!(status.success(), "{}:\n{}", describe(&status), child.log());
     child.started.elapsed().as_secs_f64()
 }
@@ -391,7 +391,7 @@ fn resume_to_the_end_with(extra: &[&str], out: &Path, reference: &Path, log: &Pa
 /// As [`resume_to_the_end`] with the command `resume` (a `--resume` into `out`).
 fn resume_to_the_end_in(resume: Command, out: &Path, reference: &Path, log: &Path) -> String {
     let mut child = Child::spawn(resume, log);
-    let status = child.wait_at_most(Duration::from_secs(120));
+    let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert!(status.success(), "{}:\n{text}", describe(&status));
     assert!(text.contains("resumed from a checkpoint"), "{text}");
@@ -455,7 +455,7 @@ fn killed_under_mpirun_in(
         mpirun_solve(&reference, extra),
         &tmp.path().join("reference.log"),
     );
-    let status = child.wait_at_most(Duration::from_secs(120));
+    let status = child.wait_at_most(HANG_LIMIT);
     assert!(status.success(), "{}:\n{}", describe(&status), child.log());
     let seconds = child.started.elapsed().as_secs_f64();
     let out = tmp.path().join("out");
@@ -471,7 +471,7 @@ fn killed_under_mpirun_in(
         );
         // The first kill after a checkpoint exists, so the resume has one to start from.
         if run == 1 {
-            child.wait_for(Duration::from_secs(120), || ckpt.exists());
+            child.wait_for(HANG_LIMIT, || ckpt.exists());
         }
         let delay = Duration::from_secs_f64(rng.uniform(0.05, longest) * seconds);
         std::thread::sleep(delay.saturating_sub(Duration::from_millis(50)));
@@ -538,7 +538,7 @@ fn sigterm_rank_1_in_iteration_2(out: &Path, log: &Path) -> String {
 fn sigterm_rank_1_after_iteration_1(solve: Command, log: &Path) -> String {
     let mut child = Child::spawn(solve, log);
     assert!(
-        child.wait_for(Duration::from_secs(120), || {
+        child.wait_for(HANG_LIMIT, || {
             std::fs::read_to_string(log).is_ok_and(|t| t.contains("iteration=1 "))
         }),
         "no iteration 1:\n{}",
@@ -554,7 +554,7 @@ fn sigterm_rank_1_after_iteration_1(solve: Command, log: &Path) -> String {
     unsafe {
         libc::kill(rank1, libc::SIGTERM);
     }
-    let status = child.wait_at_most(Duration::from_secs(60));
+    let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
     ranks_end_with_their_launcher(&ranks);
@@ -565,11 +565,12 @@ fn sigterm_rank_1_after_iteration_1(solve: Command, log: &Path) -> String {
 fn directions_mode_sigterm_inside_an_iteration_resumes_to_the_same_bytes() {
     let tmp = tempfile::tempdir().unwrap();
     let reference = tmp.path().join("reference");
+    let quiet = [&LONG_ITERATIONS[..], &["--checkpoint-every", "1000"]].concat();
     let mut child = Child::spawn(
-        mpirun_solve(&reference, &LONG_ITERATIONS),
+        mpirun_solve(&reference, &quiet),
         &tmp.path().join("reference.log"),
     );
-    assert!(child.wait_at_most(Duration::from_secs(120)).success());
+    assert!(child.wait_at_most(HANG_LIMIT).success());
     // Retried (a few times at most) if the signal came between two iterations instead.
     let (out, done) = (1..=4)
         .find_map(|attempt| {
@@ -684,13 +685,15 @@ fn sigterm_inside_then_resume(
 ) -> (tempfile::TempDir, std::path::PathBuf, std::path::PathBuf) {
     let tmp = tempfile::tempdir().unwrap();
     let reference = tmp.path().join("reference");
+    // The reference writes no checkpoint (they do not change the answer; other tests show it),
+    // which keeps it quick when the tests share a busy machine.
+    let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "1000"]].concat();
     let mut child = Child::spawn(
-        mpirun_solve_on(ranks, mode, &reference, &LONG_ITERATIONS),
+        mpirun_solve_on(ranks, mode, &reference, &options),
         &tmp.path().join("reference.log"),
     );
-    let status = child.wait_at_most(Duration::from_secs(120));
+    let status = child.wait_at_most(HANG_LIMIT);
     assert!(status.success(), "{}:\n{}", describe(&status), child.log());
-    let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "1000"]].concat();
     let (out, done) = (1..=4)
         .find_map(|attempt| {
             let out = tmp.path().join(format!("out{attempt}"));
@@ -741,7 +744,7 @@ fn a_rank_that_dies_ends_the_job_and_the_checkpoint_resumes_it() {
     let ckpt = voxrad::checkpoint::path_in(&out);
     let mut child = Child::spawn(mpirun_solve(&out, &[]), &tmp.path().join("run.log"));
     assert!(
-        child.wait_for(Duration::from_secs(120), || ckpt.exists()),
+        child.wait_for(HANG_LIMIT, || ckpt.exists()),
         "no checkpoint:\n{}",
         child.log()
     );
@@ -756,7 +759,7 @@ fn a_rank_that_dies_ends_the_job_and_the_checkpoint_resumes_it() {
         libc::kill(rank1, libc::SIGKILL);
     }
     let killed_at = Instant::now();
-    let status = child.wait_at_most(Duration::from_secs(60));
+    let status = child.wait_at_most(HANG_LIMIT);
     let waited = killed_at.elapsed().as_secs_f64();
     let text = child.log();
     assert!(
@@ -793,7 +796,7 @@ fn sigterm_to_one_rank_stops_every_rank_with_a_checkpoint() {
     );
     let log = tmp.path().join("run.log");
     assert!(
-        child.wait_for(Duration::from_secs(120), || {
+        child.wait_for(HANG_LIMIT, || {
             std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
         }),
         "no iteration 2:\n{}",
@@ -810,7 +813,7 @@ fn sigterm_to_one_rank_stops_every_rank_with_a_checkpoint() {
     unsafe {
         libc::kill(rank1, libc::SIGTERM);
     }
-    let status = child.wait_at_most(Duration::from_secs(60));
+    let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
     assert!(
@@ -839,7 +842,7 @@ fn a_damaged_checkpoint_is_refused_by_every_rank_without_a_hang() {
         mpirun_solve(&out, &["--resume"]),
         &tmp.path().join("run.log"),
     );
-    let status = child.wait_at_most(Duration::from_secs(60));
+    let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(2), "{}:\n{text}", describe(&status));
     assert!(
@@ -927,7 +930,7 @@ fn data_and_hybrid_modes_stopped_by_sigterm_resume_to_the_same_bytes() {
             mpirun_solve_in(mode, &reference, &[]),
             &tmp.path().join("reference.log"),
         );
-        let status = child.wait_at_most(Duration::from_secs(120));
+        let status = child.wait_at_most(HANG_LIMIT);
         assert!(status.success(), "{}:\n{}", describe(&status), child.log());
 
         let out = tmp.path().join("out");
@@ -937,7 +940,7 @@ fn data_and_hybrid_modes_stopped_by_sigterm_resume_to_the_same_bytes() {
             &log,
         );
         assert!(
-            child.wait_for(Duration::from_secs(120), || {
+            child.wait_for(HANG_LIMIT, || {
                 std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
             }),
             "{mode:?}: no iteration 2:\n{}",
@@ -952,7 +955,7 @@ fn data_and_hybrid_modes_stopped_by_sigterm_resume_to_the_same_bytes() {
         unsafe {
             libc::kill(rank1, libc::SIGTERM);
         }
-        let status = child.wait_at_most(Duration::from_secs(60));
+        let status = child.wait_at_most(HANG_LIMIT);
         let text = child.log();
         assert_eq!(
             status.code(),
@@ -969,7 +972,7 @@ fn data_and_hybrid_modes_stopped_by_sigterm_resume_to_the_same_bytes() {
             mpirun_solve_in(mode, &out, &["--resume"]),
             &tmp.path().join("resume.log"),
         );
-        let status = child.wait_at_most(Duration::from_secs(120));
+        let status = child.wait_at_most(HANG_LIMIT);
         let text = child.log();
         assert!(status.success(), "{mode:?}: {}:\n{text}", describe(&status));
         assert!(text.contains("resumed from a checkpoint"), "{text}");

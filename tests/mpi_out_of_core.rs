@@ -11,10 +11,9 @@
 
 mod common;
 
-use common::process::{self, describe, Child};
+use common::process::{self, describe, Child, HANG_LIMIT};
 use std::path::Path;
 use std::process::{Command, Output};
-use std::time::Duration;
 use voxrad::output::results::read_results;
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 
@@ -325,7 +324,7 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
         &log,
     );
     assert!(
-        child.wait_for(Duration::from_secs(120), || {
+        child.wait_for(HANG_LIMIT, || {
             std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
         }),
         "no iteration 2:\n{}",
@@ -340,7 +339,7 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
     unsafe {
         libc::kill(rank1, libc::SIGTERM);
     }
-    let status = child.wait_at_most(Duration::from_secs(60));
+    let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
     assert!(

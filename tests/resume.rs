@@ -6,7 +6,7 @@
 
 mod common;
 
-use common::process::{describe, Child, Ended, Rng};
+use common::process::{describe, Child, Ended, Rng, HANG_LIMIT};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -60,7 +60,7 @@ fn report(out: &Path) -> serde_json::Value {
 /// Runs to the end (at most two minutes); panics unless it succeeds. Returns its log and time.
 fn run_to_end(command: Command, log: &Path) -> (String, f64) {
     let mut child = Child::spawn(command, log);
-    let status = child.wait_at_most(Duration::from_secs(120));
+    let status = child.wait_at_most(HANG_LIMIT);
     assert!(status.success(), "{}:\n{}", describe(&status), child.log());
     (child.log(), child.started.elapsed().as_secs_f64())
 }
@@ -108,14 +108,14 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize, longest: f64) -> 
         let ended = if killed < kills {
             if killed == 0 {
                 let ckpt = checkpoint::path_in(&out);
-                child.wait_for(Duration::from_secs(120), || ckpt.exists());
+                child.wait_for(HANG_LIMIT, || ckpt.exists());
             }
             // Short enough that several kills land before the end: some during start-up or a
             // checkpoint's writing, most in mid-iteration.
             let delay = rng.uniform(0.02, longest) * seconds;
             child.run_or_kill_after(Duration::from_secs_f64(delay))
         } else {
-            Ended::Exited(child.wait_at_most(Duration::from_secs(120)))
+            Ended::Exited(child.wait_at_most(HANG_LIMIT))
         };
         let text = child.log();
         assert!(!text.contains("panicked"), "{text}");
@@ -211,13 +211,13 @@ fn stopped_by(
     ready: impl Fn(&str, &Path) -> bool,
 ) -> String {
     let mut child = Child::spawn(solve_command(out, extra), log);
-    let seen = child.wait_for(Duration::from_secs(120), || ready(&child_log(log), out));
+    let seen = child.wait_for(HANG_LIMIT, || ready(&child_log(log), out));
     assert!(seen, "never ready:\n{}", child_log(log));
     // SAFETY: kill(2) on our own child.
     unsafe {
         libc::kill(child.pid(), signal);
     }
-    let status = child.wait_at_most(Duration::from_secs(60));
+    let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
     let name = voxrad::interrupt::name(signal);

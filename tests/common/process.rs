@@ -8,6 +8,11 @@ use std::path::Path;
 use std::process::{Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
+/// How long a test waits for a solve before taking it for hung. Only a guard: the tests of one
+/// binary run side by side, and on a busy two-core machine an oversubscribed solve that takes
+/// seconds alone can take minutes.
+pub const HANG_LIMIT: Duration = Duration::from_secs(600);
+
 /// splitmix64: a small seeded generator, so a failing schedule of kills can be replayed.
 pub struct Rng(u64);
 
