@@ -668,16 +668,13 @@ fn solve_out_of_core_to(
     report.set_phase("band_write", stats.write_seconds);
     report.set_phase("update", stats.update_seconds);
     report.set_phase("write", write_seconds);
-    let updates = (stats.surfels * stats.solve.directions as u64 * stats.solve.iterations as u64)
-        .max(1) as f64;
-    report.out_of_core = Some(OutOfCoreReport {
-        memory_budget_bytes: budget,
-        bytes_read: stats.bytes_read,
-        bytes_written: stats.bytes_written,
-        bytes_read_per_voxel_direction: stats.bytes_read as f64 / updates,
-        bytes_written_per_voxel_direction: stats.bytes_written as f64 / updates,
-        bands: stats.bands,
-    });
+    report.out_of_core = Some(OutOfCoreReport::new(
+        budget,
+        stats.bytes_read,
+        stats.bytes_written,
+        stats.bands,
+        stats.surfels * stats.solve.directions as u64 * stats.solve.iterations as u64,
+    ));
     report.effects = analysis.effects(
         &cmd.solve,
         &stats.solve,
@@ -914,16 +911,13 @@ fn run_solve_data_out_of_core(
     report.set_phase("solve", solve_seconds);
     report.set_phase("reduce", stats.reduce_seconds);
     report.set_phase("write", write_seconds);
-    let updates =
-        (solution.surfels * stats.directions as u64 * stats.iterations as u64).max(1) as f64;
-    report.out_of_core = Some(OutOfCoreReport {
-        memory_budget_bytes: budget,
-        bytes_read: solution.bytes_read,
-        bytes_written: solution.bytes_written,
-        bytes_read_per_voxel_direction: solution.bytes_read as f64 / updates,
-        bytes_written_per_voxel_direction: solution.bytes_written as f64 / updates,
-        bands: solution.bands,
-    });
+    report.out_of_core = Some(OutOfCoreReport::new(
+        budget,
+        solution.bytes_read,
+        solution.bytes_written,
+        solution.bands,
+        solution.surfels * stats.directions as u64 * stats.iterations as u64,
+    ));
     report.effects = analysis.effects(
         &cmd.solve,
         &stats,

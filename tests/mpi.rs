@@ -20,20 +20,8 @@ use voxrad::voxel::voxelize::{voxelize, GridSpec};
 /// `mpirun -n ranks voxrad args`: oversubscribed (more ranks than cores), loopback and shared
 /// memory transports only, allowed to run as root (CI containers).
 fn mpirun(ranks: usize, args: &[&str]) -> Output {
-    Command::new("mpirun")
-        .args(["-n", &ranks.to_string(), "--oversubscribe"])
-        .args([
-            "--mca",
-            "btl",
-            "self,vader",
-            "--mca",
-            "btl_vader_single_copy_mechanism",
-            "none",
-        ])
-        .arg(env!("CARGO_BIN_EXE_voxrad"))
+    common::mpi::command(ranks)
         .args(args)
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env("NO_COLOR", "1")
         .output()
         .expect("run mpirun (is Open MPI installed?)")
@@ -300,22 +288,10 @@ fn mpirun_solve_in(mode: &[&str], out: &Path, extra: &[&str]) -> Command {
 
 /// As [`mpirun_solve_in`] on `ranks` ranks.
 fn mpirun_solve_on(ranks: usize, mode: &[&str], out: &Path, extra: &[&str]) -> Command {
-    let mut c = Command::new("mpirun");
-    c.args(["-n", &ranks.to_string(), "--oversubscribe"])
-        .args([
-            "--mca",
-            "btl",
-            "self,vader",
-            "--mca",
-            "btl_vader_single_copy_mechanism",
-            "none",
-        ])
-        .arg(env!("CARGO_BIN_EXE_voxrad"))
-        .args(solve_args(out, extra))
+    let mut c = common::mpi::command(ranks);
+    c.args(solve_args(out, extra))
         .args(mode)
         .args(extra)
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
         .env_remove("RUST_LOG");
     c
 }
@@ -546,14 +522,7 @@ fn sigterm_rank_1_after_iteration_1(solve: Command, log: &Path) -> String {
     );
     std::thread::sleep(Duration::from_millis(100));
     let ranks = process::children_of(child.pid());
-    let rank1 = *ranks
-        .iter()
-        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
-        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
-    // SAFETY: kill(2) on a process this test started (through mpirun).
-    unsafe {
-        libc::kill(rank1, libc::SIGTERM);
-    }
+    common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
     let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
@@ -750,14 +719,7 @@ fn a_rank_that_dies_ends_the_job_and_the_checkpoint_resumes_it() {
     );
     // Rank 1 is the child of mpirun whose environment says so.
     let ranks = process::children_of(child.pid());
-    let rank1 = *ranks
-        .iter()
-        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
-        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
-    // SAFETY: kill(2) on a process this test started (through mpirun).
-    unsafe {
-        libc::kill(rank1, libc::SIGKILL);
-    }
+    let rank1 = common::mpi::signal_rank(child.pid(), 1, libc::SIGKILL);
     let killed_at = Instant::now();
     let status = child.wait_at_most(HANG_LIMIT);
     let waited = killed_at.elapsed().as_secs_f64();
@@ -805,14 +767,7 @@ fn sigterm_to_one_rank_stops_every_rank_with_a_checkpoint() {
     assert!(!ckpt.exists());
     // Only rank 1 hears it (the checkpoint writer, rank 0, does not): all must stop together.
     let ranks = process::children_of(child.pid());
-    let rank1 = *ranks
-        .iter()
-        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
-        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
-    // SAFETY: kill(2) on a process this test started (through mpirun).
-    unsafe {
-        libc::kill(rank1, libc::SIGTERM);
-    }
+    common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
     let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
@@ -947,14 +902,7 @@ fn data_and_hybrid_modes_stopped_by_sigterm_resume_to_the_same_bytes() {
             child.log()
         );
         let ranks = process::children_of(child.pid());
-        let rank1 = *ranks
-            .iter()
-            .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
-            .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
-        // SAFETY: kill(2) on a process this test started (through mpirun).
-        unsafe {
-            libc::kill(rank1, libc::SIGTERM);
-        }
+        common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
         let status = child.wait_at_most(HANG_LIMIT);
         let text = child.log();
         assert_eq!(

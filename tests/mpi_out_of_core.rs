@@ -11,7 +11,7 @@
 
 mod common;
 
-use common::process::{self, describe, Child, HANG_LIMIT};
+use common::process::{describe, Child, HANG_LIMIT};
 use std::path::Path;
 use std::process::{Command, Output};
 use voxrad::output::results::read_results;
@@ -29,21 +29,8 @@ fn mpirun(ranks: usize, args: &[&str]) -> Output {
 }
 
 fn mpirun_command(ranks: usize, args: &[&str]) -> Command {
-    let mut c = Command::new("mpirun");
-    c.args(["-n", &ranks.to_string(), "--oversubscribe"])
-        .args([
-            "--mca",
-            "btl",
-            "self,vader",
-            "--mca",
-            "btl_vader_single_copy_mechanism",
-            "none",
-        ])
-        .arg(env!("CARGO_BIN_EXE_voxrad"))
-        .args(args)
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1")
-        .env("NO_COLOR", "1");
+    let mut c = common::mpi::command(ranks);
+    c.args(args).env("NO_COLOR", "1");
     c
 }
 
@@ -330,15 +317,7 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
         "no iteration 2:\n{}",
         child.log()
     );
-    let ranks = process::children_of(child.pid());
-    let rank1 = *ranks
-        .iter()
-        .find(|&&p| process::env_of(p, "OMPI_COMM_WORLD_RANK").as_deref() == Some("1"))
-        .unwrap_or_else(|| panic!("no rank 1 among {ranks:?}"));
-    // SAFETY: kill(2) on a process this test started (through mpirun).
-    unsafe {
-        libc::kill(rank1, libc::SIGTERM);
-    }
+    common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
     let status = child.wait_at_most(HANG_LIMIT);
     let text = child.log();
     assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));

@@ -154,6 +154,22 @@ pub struct OutOfCoreReport {
     pub bands: u64,
 }
 
+impl OutOfCoreReport {
+    /// The figures of a solve that read `bytes_read` and wrote `bytes_written` for `updates`
+    /// surfel-direction updates (surfels x directions x iterations) under `budget` bytes.
+    pub fn new(budget: u64, bytes_read: u64, bytes_written: u64, bands: u64, updates: u64) -> Self {
+        let updates = updates.max(1) as f64;
+        OutOfCoreReport {
+            memory_budget_bytes: budget,
+            bytes_read,
+            bytes_written,
+            bytes_read_per_voxel_direction: bytes_read as f64 / updates,
+            bytes_written_per_voxel_direction: bytes_written as f64 / updates,
+            bands,
+        }
+    }
+}
+
 impl Report {
     /// A report from the solver's statistics. `seconds` starts with the solver's phases and a
     /// `total` equal to their sum; callers add their own phases (reading, voxelizing, writing)

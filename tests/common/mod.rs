@@ -2,6 +2,7 @@
 #![allow(dead_code)]
 
 pub mod files;
+pub mod mpi;
 pub mod process;
 
 use glam::DVec3;
