@@ -1,7 +1,10 @@
 //! The out-of-core iteration loop: directions grouped by main axis, each solved band by band
 //! ([`super::band`]); then the light gathered in the three copies is brought to canonical order,
 //! `B = E + rho H / S(n)` is computed there with the stopping rule of `solve::jacobi`, and the
-//! new radiosity is sent back to the copies ([`super::scatter`]).
+//! new radiosity is sent back to the copies ([`super::scatter`]). As in memory, a grey scene
+//! gathers one channel, and the tail extrapolation (`solve::accelerate`) runs on the canonical
+//! file chunk by chunk, from the radiosity the update replaced (kept in one more work file).
+//! [`update_surfel`] is the per-surfel update the data mode out of core shares.
 //!
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis

@@ -24,7 +24,9 @@
 //! rule's sums are added in another grouping).
 //!
 //! **Iteration end**: each rank updates `B` of its held surfels (their materials, normal and
-//! area travel with them); the stopping rule's sums are added over ranks. **Output**: the
+//! area travel with them) with `outcore::solver::update_surfel`; the stopping rule's sums are
+//! added over ranks. A grey scene gathers one channel; the tail extrapolation adds its jump in
+//! one more pass over the held files (the replaced radiosity waits in the earlier-axes slot). **Output**: the
 //! `(id, B)` pairs go to rank 0 in bounded rounds, which places them in a canonical radiosity
 //! file and streams the results from the source as the single-process path does.
 //!
