@@ -178,14 +178,7 @@ pub fn build(
             for k in 0..group.len() {
                 let s = &group[k];
                 let r = StaticRecord {
-                    prop: PropSurfel {
-                        voxel: s.voxel,
-                        group: s.group,
-                        point: s.point,
-                        normal: s.normal,
-                        extent: s.extent,
-                        coverage: coverage_in_voxel(&group, k),
-                    },
+                    prop: PropSurfel::new(s, coverage_in_voxel(&group, k)),
                     id,
                 };
                 encode_static(&r, &mut record);

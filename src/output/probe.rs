@@ -4,7 +4,10 @@
 //! by having no numeric field; blank lines skipped). For each row, the answer is the area-weighted
 //! mean radiosity of the surfel sides within [`PROBE_RADIUS_VOXELS`] voxels of the point whose
 //! side normal agrees with `n` (dot product above [`MIN_NORMAL_DOT`]): the normal test picks the
-//! side of a wall the probe is on, and keeps the other wall of a corner out. If every such side
+//! side of a wall the probe is on, and keeps the other wall of a corner out. Sides whose surface
+//! point lies more than [`BEHIND_VOXELS`] behind the probe point (along `n`) are left out too: in
+//! a slab thinner than the search radius, the far face's inner side faces the same way as the
+//! near face's outer side, but it looks into the slab, not out of it. If every such side
 //! has zero area (voxels only touched by the surface), sides are weighted by inverse distance. If
 //! there is none, the radiosity is 0 and [`ProbeRow::found`] is false.
 //!
@@ -28,6 +31,11 @@ pub const PROBE_RADIUS_VOXELS: f64 = 1.5;
 pub const MAX_LINE_BYTES: usize = 4096;
 /// Smallest cosine between a surfel side's normal and the probe normal for the side to count.
 pub const MIN_NORMAL_DOT: f64 = 0.5;
+/// How far (voxels, along the probe normal) a side's surface point may lie behind the probe point
+/// and still count: surfels of the probed surface lie on its plane, the far face of a slab 0.3
+/// voxel thick lies 0.3 behind. (Used only where some side passes it; else all matching sides
+/// count.)
+pub const BEHIND_VOXELS: f64 = 0.15;
 
 /// The answer for one probe point.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -126,8 +134,9 @@ impl<'a> ProbeIndex<'a> {
         {
             return row;
         }
-        // (area, inverse distance, radiosity) of every matching side.
-        let mut matches: Vec<(f64, f64, [f32; 3])> = Vec::new();
+        // (area, inverse distance, radiosity, height along n above the probe point) of every
+        // matching side.
+        let mut matches: Vec<(f64, f64, [f32; 3], f64)> = Vec::new();
         for x in lo.x as i32..=hi.x as i32 {
             for y in lo.y as i32..=hi.y as i32 {
                 for z in lo.z as i32..=hi.z as i32 {
@@ -136,10 +145,11 @@ impl<'a> ProbeIndex<'a> {
                         if d > r {
                             continue;
                         }
+                        let height = (rec.position() - q).dot(n);
                         for side in [FRONT, BACK] {
                             if rec.side_normal(side).dot(n) > MIN_NORMAL_DOT {
                                 let inv = 1.0 / d.max(1e-3);
-                                matches.push((rec.area as f64, inv, rec.radiosity[side]));
+                                matches.push((rec.area as f64, inv, rec.radiosity[side], height));
                             }
                         }
                     }
@@ -149,8 +159,11 @@ impl<'a> ProbeIndex<'a> {
         if matches.is_empty() {
             return row;
         }
+        if matches.iter().any(|m| m.3 >= -BEHIND_VOXELS) {
+            matches.retain(|m| m.3 >= -BEHIND_VOXELS);
+        }
         let total_area: f64 = matches.iter().map(|m| m.0).sum();
-        let weight = |m: &(f64, f64, [f32; 3])| if total_area > 0.0 { m.0 } else { m.1 };
+        let weight = |m: &(f64, f64, [f32; 3], f64)| if total_area > 0.0 { m.0 } else { m.1 };
         let total: f64 = matches.iter().map(weight).sum();
         for m in &matches {
             let w = weight(m) / total;

@@ -5,8 +5,10 @@
 //! a table top's outline seen by a line that only grazes it) the surface covers part of the voxel,
 //! and counting a whole hit makes every open surface look about half a voxel wider on each side
 //! (+6 % on the form factor of two unit squares at resolution 33). So a surfel alone in its voxel
-//! whose piece covers only part of the voxel's slice of its plane gets a coverage below 1, and
-//! propagation lets that share of a ray's light come from it and the rest from what lies behind.
+//! whose piece covers only part of the voxel's slice of its plane gets a coverage below 1. The
+//! coverage marks the open edge; how much of a line the edge's plane then blocks is decided per
+//! line and direction by propagation, from the projected areas of the plane's pieces on the line
+//! (`solve::propagate`, "Open edges"), and the rest of a ray's light comes from what lies behind.
 //!
 //! A voxel holding one plane twice (a sheet modelled back to back) counts as holding one plane,
 //! and a plane parallel to the piece's (a lamp hanging less than a voxel above a floor) cannot

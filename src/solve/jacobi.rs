@@ -160,14 +160,7 @@ pub(crate) fn prop_surfels(set: &SurfelSet) -> Vec<PropSurfel> {
     set.surfels
         .iter()
         .zip(&coverage)
-        .map(|(s, &coverage)| PropSurfel {
-            coverage,
-            voxel: s.voxel,
-            group: s.group,
-            point: s.point,
-            normal: s.normal,
-            extent: s.extent,
-        })
+        .map(|(s, &coverage)| PropSurfel::new(s, coverage))
         .collect()
 }
 

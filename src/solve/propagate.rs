@@ -21,6 +21,18 @@
 //! crosses it. Surfels are two-sided, so there are no back faces to block; the side of the partner
 //! that faces the receiver is the one that sends light.
 //!
+//! **Open edges.** A line is a tube of unit section across its main axis, and a sheet crossed by
+//! it blocks the part of that section its pieces cover once projected along the line. Inside a
+//! surface that is all of it. Where the tube meets a plane that has an open edge on this line (a
+//! lamp's rim, a table top's outline: a piece with coverage below 1, `solve::coverage`), the
+//! plane blocks the sum of the projected areas of its pieces on the line (on the search's side of
+//! the receiver), `sum(area |n.s|) / |s_main|`, at most 1: the nearest piece sends that share and
+//! the rest of the ray goes on past the plane. Counting a whole hit, or the piece's coverage of
+//! its own voxel, made an open sheet look up to a voxel wider at grazing angles, where the tube
+//! runs along it for many voxels: a closed room lit by floating lamps absorbed 8 % more than the
+//! lamps emitted at resolution 64. Summed over the lines, the shares add up to the sheet's
+//! projected area along the direction, which is what energy conservation asks of it.
+//!
 //! Every surfel side receives exactly one gather per line direction, so accumulating in direction
 //! order makes the result independent of how lines are spread over threads.
 //!
@@ -47,6 +59,25 @@ pub struct PropSurfel {
     /// Fraction of the voxel's slice of the surfel's plane that its piece covers, for a piece at
     /// the open edge of a surface (alone in its voxel, not filling it); 1 everywhere else.
     pub coverage: f32,
+    /// Area of the surfel's piece (voxel-size squared): how much of a line's cross-section the
+    /// piece blocks, once projected along the line (see [`find_partners`] on open edges).
+    pub area: f32,
+}
+
+impl PropSurfel {
+    /// What propagation reads of `surfel`, whose open-edge coverage is `coverage`
+    /// (`solve::coverage`).
+    pub fn new(surfel: &crate::voxel::Surfel, coverage: f32) -> Self {
+        PropSurfel {
+            voxel: surfel.voxel,
+            group: surfel.group,
+            point: surfel.point,
+            normal: surfel.normal,
+            extent: surfel.extent,
+            coverage,
+            area: surfel.area,
+        }
+    }
 }
 
 /// A surfel of the line being processed, with its cosine to the direction.
@@ -62,6 +93,8 @@ struct Local {
     lo: Vec3,
     hi: Vec3,
     coverage: f32,
+    /// The piece's area projected along the line, as a fraction of the line's cross-section.
+    share: f32,
 }
 
 /// `p_c - p_r` in voxel units, exact in the integer part.
@@ -155,6 +188,14 @@ pub struct LineScratch {
     /// Further partners of chains longer than one (rare: rays past open edges), as
     /// (line position, 0 ahead / 1 behind, partner position, weight).
     pub extra: Vec<(u32, u8, u32, f32)>,
+    /// Open crossings of this line: for each plane group with an open-edge piece on the line,
+    /// its range in `open_items`.
+    open_ranges: Vec<(u32, u32, u32)>,
+    /// The surfels of the open crossings, group after group in line order: (voxel group, sum of
+    /// the shares of the group's surfels up to and including this one).
+    open_items: Vec<(u32, f32)>,
+    /// For each line position: the index of its open crossing in `open_ranges`, or `u32::MAX`.
+    open_slot: Vec<u32>,
 }
 
 /// Longest chain of partners one search may return.
@@ -187,6 +228,9 @@ impl Chain {
 /// is in `scratch.partners`, by line position.
 pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &mut LineScratch) {
     let sf = s.as_vec3();
+    // The line's cross-section across the direction, in voxel-size squared: a line is a tube of
+    // unit section across its main axis.
+    let section = sf.abs().max_element();
     let LineScratch {
         locals,
         groups,
@@ -195,12 +239,16 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         run_before,
         partners,
         extra,
+        open_ranges,
+        open_items,
+        open_slot,
     } = scratch;
     locals.clear();
     locals.extend(line.iter().map(|&m| {
         let p = &surfels[m as usize];
         let normal = Vec3::from(p.normal);
         Local {
+            share: p.area * normal.dot(sf).abs() / section,
             voxel: p.voxel,
             group: p.group,
             point: Vec3::from(p.point),
@@ -229,6 +277,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }
     groups.push(locals.len());
     let group_count = groups.len() - 1;
+    open_crossings(locals, groups, open_ranges, open_items, open_slot);
     single.clear();
     single.extend((0..group_count).map(|g| {
         if groups[g + 1] - groups[g] == 1 {
@@ -264,6 +313,9 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         single,
         run_after,
         run_before,
+        open_ranges,
+        open_items,
+        open_slot,
     };
     for g in 0..group_count {
         for k in groups[g]..groups[g + 1] {
@@ -285,6 +337,50 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
                 }
             }
         }
+    }
+}
+
+/// Finds the line's open crossings: the plane groups that have an open-edge piece (coverage
+/// below 1) on this line, with the running sums of their surfels' shares (see [`LineView::nearest`]).
+/// Most lines have none, and then this only scans the coverages.
+fn open_crossings(
+    locals: &[Local],
+    groups: &[usize],
+    open_ranges: &mut Vec<(u32, u32, u32)>,
+    open_items: &mut Vec<(u32, f32)>,
+    open_slot: &mut Vec<u32>,
+) {
+    open_ranges.clear();
+    open_items.clear();
+    open_slot.clear();
+    if locals.iter().all(|l| l.coverage >= 1.0) {
+        return;
+    }
+    for l in locals {
+        if l.coverage < 1.0 && !open_ranges.iter().any(|r| r.0 == l.group) {
+            open_ranges.push((l.group, 0, 0));
+        }
+    }
+    open_slot.resize(locals.len(), u32::MAX);
+    for (slot, range) in open_ranges.iter_mut().enumerate() {
+        range.1 = open_items.len() as u32;
+        let mut sum = 0.0f32;
+        for g in 0..groups.len() - 1 {
+            // A plane held twice in one voxel (a sheet modelled back to back) blocks the line
+            // once: its copies cover the same part of it.
+            let mut here = 0.0f32;
+            for k in groups[g]..groups[g + 1] {
+                if locals[k].group == range.0 {
+                    here = here.max(locals[k].share);
+                    open_slot[k] = slot as u32;
+                }
+            }
+            if here > 0.0 {
+                sum += here;
+                open_items.push((g as u32, sum));
+            }
+        }
+        range.2 = open_items.len() as u32;
     }
 }
 
@@ -319,9 +415,34 @@ struct LineView<'a> {
     single: &'a [u32],
     run_after: &'a [u32],
     run_before: &'a [u32],
+    open_ranges: &'a [(u32, u32, u32)],
+    open_items: &'a [(u32, f32)],
+    open_slot: &'a [u32],
 }
 
 impl LineView<'_> {
+    /// For a candidate at line position `c` whose plane has an open edge on this line: the share
+    /// of the line's cross-section its plane's pieces block on the search's side of voxel group
+    /// `g` (capped at 1), else `None` (the candidate blocks the whole line).
+    #[inline(always)]
+    fn open_share<const FORWARD: bool>(&self, g: usize, c: usize) -> Option<f32> {
+        let slot = *self.open_slot.get(c)?;
+        if slot == u32::MAX {
+            return None;
+        }
+        let (_, start, end) = self.open_ranges[slot as usize];
+        let items = &self.open_items[start as usize..end as usize];
+        let total = items.last().map_or(0.0, |i| i.1);
+        // Items before the first one in voxel group `g` or later.
+        let split = items.partition_point(|i| (i.0 as usize) < g);
+        let before = if split == 0 { 0.0 } else { items[split - 1].1 };
+        // Items up to the last one in voxel group `g` or earlier.
+        let upto = items.partition_point(|i| (i.0 as usize) <= g);
+        let through = if upto == 0 { 0.0 } else { items[upto - 1].1 };
+        let share = if FORWARD { total - before } else { through };
+        (share < 1.0 - 1e-4).then_some(share.max(0.0))
+    }
+
     /// The acceptance test of candidate `c` for receiver `x`, looking ahead or behind: the distance
     /// from `x`'s point to `c`'s plane along the search direction.
     #[inline(always)]
@@ -447,11 +568,12 @@ impl LineView<'_> {
                     continue;
                 };
                 let candidate = &self.locals[found];
-                if candidate.coverage < 1.0 && (chain.len as usize) < MAX_CHAIN - 1 {
+                let open = self.open_share::<FORWARD>(g, found);
+                if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                     // An open edge sharing its voxel: it sends its share, its plane is now
                     // crossed, and the rest of the ray may still meet another plane here.
-                    chain.push(found, left * candidate.coverage);
-                    left *= 1.0 - candidate.coverage;
+                    chain.push(found, left * share);
+                    left *= 1.0 - share;
                     missed.insert(candidate.group);
                     if left <= 1e-3 {
                         return chain;
@@ -487,11 +609,12 @@ impl LineView<'_> {
                 let c = self.groups[g2];
                 let candidate = &self.locals[c];
                 if !missed.contains(single) && Self::test::<FORWARD>(x, candidate).is_some() {
-                    if candidate.coverage < 1.0 && (chain.len as usize) < MAX_CHAIN - 1 {
+                    let open = self.open_share::<FORWARD>(g, c);
+                    if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                         // An open edge: it sends its share, and the ray goes on past its plane
                         // (now crossed, so no other piece of that plane can catch it).
-                        chain.push(c, left * candidate.coverage);
-                        left *= 1.0 - candidate.coverage;
+                        chain.push(c, left * share);
+                        left *= 1.0 - share;
                         missed.insert(single);
                         if left <= 1e-3 {
                             return chain;

@@ -113,14 +113,7 @@ impl Solver<'_> {
         for (k, s) in group.iter().enumerate() {
             let mut w = [0u8; WIRE_LEN];
             let r = StaticRecord {
-                prop: PropSurfel {
-                    voxel: s.voxel,
-                    group: s.group,
-                    point: s.point,
-                    normal: s.normal,
-                    extent: s.extent,
-                    coverage: coverage_in_voxel(group, k),
-                },
+                prop: PropSurfel::new(s, coverage_in_voxel(group, k)),
                 id: (first_id + k as u64) as u32,
             };
             let mut statics = [0u8; STATIC_LEN];
