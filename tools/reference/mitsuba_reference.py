@@ -533,8 +533,9 @@ def main(argv=None) -> int:
     if log:
         b = emit + rho * h
         with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.where(b > 0, rho * se_h / b, np.nan)
-        med = np.nanmedian(np.nanmax(rel, axis=1)) if np.any(np.isfinite(rel)) else float("nan")
+            rel = np.where(b > 0, rho * se_h / np.where(b > 0, b, 1.0), -np.inf).max(axis=1)
+        rel = rel[np.isfinite(rel)]
+        med = float(np.median(rel)) if len(rel) else float("nan")
         print(
             f"done: {time.time() - traced:.1f} s tracing, {time.time() - start:.1f} s in all; "
             f"median relative standard error of B (worst channel) {100 * med:.3f} %",
