@@ -1197,6 +1197,89 @@ mod tests {
         assert_eq!(s.scene.validate(), Ok(()));
     }
 
+    /// Same text, numbers compared with a tolerance (the tilted slabs' `sin` and `cos` may differ
+    /// in the last bit between maths libraries).
+    fn same_numbers(a: &str, b: &str) -> bool {
+        let split = |s: &str| {
+            s.split(|c: char| c.is_whitespace() || c == ',')
+                .map(str::to_string)
+                .collect::<Vec<_>>()
+        };
+        let (ta, tb) = (split(a), split(b));
+        ta.len() == tb.len()
+            && ta.iter().zip(&tb).all(|(x, y)| {
+                x == y
+                    || matches!((x.parse::<f64>(), y.parse::<f64>()),
+                        (Ok(p), Ok(q)) if (p - q).abs() <= 1e-12 * (1.0 + p.abs()))
+            })
+    }
+
+    /// The scenes and probes committed under `tests/data/reference/` are what the generators
+    /// write today, and each `reference.csv` has one row per probe, at the probe.
+    #[test]
+    fn committed_reference_data_matches_the_generators() {
+        use std::path::Path;
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/reference");
+        let mut scenes = vec![
+            ("office".to_string(), office()),
+            ("window-room".to_string(), window_room()),
+            ("corridor".to_string(), corridor()),
+        ];
+        for (light, name) in [(SlabLight::Side, "side"), (SlabLight::Top, "top")] {
+            for (tilt, suffix) in [([0.0, 0.0], ""), ([20.0, 10.0], "-tilted")] {
+                for t in [0.3, 0.5, 1.0, 2.0] {
+                    scenes.push((format!("thin-{name}-t{t}{suffix}"), thin_slab(t, tilt, light)));
+                }
+            }
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let mut checked = 0;
+        for (name, s) in &scenes {
+            let committed = root.join(name);
+            if !committed.join("reference.csv").exists() {
+                continue;
+            }
+            let obj = dir.path().join("scene.obj");
+            crate::gen::write_obj(&s.scene, &obj).unwrap();
+            let fresh = [
+                ("scene.obj", std::fs::read_to_string(&obj).unwrap()),
+                ("scene.mtl", std::fs::read_to_string(obj.with_extension("mtl")).unwrap()),
+                ("probes.csv", probes_csv(&s.probes)),
+                ("surfaces.csv", surfaces_csv(&s.probes)),
+            ];
+            for (file, text) in fresh {
+                let old = std::fs::read_to_string(committed.join(file)).unwrap_or_default();
+                assert!(
+                    same_numbers(&text, &old),
+                    "tests/data/reference/{name}/{file} is stale: rerun tools/reference/make_data.py"
+                );
+            }
+            let reference = std::fs::read_to_string(committed.join("reference.csv")).unwrap();
+            let rows: Vec<&str> = reference.lines().skip(1).collect();
+            assert_eq!(rows.len(), s.probes.len(), "{name}");
+            for (row, p) in rows.iter().zip(&s.probes) {
+                let v: Vec<f64> = row.split(',').map(|f| f.parse().unwrap()).collect();
+                assert_eq!(v.len(), 19, "{name}");
+                assert!((DVec3::new(v[0], v[1], v[2]) - p.point).length() < 1e-9, "{name}");
+                assert!(v[6..9].iter().all(|b| b.is_finite() && *b >= 0.0), "{name}");
+            }
+            checked += 1;
+        }
+        assert!(checked >= 3, "only {checked} committed reference scenes found");
+        // The Cornell box's probes are the study's 300 points (seed 0x5eed).
+        let cornell: Vec<Probe> =
+            crate::study::probe_points(&crate::gen::cornell_box(), 300, 0x5eed)
+                .into_iter()
+                .map(|(point, normal)| Probe {
+                    point,
+                    normal,
+                    surface: String::new(),
+                })
+                .collect();
+        let old = std::fs::read_to_string(root.join("cornell/probes.csv")).unwrap();
+        assert!(same_numbers(&probes_csv(&cornell), &old), "cornell/probes.csv is stale");
+    }
+
     #[test]
     fn csv_rows_match_probes() {
         let s = window_room();

@@ -6,7 +6,8 @@ and ``surfaces.csv`` into ``tests/data/reference/<name>/`` (the Cornell box uses
 ``examples/cornell_box.obj`` and only gets its probes and labels written), then
 ``mitsuba_reference.py`` writes ``reference.csv``. Each run's figures (paths per probe, seed,
 seconds, median and largest relative standard error of B, Mitsuba version and variant) are
-appended to ``tests/data/reference/runs.csv``.
+appended to ``tests/data/reference/runs.csv`` (relative errors over the probes that see light;
+``covered`` counts those that see none).
 
 Usage: ``python3 tools/reference/make_data.py [--voxrad PATH] [--only NAME ...] [--scale F]``
 (``--scale`` multiplies every scene's paths, for a quick trial into ``--root``).
@@ -48,6 +49,19 @@ for _tilted in (False, True):
             SCENES.append(thin(_light, _t, _tilted) + (300_000,))
 
 
+def spread(ref):
+    """Probe count, median and largest relative standard error of B (worst channel per probe) over the
+    probes that see light, and the number that do not (B below 1e-4 of the median: probes
+    covered by a solid, such as the Cornell box's floor points under the blocks)."""
+    d = np.genfromtxt(ref, delimiter=",", names=True)
+    b = np.stack([d[f"B_{c}"] for c in "rgb"], axis=1)
+    se = np.stack([d[f"se_B_{c}"] for c in "rgb"], axis=1)
+    lit = b.sum(axis=1) > 1e-4 * np.median(b.sum(axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(b > 0, se / np.where(b > 0, b, 1), 0.0).max(axis=1)[lit]
+    return len(b), float(np.median(rel)), float(rel.max()), int((~lit).sum())
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--voxrad", help="the voxrad binary (default: cargo run --release)")
@@ -64,7 +78,7 @@ def main() -> int:
         os.makedirs(args.root, exist_ok=True)
         with open(runs, "w", encoding="utf-8") as f:
             f.write(
-                "scene,probes,paths,seed,seconds,median_rel_se_B,max_rel_se_B,"
+                "scene,probes,paths,seed,seconds,median_rel_se_B,max_rel_se_B,covered,"
                 "mitsuba,variant,estimator\n"
             )
     for index, (name, gen, paths) in enumerate(SCENES):
@@ -102,18 +116,14 @@ def main() -> int:
             check=True,
         )
         seconds = time.time() - start
-        d = np.genfromtxt(ref, delimiter=",", names=True)
-        b = np.stack([d[f"B_{c}"] for c in "rgb"], axis=1)
-        se = np.stack([d[f"se_B_{c}"] for c in "rgb"], axis=1)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.where(b > 0, se / np.where(b > 0, b, 1), 0.0).max(axis=1)
+        count, median, largest, covered = spread(ref)
         with open(runs, "a", encoding="utf-8") as f:
             f.write(
-                f"{name},{len(b)},{paths},{seed},{seconds:.1f},{np.median(rel):.3e},"
-                f"{rel.max():.3e},{mitsuba.__version__},{args.variant},nee\n"
+                f"{name},{count},{paths},{seed},{seconds:.1f},{median:.3e},{largest:.3e},{covered},"
+                f"{mitsuba.__version__},{args.variant},nee\n"
             )
-        print(f"== {name}: {seconds:.1f} s, median relative se {100 * np.median(rel):.3f} %, "
-              f"max {100 * rel.max():.3f} %", flush=True)
+        print(f"== {name}: {seconds:.1f} s, median relative se {100 * median:.3f} %, "
+              f"max {100 * largest:.3f} %, {covered} covered probes", flush=True)
     return 0
 
 

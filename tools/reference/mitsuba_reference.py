@@ -222,7 +222,8 @@ def load_mitsuba(variant: str):
     try:
         mi.set_variant(variant)
         # Force the back end to initialise now, so a missing libLLVM shows up here.
-        _ = mi.Float([1.0]) + 1.0
+        if not variant.startswith("scalar"):
+            _ = mi.Float([1.0]) + 1.0
     except Exception as e:  # noqa: BLE001 (any failure of the back end)
         if variant == "scalar_rgb":
             raise
@@ -262,8 +263,12 @@ def build_scene(mi, verts, groups, materials):
             props=props,
         )
         params = mi.traverse(mesh)
-        params["vertex_positions"] = mi.Float(verts[used].astype(np.float32).ravel())
-        params["faces"] = mi.UInt32(local.astype(np.uint32).ravel())
+        # The buffers' own types: mi.Float / mi.UInt32 in vectorised variants, dynamic arrays in
+        # the scalar ones.
+        float_buffer = type(params["vertex_positions"])
+        index_buffer = type(params["faces"])
+        params["vertex_positions"] = float_buffer(verts[used].astype(np.float32).ravel())
+        params["faces"] = index_buffer(local.astype(np.uint32).ravel())
         params.update()
         shapes[f"m{k}"] = (mesh, name)
     scene_dict = {"type": "scene"}
@@ -396,7 +401,6 @@ def sample_pass_scalar(mi, scene, integrator, sampler, origin, n, s, t, estimato
         if estimator == "nee":
             it = mi.Interaction3f()
             it.p, it.n, it.t = o, mi.Normal3f(nn), 0.0
-            it.wavelengths = mi.Color0f() if hasattr(mi, "Color0f") else it.wavelengths
             ds, spec = scene.sample_emitter_direction(it, sampler.next_2d(), True)
             h += spec * max(float(dr.dot(nn, ds.d)), 0.0)
             si = scene.ray_intersect(ray)
