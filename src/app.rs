@@ -1137,7 +1137,9 @@ fn generated(which: GenerateScene) -> crate::gen::Interior {
         } => crate::gen::building(x, z, floors, seed),
         GenerateScene::SealedRooms => crate::gen::sealed_rooms(),
         GenerateScene::Furnace => crate::gen::furnace(1.0, 0.5),
-        GenerateScene::ParallelSquares => crate::gen::parallel_squares_reflecting(1.0, 1.0, 1.0, 0.5),
+        GenerateScene::ParallelSquares => {
+            crate::gen::parallel_squares_reflecting(1.0, 1.0, 1.0, 0.5)
+        }
         GenerateScene::Office => return crate::gen::office(),
         GenerateScene::WindowRoom => return crate::gen::window_room(),
         GenerateScene::Corridor => return crate::gen::corridor(),
@@ -1176,14 +1178,10 @@ fn write_text(path: &Path, text: &str) -> Result<(), AppError> {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => std::path::PathBuf::from("."),
     };
-    let fail = |e: &dyn std::fmt::Display| {
-        AppError::Failure(format!("cannot write {}: {e}", path.display()))
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(&dir).map_err(|e| fail(&e))?;
-    std::io::Write::write_all(&mut tmp, text.as_bytes()).map_err(|e| fail(&e))?;
-    tmp.as_file().sync_all().map_err(|e| fail(&e))?;
-    tmp.persist(path).map_err(|e| fail(&e))?;
-    Ok(())
+    crate::gen::obj_writer::write_atomically(&dir, path, |w| {
+        std::io::Write::write_all(w, text.as_bytes())
+    })
+    .map_err(|e| AppError::Failure(format!("cannot write {}: {e}", path.display())))
 }
 
 /// `voxrad generate KIND --out FILE.obj [--probes P.csv] [--surfaces S.csv]`: writes the scene,

@@ -150,7 +150,12 @@ fn rect_corners(lo: DVec3, hi: DVec3, axis: usize) -> [DVec3; 4] {
         p[v] = if b { hi[v] } else { lo[v] };
         p
     };
-    [c(false, false), c(true, false), c(true, true), c(false, true)]
+    [
+        c(false, false),
+        c(true, false),
+        c(true, true),
+        c(false, true),
+    ]
 }
 
 fn axis_of(normal: DVec3) -> usize {
@@ -636,7 +641,14 @@ pub fn window_room() -> Interior {
         v(1.4, 0.0, 3.1),
         v(3.6, 0.42, 3.8),
         SOFA,
-        [None, None, None, Some("sofa seat"), Some("sofa front"), None],
+        [
+            None,
+            None,
+            None,
+            Some("sofa seat"),
+            Some("sofa front"),
+            None,
+        ],
     );
     b.solid(
         v(1.4, 0.0, 3.8),
@@ -666,7 +678,12 @@ pub fn window_room() -> Interior {
         (tx + 0.04, tz + td - 0.09),
         (tx + tw - 0.09, tz + td - 0.09),
     ] {
-        b.solid(v(lx, 0.01, lz), v(lx + 0.05, top - 0.03, lz + 0.05), TABLE, NONE6);
+        b.solid(
+            v(lx, 0.01, lz),
+            v(lx + 0.05, top - 0.03, lz + 0.05),
+            TABLE,
+            NONE6,
+        );
     }
     // Shelf against the wall x = 5: two side panels and four boards.
     let (sx0, sz0, sz1, sh) = (4.65, 0.6, 1.6, 1.8);
@@ -757,21 +774,18 @@ pub fn corridor() -> Interior {
                 v(x - 0.5 * t, 0.0, z0),
                 v(x + 0.5 * t, h, z1),
                 WALL,
-                [
-                    Some("room wall"),
-                    Some("room wall"),
-                    None,
-                    None,
-                    None,
-                    None,
-                ],
+                [Some("room wall"), Some("room wall"), None, None, None, None],
             );
         }
     }
     // Corridor walls with one door per room: (room index along x, door offset from the room's
     // left end), south then north.
     let (door_w, door_h) = (0.9, 2.1);
-    let rooms_x = [(0.0, 4.0 - 0.5 * t), (4.0 + 0.5 * t, 8.0 - 0.5 * t), (8.0 + 0.5 * t, w)];
+    let rooms_x = [
+        (0.0, 4.0 - 0.5 * t),
+        (4.0 + 0.5 * t, 8.0 - 0.5 * t),
+        (8.0 + 0.5 * t, w),
+    ];
     for (row, (z0, z1), corridor_face, room_face) in [
         (0, (c0 - t, c0), 5usize, 4usize),
         (1, (c1, c1 + t), 4usize, 5usize),
@@ -805,15 +819,32 @@ pub fn corridor() -> Interior {
     }
     b.region("room wall", v(0.0, 0.0, 0.0), v(w, h, 0.0), DVec3::Z, 0);
     b.region("room wall", v(0.0, 0.0, d), v(w, h, d), DVec3::NEG_Z, 0);
-    b.region("corridor floor", v(0.0, 0.0, c0), v(w, 0.0, c1), DVec3::Y, 0);
-    b.region("corridor ceiling", v(0.0, h, c0), v(w, h, c1), DVec3::NEG_Y, 0);
+    b.region(
+        "corridor floor",
+        v(0.0, 0.0, c0),
+        v(w, 0.0, c1),
+        DVec3::Y,
+        0,
+    );
+    b.region(
+        "corridor ceiling",
+        v(0.0, h, c0),
+        v(w, h, c1),
+        DVec3::NEG_Y,
+        0,
+    );
     b.region("corridor end", v(0.0, 0.0, c0), v(0.0, h, c1), DVec3::X, 0);
     b.region("corridor end", v(w, 0.0, c0), v(w, h, c1), DVec3::NEG_X, 0);
     // Lamps.
     let s = 0.1;
     let y = h - 0.01;
     let lamp = |b: &mut Builder, cx: f64, cz: f64| {
-        b.emitter(v(cx - s, y, cz - s), v(cx + s, y, cz + s), DVec3::NEG_Y, LAMP);
+        b.emitter(
+            v(cx - s, y, cz - s),
+            v(cx + s, y, cz + s),
+            DVec3::NEG_Y,
+            LAMP,
+        );
     };
     for &(z0, z1) in &zs_rooms {
         for &(x0, x1) in &rooms_x {
@@ -911,7 +942,10 @@ pub fn thin_slab(thickness_voxels: f64, tilt_deg: [f64; 2], light: SlabLight) ->
     let t = t_vox * thin_slab_voxel();
     let (lo, hi) = (v(0.5 - 0.5 * t, 0.2, 0.2), v(0.5 + 0.5 * t, 0.8, 0.8));
     let rotation = if about_y != 0.0 || about_x != 0.0 {
-        Some(DMat3::from_rotation_y(about_y.to_radians()) * DMat3::from_rotation_x(about_x.to_radians()))
+        Some(
+            DMat3::from_rotation_y(about_y.to_radians())
+                * DMat3::from_rotation_x(about_x.to_radians()),
+        )
     } else {
         None
     };
@@ -1055,13 +1089,19 @@ mod tests {
                 for _ in 0..4 {
                     let d = unit_dir(&mut rng);
                     let h = first_hit(&s.scene, o, d);
-                    assert!(h.is_some(), "{name}: a ray from probe {k} escapes along {d}");
+                    assert!(
+                        h.is_some(),
+                        "{name}: a ray from probe {k} escapes along {d}"
+                    );
                     // From the air, the first surface seen shows its front, except the backs of
                     // the (one-sided) emitters, which reflect like every other surface.
                     let (_, t) = h.unwrap();
                     let front = t.cross().dot(d) < 0.0;
                     let emitter = s.scene.materials[t.material as usize].is_emitter();
-                    assert!(front || emitter, "{name}: probe {k} sees a back face along {d}");
+                    assert!(
+                        front || emitter,
+                        "{name}: probe {k} sees a back face along {d}"
+                    );
                 }
             }
         }
@@ -1073,7 +1113,11 @@ mod tests {
             ("office", office(), DVec3::NEG_Y),
             ("window-room", window_room(), DVec3::Z),
             ("corridor", corridor(), DVec3::NEG_Y),
-            ("thin top", thin_slab(1.0, [0.0; 2], SlabLight::Top), DVec3::NEG_Y),
+            (
+                "thin top",
+                thin_slab(1.0, [0.0; 2], SlabLight::Top),
+                DVec3::NEG_Y,
+            ),
         ];
         for (name, s, facing) in checks {
             let emitting: Vec<&Triangle> = s
@@ -1101,14 +1145,24 @@ mod tests {
     #[test]
     fn probes_lie_on_fronts_and_counts_are_in_range() {
         for (name, s) in all() {
-            assert!((60..=150).contains(&s.probes.len()), "{name}: {}", s.probes.len());
+            assert!(
+                (60..=150).contains(&s.probes.len()),
+                "{name}: {}",
+                s.probes.len()
+            );
             for (k, p) in s.probes.iter().enumerate() {
                 assert!((p.normal.length() - 1.0).abs() < 1e-12);
                 let o = p.point + 1e-4 * p.normal;
                 let (dist, t) = first_hit(&s.scene, o, -p.normal)
                     .unwrap_or_else(|| panic!("{name}: probe {k} is over nothing"));
-                assert!((dist - 1e-4).abs() < 1e-7, "{name}: probe {k} off its surface");
-                assert!(t.cross().normalize().dot(p.normal) > 1.0 - 1e-9, "{name}: {k}");
+                assert!(
+                    (dist - 1e-4).abs() < 1e-7,
+                    "{name}: probe {k} off its surface"
+                );
+                assert!(
+                    t.cross().normalize().dot(p.normal) > 1.0 - 1e-9,
+                    "{name}: {k}"
+                );
                 let m = &s.scene.materials[t.material as usize];
                 assert!(!m.is_emitter(), "{name}: probe {k} is on an emitter");
             }
@@ -1131,15 +1185,27 @@ mod tests {
                 .filter(|t| s.scene.materials[t.material as usize].is_emitter())
                 .collect();
             for p in &s.probes {
-                let limit = if p.surface == "housing side" { 0.02 } else { 0.1 };
+                let limit = if p.surface == "housing side" {
+                    0.02
+                } else {
+                    0.1
+                };
                 for t in &emitters {
-                    if t.vertices.iter().all(|&q| (q - p.point).dot(p.normal) < 0.0) {
+                    if t.vertices
+                        .iter()
+                        .all(|&q| (q - p.point).dot(p.normal) < 0.0)
+                    {
                         continue;
                     }
                     let lo = t.vertices[0].min(t.vertices[1]).min(t.vertices[2]);
                     let hi = t.vertices[0].max(t.vertices[1]).max(t.vertices[2]);
                     let d = (lo - p.point).max(p.point - hi).max(DVec3::ZERO).length();
-                    assert!(d >= limit - 1e-9, "{name}: {} probe {} near a lamp", p.surface, p.point);
+                    assert!(
+                        d >= limit - 1e-9,
+                        "{name}: {} probe {} near a lamp",
+                        p.surface,
+                        p.point
+                    );
                 }
             }
         }
@@ -1147,9 +1213,15 @@ mod tests {
 
     #[test]
     fn every_surface_kind_gets_its_probes() {
-        let count = |s: &Interior, label: &str| s.probes.iter().filter(|p| p.surface == label).count();
+        let count =
+            |s: &Interior, label: &str| s.probes.iter().filter(|p| p.surface == label).count();
         let o = office();
-        for (label, n) in [("partition", 20), ("housing side", 8), ("desk top", 16), ("floor", 16)] {
+        for (label, n) in [
+            ("partition", 20),
+            ("housing side", 8),
+            ("desk top", 16),
+            ("floor", 16),
+        ] {
             assert_eq!(count(&o, label), n, "office {label}");
         }
         let w = window_room();
@@ -1228,7 +1300,10 @@ mod tests {
         for (light, name) in [(SlabLight::Side, "side"), (SlabLight::Top, "top")] {
             for (tilt, suffix) in [([0.0, 0.0], ""), ([20.0, 10.0], "-tilted")] {
                 for t in [0.3, 0.5, 1.0, 2.0] {
-                    scenes.push((format!("thin-{name}-t{t}{suffix}"), thin_slab(t, tilt, light)));
+                    scenes.push((
+                        format!("thin-{name}-t{t}{suffix}"),
+                        thin_slab(t, tilt, light),
+                    ));
                 }
             }
         }
@@ -1243,7 +1318,10 @@ mod tests {
             crate::gen::write_obj(&s.scene, &obj).unwrap();
             let fresh = [
                 ("scene.obj", std::fs::read_to_string(&obj).unwrap()),
-                ("scene.mtl", std::fs::read_to_string(obj.with_extension("mtl")).unwrap()),
+                (
+                    "scene.mtl",
+                    std::fs::read_to_string(obj.with_extension("mtl")).unwrap(),
+                ),
                 ("probes.csv", probes_csv(&s.probes)),
                 ("surfaces.csv", surfaces_csv(&s.probes)),
             ];
@@ -1260,12 +1338,18 @@ mod tests {
             for (row, p) in rows.iter().zip(&s.probes) {
                 let v: Vec<f64> = row.split(',').map(|f| f.parse().unwrap()).collect();
                 assert_eq!(v.len(), 19, "{name}");
-                assert!((DVec3::new(v[0], v[1], v[2]) - p.point).length() < 1e-9, "{name}");
+                assert!(
+                    (DVec3::new(v[0], v[1], v[2]) - p.point).length() < 1e-9,
+                    "{name}"
+                );
                 assert!(v[6..9].iter().all(|b| b.is_finite() && *b >= 0.0), "{name}");
             }
             checked += 1;
         }
-        assert!(checked >= 3, "only {checked} committed reference scenes found");
+        assert!(
+            checked >= 3,
+            "only {checked} committed reference scenes found"
+        );
         // The Cornell box's probes are the study's 300 points (seed 0x5eed).
         let cornell: Vec<Probe> =
             crate::study::probe_points(&crate::gen::cornell_box(), 300, 0x5eed)
@@ -1277,7 +1361,10 @@ mod tests {
                 })
                 .collect();
         let old = std::fs::read_to_string(root.join("cornell/probes.csv")).unwrap();
-        assert!(same_numbers(&probes_csv(&cornell), &old), "cornell/probes.csv is stale");
+        assert!(
+            same_numbers(&probes_csv(&cornell), &old),
+            "cornell/probes.csv is stale"
+        );
     }
 
     #[test]
@@ -1287,6 +1374,9 @@ mod tests {
         assert_eq!(text.lines().count(), s.probes.len() + 1);
         assert!(text.starts_with("x,y,z,nx,ny,nz\n"));
         let labels = surfaces_csv(&s.probes);
-        assert_eq!(labels.lines().nth(1), Some(format!("0,{}", s.probes[0].surface).as_str()));
+        assert_eq!(
+            labels.lines().nth(1),
+            Some(format!("0,{}", s.probes[0].surface).as_str())
+        );
     }
 }
