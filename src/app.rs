@@ -1111,10 +1111,23 @@ pub enum GenerateScene {
     },
     SealedRooms,
     Furnace,
+    /// Two facing unit squares at distance 1 (emitter `E` = 1, receiver `rho` = 0.5).
+    ParallelSquares,
+    Office,
+    WindowRoom,
+    Corridor,
+    ThinSlab {
+        /// Thickness in voxels at resolution 128.
+        thickness: f64,
+        /// Degrees about y and about x.
+        tilt: [f64; 2],
+        light: crate::gen::SlabLight,
+    },
 }
 
-/// `voxrad generate KIND --out FILE.obj`: writes the scene and returns its triangle count.
-pub fn run_generate(which: GenerateScene, out: &Path) -> Result<usize, AppError> {
+/// The scene and its probes: the generator's own for the interiors, else 300 points from
+/// [`crate::study::probe_points`] (seed `0x5eed`, labelled with their material's name).
+fn generated(which: GenerateScene) -> crate::gen::Interior {
     let scene = match which {
         GenerateScene::Cornell => crate::gen::cornell_box(),
         GenerateScene::Room { furniture, seed } => crate::gen::room(5.0, seed, furniture),
@@ -1124,7 +1137,62 @@ pub fn run_generate(which: GenerateScene, out: &Path) -> Result<usize, AppError>
         } => crate::gen::building(x, z, floors, seed),
         GenerateScene::SealedRooms => crate::gen::sealed_rooms(),
         GenerateScene::Furnace => crate::gen::furnace(1.0, 0.5),
+        GenerateScene::ParallelSquares => {
+            crate::gen::parallel_squares_reflecting(1.0, 1.0, 1.0, 0.5)
+        }
+        GenerateScene::Office => return crate::gen::office(),
+        GenerateScene::WindowRoom => return crate::gen::window_room(),
+        GenerateScene::Corridor => return crate::gen::corridor(),
+        GenerateScene::ThinSlab {
+            thickness,
+            tilt,
+            light,
+        } => return crate::gen::thin_slab(thickness, tilt, light),
     };
+    let probes = crate::study::probe_points(&scene, 300, 0x5eed)
+        .into_iter()
+        .map(|(point, normal)| {
+            // The material of the triangle the point was drawn on (the closest coplanar one).
+            let surface = scene
+                .triangles
+                .iter()
+                .filter(|t| {
+                    let n = t.cross().normalize();
+                    n.dot(normal) > 1.0 - 1e-9 && (point - t.vertices[0]).dot(n).abs() < 1e-9
+                })
+                .map(|t| scene.materials[t.material as usize].name.clone())
+                .next()
+                .unwrap_or_default();
+            crate::gen::Probe {
+                point,
+                normal,
+                surface,
+            }
+        })
+        .collect();
+    crate::gen::Interior { scene, probes }
+}
+
+fn write_text(path: &Path, text: &str) -> Result<(), AppError> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => std::path::PathBuf::from("."),
+    };
+    crate::gen::obj_writer::write_atomically(&dir, path, |w| {
+        std::io::Write::write_all(w, text.as_bytes())
+    })
+    .map_err(|e| AppError::Failure(format!("cannot write {}: {e}", path.display())))
+}
+
+/// `voxrad generate KIND --out FILE.obj [--probes P.csv] [--surfaces S.csv]`: writes the scene,
+/// optionally its probe points (`x,y,z,nx,ny,nz`) and their surface labels (`probe,surface`),
+/// and returns the triangle count.
+pub fn run_generate(
+    which: GenerateScene,
+    out: &Path,
+    probes: Option<&Path>,
+    surfaces: Option<&Path>,
+) -> Result<usize, AppError> {
     if out
         .extension()
         .is_none_or(|e| !e.eq_ignore_ascii_case("obj"))
@@ -1134,8 +1202,18 @@ pub fn run_generate(which: GenerateScene, out: &Path) -> Result<usize, AppError>
             out.display()
         )));
     }
+    let crate::gen::Interior {
+        scene,
+        probes: points,
+    } = generated(which);
     crate::gen::write_obj(&scene, out)
         .map_err(|e| AppError::Failure(format!("cannot write {}: {e}", out.display())))?;
+    if let Some(path) = probes {
+        write_text(path, &crate::gen::interiors::probes_csv(&points))?;
+    }
+    if let Some(path) = surfaces {
+        write_text(path, &crate::gen::interiors::surfaces_csv(&points))?;
+    }
     Ok(scene.triangles.len())
 }
 

@@ -148,6 +148,24 @@ enum Command {
         /// Seed of the generator (same seed, same scene).
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// For `thin-slab`: the slab's thickness in voxels at resolution 128 (voxel 1/127 m).
+        #[arg(long, default_value_t = 1.0)]
+        thickness: f64,
+        /// For `thin-slab`: rotation in degrees about y and about x, as Y,X (0,0: axis-aligned).
+        #[arg(long, default_value = "0,0", value_parser = parse_pair)]
+        tilt: (f64, f64),
+        /// For `thin-slab`: `side` (a panel in a side wall) or `top` (a ceiling strip beside
+        /// the slab, grazing light).
+        #[arg(long, value_enum, default_value = "side")]
+        light: LightKind,
+        /// Also write the scene's probe points (x,y,z,nx,ny,nz) to this CSV file: the
+        /// generator's own for office, window-room, corridor and thin-slab, else 300 points
+        /// drawn like `voxrad study`'s (seed 0x5eed).
+        #[arg(long)]
+        probes: Option<PathBuf>,
+        /// Also write each probe's surface label (probe,surface) to this CSV file.
+        #[arg(long)]
+        surfaces: Option<PathBuf>,
     },
     /// What accuracy costs in time: sweeps directions, tolerance and resolution, measures each
     /// run's error and time; writes study.csv, study.md and study.png.
@@ -209,6 +227,33 @@ enum SceneKind {
     SealedRooms,
     /// A closed glowing cube with exact answer B = E / (1 - rho) (E = 1, rho = 0.5).
     Furnace,
+    /// Two facing unit squares 1 apart: emitter E = 1, receiver rho = 0.5 (analytic form factor).
+    ParallelSquares,
+    /// A 12 x 3 x 8 m open-plan office with 12 suspended luminaires, desks, partitions, cabinets.
+    Office,
+    /// A furnished 5 x 2.8 x 4 m room lit by a 2 x 1.4 m window-sized emitter.
+    WindowRoom,
+    /// A corridor with six rooms opening onto it through doors, lit by small lamps.
+    Corridor,
+    /// A closed 1 m box with a thin slab in the middle (--thickness, --tilt, --light).
+    ThinSlab,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum LightKind {
+    Side,
+    Top,
+}
+
+fn parse_pair(text: &str) -> Result<(f64, f64), String> {
+    let parts: Vec<Option<f64>> = text
+        .split(',')
+        .map(|p| p.trim().parse::<f64>().ok().filter(|v| v.is_finite()))
+        .collect();
+    match parts[..] {
+        [Some(a), Some(b)] => Ok((a, b)),
+        _ => Err(format!("'{text}' is not two numbers Y,X")),
+    }
 }
 
 /// A distributed solve under MPI (a build with the `mpi` feature): the report and this rank.
@@ -437,6 +482,11 @@ fn run(cli: Cli) -> Result<(), AppError> {
             rooms,
             furniture,
             seed,
+            thickness,
+            tilt,
+            light,
+            probes,
+            surfaces,
         } => {
             let scene = match scene {
                 SceneKind::Cornell => GenerateScene::Cornell,
@@ -444,8 +494,27 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 SceneKind::Building => GenerateScene::Building { rooms, seed },
                 SceneKind::SealedRooms => GenerateScene::SealedRooms,
                 SceneKind::Furnace => GenerateScene::Furnace,
+                SceneKind::ParallelSquares => GenerateScene::ParallelSquares,
+                SceneKind::Office => GenerateScene::Office,
+                SceneKind::WindowRoom => GenerateScene::WindowRoom,
+                SceneKind::Corridor => GenerateScene::Corridor,
+                SceneKind::ThinSlab => {
+                    if !(thickness.is_finite() && thickness > 0.0) {
+                        return Err(AppError::BadInput(format!(
+                            "--thickness {thickness}: the slab needs a positive thickness"
+                        )));
+                    }
+                    GenerateScene::ThinSlab {
+                        thickness,
+                        tilt: [tilt.0, tilt.1],
+                        light: match light {
+                            LightKind::Side => voxrad::gen::SlabLight::Side,
+                            LightKind::Top => voxrad::gen::SlabLight::Top,
+                        },
+                    }
+                }
             };
-            let triangles = run_generate(scene, &out)?;
+            let triangles = run_generate(scene, &out, probes.as_deref(), surfaces.as_deref())?;
             eprintln!("{triangles} triangles written to {}", out.display());
             Ok(())
         }

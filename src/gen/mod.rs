@@ -8,13 +8,18 @@
 //! - [`cornell`]: the measured Cornell box.
 //! - [`procedural`]: rooms, buildings of any size, the sealed-rooms leak test, the furnace and the
 //!   parallel squares with their analytic form factor.
+//! - [`interiors`]: closed realistic interiors (an office, a room lit by a window, a corridor of
+//!   rooms) and thin slabs under directional light, each with probe points for the path-traced
+//!   reference data.
 //! - [`obj_writer`]: writes any [`Scene`](crate::scene::Scene) as OBJ + MTL.
 
 pub mod cornell;
+pub mod interiors;
 pub mod obj_writer;
 pub mod procedural;
 
 pub use cornell::cornell_box;
+pub use interiors::{corridor, office, thin_slab, window_room, Interior, Probe, SlabLight};
 pub use obj_writer::write_obj;
 pub use procedural::{
     building, furnace, parallel_rectangles_form_factor, parallel_squares,

@@ -148,7 +148,7 @@ fn write_obj_body(
     Ok(())
 }
 
-fn write_atomically(
+pub(crate) fn write_atomically(
     dir: &Path,
     target: &Path,
     body: impl FnOnce(&mut dyn Write) -> io::Result<()>,
