@@ -18,6 +18,7 @@
 //! front) and `study.png` (error against time on log axes, see `plot`).
 
 pub mod plot;
+pub mod reference;
 
 use crate::gen;
 use crate::output::{ProbeIndex, Results};
