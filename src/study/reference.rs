@@ -86,9 +86,9 @@ impl Reference {
             let fields: Vec<&str> = line.split(',').map(str::trim).collect();
             let mut v = [0.0f64; 12];
             for (slot, &column) in v.iter_mut().zip(&at) {
-                let field = fields.get(column).ok_or_else(|| {
-                    bad(k + 1, format!("expected {} columns", header.len()))
-                })?;
+                let field = fields
+                    .get(column)
+                    .ok_or_else(|| bad(k + 1, format!("expected {} columns", header.len())))?;
                 *slot = field
                     .parse::<f64>()
                     .ok()
@@ -126,9 +126,9 @@ impl Reference {
                     .trim()
                     .parse()
                     .map_err(|_| bad(format!("'{index}' is not a probe number")))?;
-                let probe = probes.get_mut(index).ok_or_else(|| {
-                    bad(format!("probe {index} is not in reference.csv"))
-                })?;
+                let probe = probes
+                    .get_mut(index)
+                    .ok_or_else(|| bad(format!("probe {index} is not in reference.csv")))?;
                 probe.surface = surface.trim().to_string();
                 count += 1;
             }
@@ -272,14 +272,20 @@ mod tests {
 
     #[test]
     fn bad_files_name_the_file_and_line() {
-        let dir = dir_with(&[("reference.csv", &format!("{HEADER}0,0,0,0,1,0,1,x,1,0,0,0\n"))]);
+        let dir = dir_with(&[(
+            "reference.csv",
+            &format!("{HEADER}0,0,0,0,1,0,1,x,1,0,0,0\n"),
+        )]);
         let e = Reference::load(dir.path()).unwrap_err().to_string();
         assert!(e.contains("reference.csv:2") && e.contains("'x'"), "{e}");
         let dir = dir_with(&[("reference.csv", "x,y,z\n0,0,0\n")]);
         let e = Reference::load(dir.path()).unwrap_err().to_string();
         assert!(e.contains("reference.csv:1") && e.contains("nx"), "{e}");
         let dir = dir_with(&[
-            ("reference.csv", &format!("{HEADER}0,0,0,0,1,0,1,1,1,0,0,0\n")),
+            (
+                "reference.csv",
+                &format!("{HEADER}0,0,0,0,1,0,1,1,1,0,0,0\n"),
+            ),
             ("surfaces.csv", "probe,surface\n3,floor\n"),
         ]);
         let e = Reference::load(dir.path()).unwrap_err().to_string();
