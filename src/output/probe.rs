@@ -4,10 +4,11 @@
 //! by having no numeric field; blank lines skipped). For each row, the answer is the area-weighted
 //! mean radiosity of the surfel sides within [`PROBE_RADIUS_VOXELS`] voxels of the point whose
 //! side normal agrees with `n` (dot product above [`MIN_NORMAL_DOT`]): the normal test picks the
-//! side of a wall the probe is on, and keeps the other wall of a corner out. Sides whose surface
-//! point lies more than [`BEHIND_VOXELS`] behind the probe point (along `n`) are left out too: in
-//! a slab thinner than the search radius, the far face's inner side faces the same way as the
-//! near face's outer side, but it looks into the slab, not out of it. If every such side
+//! side of a wall the probe is on, and keeps the other wall of a corner out. Of those, only the
+//! layer nearest the probe point along `n` counts (sides within [`LAYER_VOXELS`] of the height,
+//! along `n`, of the side nearest the point's tangent plane): in a slab thinner than the search
+//! radius the far face's inner side faces the same way as the near face's outer side but looks
+//! into the slab, and under a rug the floor faces up as the rug does but is covered. If every such side
 //! has zero area (voxels only touched by the surface), sides are weighted by inverse distance. If
 //! there is none, the radiosity is 0 and [`ProbeRow::found`] is false.
 //!
@@ -31,11 +32,9 @@ pub const PROBE_RADIUS_VOXELS: f64 = 1.5;
 pub const MAX_LINE_BYTES: usize = 4096;
 /// Smallest cosine between a surfel side's normal and the probe normal for the side to count.
 pub const MIN_NORMAL_DOT: f64 = 0.5;
-/// How far (voxels, along the probe normal) a side's surface point may lie behind the probe point
-/// and still count: surfels of the probed surface lie on its plane, the far face of a slab 0.3
-/// voxel thick lies 0.3 behind. (Used only where some side passes it; else all matching sides
-/// count.)
-pub const BEHIND_VOXELS: f64 = 0.15;
+/// Thickness (voxels, along the probe normal) of the layer of sides a probe averages: the surfels
+/// of a plane all lie on it, a rug 1 cm thick at 16 cm voxels lies 0.06 voxel above the floor.
+pub const LAYER_VOXELS: f64 = 0.05;
 
 /// The answer for one probe point.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -159,9 +158,12 @@ impl<'a> ProbeIndex<'a> {
         if matches.is_empty() {
             return row;
         }
-        if matches.iter().any(|m| m.3 >= -BEHIND_VOXELS) {
-            matches.retain(|m| m.3 >= -BEHIND_VOXELS);
-        }
+        let nearest = matches
+            .iter()
+            .map(|m| m.3)
+            .min_by(|a, b| a.abs().total_cmp(&b.abs()))
+            .unwrap_or(0.0);
+        matches.retain(|m| (m.3 - nearest).abs() <= LAYER_VOXELS);
         let total_area: f64 = matches.iter().map(|m| m.0).sum();
         let weight = |m: &(f64, f64, [f32; 3], f64)| if total_area > 0.0 { m.0 } else { m.1 };
         let total: f64 = matches.iter().map(weight).sum();
@@ -373,6 +375,46 @@ mod tests {
         write_probe_csv(&path, &rows).unwrap();
         let back = std::fs::read_to_string(&path).unwrap();
         assert_eq!(back.lines().count(), 6);
+    }
+
+    #[test]
+    fn a_thin_slab_is_probed_on_its_outer_side_only() {
+        // A slab 0.3 voxel thick in the plane x = 2.5: its +x face (front +x, lit: B = 7) and its
+        // -x face 0.3 behind (front -x, dark; its back side, facing +x, looks into the slab and
+        // has B = 0). A probe on the +x face must read 7, not a mean with the inner side.
+        let mut surfels = Vec::new();
+        let mut radiosity = Vec::new();
+        for y in 0..4 {
+            for z in 0..4 {
+                surfels.push(testutil::surfel(
+                    [2, y, z],
+                    [0.65, 0.5, 0.5],
+                    [1.0, 0.0, 0.0],
+                    1.0,
+                ));
+                radiosity.push([[7.0; 3], [0.0; 3]]);
+                surfels.push(testutil::surfel(
+                    [2, y, z],
+                    [0.35, 0.5, 0.5],
+                    [-1.0, 0.0, 0.0],
+                    1.0,
+                ));
+                radiosity.push([[2.0; 3], [0.0; 3]]);
+            }
+        }
+        let set = testutil::set_of(surfels, 0.5);
+        let solution = Solution {
+            radiosity,
+            stats: Default::default(),
+        };
+        let results = Results::from_solution(&set, &solution).unwrap();
+        let index = ProbeIndex::new(&results);
+        let on_plus = DVec3::new(-1.0 + 0.5 * 2.65, 2.0 + 0.5 * 2.0, 0.5 + 0.5 * 2.0);
+        let row = index.lookup(on_plus, DVec3::X);
+        assert_eq!(row.radiosity, [7.0; 3]);
+        let on_minus = DVec3::new(-1.0 + 0.5 * 2.35, 2.0 + 0.5 * 2.0, 0.5 + 0.5 * 2.0);
+        let row = index.lookup(on_minus, -DVec3::X);
+        assert_eq!(row.radiosity, [2.0; 3]);
     }
 
     #[test]

@@ -191,9 +191,9 @@ pub struct LineScratch {
     /// Open crossings of this line: for each plane group with an open-edge piece on the line,
     /// its range in `open_items`.
     open_ranges: Vec<(u32, u32, u32)>,
-    /// The surfels of the open crossings, group after group in line order: (voxel group, sum of
-    /// the shares of the group's surfels up to and including this one).
-    open_items: Vec<(u32, f32)>,
+    /// The surfels of the open crossings, group after group in line order: (voxel group, line
+    /// position, sum of the shares of the group's surfels up to and including this one).
+    open_items: Vec<(u32, u32, f32)>,
     /// For each line position: the index of its open crossing in `open_ranges`, or `u32::MAX`.
     open_slot: Vec<u32>,
 }
@@ -347,7 +347,7 @@ fn open_crossings(
     locals: &[Local],
     groups: &[usize],
     open_ranges: &mut Vec<(u32, u32, u32)>,
-    open_items: &mut Vec<(u32, f32)>,
+    open_items: &mut Vec<(u32, u32, f32)>,
     open_slot: &mut Vec<u32>,
 ) {
     open_ranges.clear();
@@ -368,19 +368,49 @@ fn open_crossings(
         for g in 0..groups.len() - 1 {
             // A plane held twice in one voxel (a sheet modelled back to back) blocks the line
             // once: its copies cover the same part of it.
-            let mut here = 0.0f32;
+            let (mut here, mut at) = (0.0f32, 0);
             for k in groups[g]..groups[g + 1] {
                 if locals[k].group == range.0 {
-                    here = here.max(locals[k].share);
+                    if locals[k].share > here {
+                        (here, at) = (locals[k].share, k);
+                    }
                     open_slot[k] = slot as u32;
                 }
             }
             if here > 0.0 {
                 sum += here;
-                open_items.push((g as u32, sum));
+                open_items.push((g as u32, at as u32, sum));
             }
         }
         range.2 = open_items.len() as u32;
+    }
+}
+
+/// The plane of the last open edge a search took a share from. Open pieces of parallel planes
+/// in one layer of voxels usually do not overlap (a lamp set in an opening of the ceiling, its
+/// rim beside the opening's): their shares add up, where pieces of planes at an angle are
+/// crossed one after the other and each takes its share of what the ones before let through.
+#[derive(Default)]
+struct OpenLayer {
+    normal: Option<Vec3>,
+}
+
+impl OpenLayer {
+    /// Pushes the partner at line position `at` with `share` of the section, and updates `left`.
+    #[inline(always)]
+    fn take(&mut self, chain: &mut Chain, left: &mut f32, at: usize, share: f32, normal: Vec3) {
+        let parallel = self
+            .normal
+            .is_some_and(|n| n.dot(normal).abs() > 1.0 - 1e-4);
+        if parallel {
+            let part = share.min(*left);
+            chain.push(at, part);
+            *left -= part;
+        } else {
+            chain.push(at, *left * share);
+            *left *= 1.0 - share;
+        }
+        self.normal = Some(normal);
     }
 }
 
@@ -416,7 +446,7 @@ struct LineView<'a> {
     run_after: &'a [u32],
     run_before: &'a [u32],
     open_ranges: &'a [(u32, u32, u32)],
-    open_items: &'a [(u32, f32)],
+    open_items: &'a [(u32, u32, f32)],
     open_slot: &'a [u32],
 }
 
@@ -430,17 +460,119 @@ impl LineView<'_> {
         if slot == u32::MAX {
             return None;
         }
-        let (_, start, end) = self.open_ranges[slot as usize];
+        self.open_crossing_share::<FORWARD>(g, slot as usize)
+            .map(|(share, _)| share)
+    }
+
+    /// The share of open crossing `slot` on the search's side of voxel group `g`, if below 1,
+    /// with the line position of its piece nearest to `g` on that side.
+    #[inline(always)]
+    fn open_crossing_share<const FORWARD: bool>(
+        &self,
+        g: usize,
+        slot: usize,
+    ) -> Option<(f32, usize)> {
+        let (_, start, end) = self.open_ranges[slot];
         let items = &self.open_items[start as usize..end as usize];
-        let total = items.last().map_or(0.0, |i| i.1);
+        let total = items.last().map_or(0.0, |i| i.2);
         // Items before the first one in voxel group `g` or later.
         let split = items.partition_point(|i| (i.0 as usize) < g);
-        let before = if split == 0 { 0.0 } else { items[split - 1].1 };
+        let before = if split == 0 { 0.0 } else { items[split - 1].2 };
         // Items up to the last one in voxel group `g` or earlier.
         let upto = items.partition_point(|i| (i.0 as usize) <= g);
-        let through = if upto == 0 { 0.0 } else { items[upto - 1].1 };
-        let share = if FORWARD { total - before } else { through };
-        (share < 1.0 - 1e-4).then_some(share.max(0.0))
+        let through = if upto == 0 { 0.0 } else { items[upto - 1].2 };
+        let (share, nearest) = if FORWARD {
+            (total - before, items.get(split))
+        } else {
+            (through, upto.checked_sub(1).map(|u| &items[u]))
+        };
+        let nearest = nearest?.1 as usize;
+        (share < 1.0 - 1e-4).then_some((share.max(0.0), nearest))
+    }
+
+    /// Before a full hit on the piece at line position `hit` (voxel group `g_hit`, distance
+    /// `t_hit`): an open sheet hung less than a voxel in front of the hit surface and parallel
+    /// to it (a lamp just under a ceiling), whose pieces lie in the hit surface's run of voxels
+    /// on this line, is crossed first by the receiver's ray, though a grazing line meets the
+    /// surface's first voxel before the sheet's. Such sheets send their shares first, nearest
+    /// first, and `left` shrinks.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn open_before_hit<const FORWARD: bool>(
+        &self,
+        g: usize,
+        x: &Local,
+        hit: usize,
+        g_hit: usize,
+        t_hit: f32,
+        missed: &mut Missed,
+        layer: &mut OpenLayer,
+        chain: &mut Chain,
+        left: &mut f32,
+    ) {
+        if self.open_ranges.is_empty() {
+            return;
+        }
+        let surface = &self.locals[hit];
+        // The hit surface's run on this line: voxel groups from `g_hit` on (along the search)
+        // that hold a piece of its plane.
+        let holds = |v: usize| {
+            (self.groups[v]..self.groups[v + 1]).any(|c| self.locals[c].group == surface.group)
+        };
+        let group_count = self.groups.len() - 1;
+        let mut run_end = g_hit;
+        loop {
+            let next = if FORWARD {
+                run_end + 1
+            } else {
+                run_end.wrapping_sub(1)
+            };
+            if next >= group_count || !holds(next) {
+                break;
+            }
+            run_end = next;
+        }
+        let (run_lo, run_hi) = if FORWARD {
+            (g_hit, run_end)
+        } else {
+            (run_end, g_hit)
+        };
+        let mut earlier: [(f32, usize, f32, u32); MAX_CHAIN] = [(0.0, 0, 0.0, 0); MAX_CHAIN];
+        let mut count = 0;
+        for (slot, &(group, start, end)) in self.open_ranges.iter().enumerate() {
+            if group == x.group || group == surface.group || missed.contains(group) {
+                continue;
+            }
+            let items = &self.open_items[start as usize..end as usize];
+            let Some(inside) = items
+                .iter()
+                .find(|i| (run_lo..=run_hi).contains(&(i.0 as usize)))
+            else {
+                continue;
+            };
+            let sheet = &self.locals[inside.1 as usize];
+            let parallel = sheet.normal.dot(surface.normal).abs() > 1.0 - 1e-4;
+            let gap = surface.normal.dot(offset(surface, sheet)).abs();
+            if !parallel || gap >= 1.0 {
+                continue;
+            }
+            let Some((share, at)) = self.open_crossing_share::<FORWARD>(g, slot) else {
+                continue;
+            };
+            let Some(t) = Self::test::<FORWARD>(x, sheet) else {
+                continue;
+            };
+            if t < t_hit - EPS && count + 1 < MAX_CHAIN - chain.len as usize && share > 0.0 {
+                earlier[count] = (t, at, share, group);
+                count += 1;
+            }
+        }
+        let earlier = &mut earlier[..count];
+        earlier.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for &(_, at, share, group) in earlier.iter() {
+            layer.take(chain, left, at, share, self.locals[at].normal);
+            missed.insert(group);
+        }
     }
 
     /// The acceptance test of candidate `c` for receiver `x`, looking ahead or behind: the distance
@@ -554,6 +686,7 @@ impl LineView<'_> {
             return chain;
         }
         let mut missed = Missed::default();
+        let mut layer = OpenLayer::default();
         let mut left = 1.0f32;
         let group_count = self.groups.len() - 1;
         let mut g2 = g;
@@ -572,14 +705,26 @@ impl LineView<'_> {
                 if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                     // An open edge sharing its voxel: it sends its share, its plane is now
                     // crossed, and the rest of the ray may still meet another plane here.
-                    chain.push(found, left * share);
-                    left *= 1.0 - share;
+                    layer.take(&mut chain, &mut left, found, share, candidate.normal);
                     missed.insert(candidate.group);
                     if left <= 1e-3 {
                         return chain;
                     }
                     search_here = true;
                     continue;
+                }
+                if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                    self.open_before_hit::<FORWARD>(
+                        g,
+                        x,
+                        found,
+                        g2,
+                        t,
+                        &mut missed,
+                        &mut layer,
+                        &mut chain,
+                        &mut left,
+                    );
                 }
                 chain.push(found, left);
                 return chain;
@@ -613,13 +758,25 @@ impl LineView<'_> {
                     if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                         // An open edge: it sends its share, and the ray goes on past its plane
                         // (now crossed, so no other piece of that plane can catch it).
-                        chain.push(c, left * share);
-                        left *= 1.0 - share;
+                        layer.take(&mut chain, &mut left, c, share, candidate.normal);
                         missed.insert(single);
                         if left <= 1e-3 {
                             return chain;
                         }
                         continue;
+                    }
+                    if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                        self.open_before_hit::<FORWARD>(
+                            g,
+                            x,
+                            c,
+                            g2,
+                            t,
+                            &mut missed,
+                            &mut layer,
+                            &mut chain,
+                            &mut left,
+                        );
                     }
                     chain.push(c, left);
                     return chain;
