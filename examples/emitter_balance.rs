@@ -1,0 +1,147 @@
+//! Where a scene's power balance goes wrong, direction by direction: for every line direction,
+//! the light the emitters' sides send to their receivers along the lines (receivers' area times
+//! the gather weight, with the emitting sides at radiosity 1 and everything else at 0) against
+//! the emitters' projected area along the direction, which is what they would send in a scene
+//! that conserves energy. The totals are weighted by the directions' solid angles.
+//!
+//! `cargo run --release --example emitter_balance SCENE.obj RESOLUTION DIRECTIONS [v]` prints the
+//! total (`sent / own - 1`; 0 is exact); with `v` also each direction; with `DIR=a,b,c` in the
+//! environment only that direction, with every line that carries an emitter (surfels, partners
+//! and weights), which is how the open-edge and lamp-under-ceiling rules of `solve::propagate`
+//! were found.
+use voxrad::geometry::directions::DirectionSet;
+use voxrad::geometry::lines::LineFrame;
+use voxrad::geometry::order;
+use voxrad::solve::dispatch::{dispatch, Lines, OrderedEntry};
+use voxrad::solve::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
+use voxrad::voxel::voxelize::{voxelize, GridSpec};
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let scene = voxrad::scene::obj::load_obj(std::path::Path::new(&args[1])).unwrap();
+    let res: u32 = args[2].parse().unwrap();
+    let ndir: usize = args[3].parse().unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(res)).unwrap();
+    let cov = voxrad::solve::coverage::coverages(&set);
+    let surfels: Vec<PropSurfel> = set
+        .surfels
+        .iter()
+        .zip(&cov)
+        .map(|(s, &c)| PropSurfel::new(s, c))
+        .collect();
+    let n = surfels.len();
+    // radiosity 1 on emitting sides
+    let mut rad = vec![[[0f32; 3]; 2]; n];
+    for (r, s) in rad.iter_mut().zip(&set.surfels) {
+        for (side, &material) in s.material.iter().enumerate() {
+            if set.materials[material as usize].emission[0] > 0.0 {
+                r[side] = [1.0; 3];
+            }
+        }
+    }
+    let dirs = DirectionSet::with_count(ndir);
+    let entries: Vec<Vec<OrderedEntry>> = (0..4)
+        .map(|o| {
+            let mut e: Vec<OrderedEntry> = set
+                .surfels
+                .iter()
+                .enumerate()
+                .map(|(i, s)| OrderedEntry {
+                    voxel: s.voxel,
+                    index: i as u32,
+                })
+                .collect();
+            e.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
+            e
+        })
+        .collect();
+    let mut lines = Lines::default();
+    let (mut tot_sent, mut tot_own) = (0.0, 0.0);
+    let only: Option<Vec<i64>> = std::env::var("DIR")
+        .ok()
+        .map(|v| v.split(',').map(|x| x.parse().unwrap()).collect());
+    for d in &dirs.directions {
+        if let Some(o) = &only {
+            if o.as_slice() != d.vector {
+                continue;
+            }
+        }
+        let frame = LineFrame::new(d.vector, set.grid.dims);
+        dispatch(&entries[order::order_of(d.vector)], &frame, 1, &mut lines);
+        let input = DirectionInput {
+            unit: d.unit,
+            weight: 1.0,
+            surfels: &surfels,
+            radiosity: &rad,
+            channels: 1,
+        };
+        let mut acc = vec![[[0f64; 3]; 2]; n];
+        let mut scratch = LineScratch::default();
+        for l in 0..lines.line_count() {
+            let line = lines.line(l);
+            if line.len() < 2 {
+                continue;
+            }
+            unsafe { gather_line(line, &input, &mut scratch, acc.as_mut_ptr()) };
+            if only.is_some()
+                && line
+                    .iter()
+                    .any(|&m| rad[m as usize][0][0] > 0.0 || rad[m as usize][1][0] > 0.0)
+            {
+                println!("line {l} dir {:?}", d.vector);
+                for (k, &m) in line.iter().enumerate() {
+                    let p = &surfels[m as usize];
+                    let [a, b] = scratch.partners[k];
+                    let show = |x: (u32, f32)| {
+                        if x.0 == u32::MAX {
+                            "-".to_string()
+                        } else {
+                            format!(
+                                "{}@{:.2}{}",
+                                x.0,
+                                x.1,
+                                if rad[line[x.0 as usize] as usize].iter().any(|r| r[0] > 0.0) {
+                                    "*"
+                                } else {
+                                    ""
+                                }
+                            )
+                        }
+                    };
+                    println!("  {k:3} v{:?} g{} n[{:.0},{:.0},{:.0}] pt[{:.2},{:.2},{:.2}] a{:.2} cov{:.2}  ahead {} behind {}", p.voxel, p.group, p.normal[0], p.normal[1], p.normal[2], p.point[0], p.point[1], p.point[2], p.area, p.coverage, show(a), show(b));
+                }
+                for e in &scratch.extra {
+                    println!("  extra {:?}", e);
+                }
+            }
+        }
+        let sent: f64 = set
+            .surfels
+            .iter()
+            .zip(&acc)
+            .map(|(s, a)| s.area as f64 * (a[0][0] + a[1][0]))
+            .sum();
+        // own projected area: emitting sides whose normal faces +s or -s (both handled)
+        let mut own = 0.0;
+        for (r, s) in rad.iter().zip(&set.surfels) {
+            for side_light in r {
+                if side_light[0] > 0.0 {
+                    let c = voxrad::solve::normalize::cosine(s.normal, d.unit);
+                    own += s.area as f64 * c;
+                }
+            }
+        }
+        tot_sent += sent * d.solid_angle;
+        tot_own += own * d.solid_angle;
+        if args.len() > 4 {
+            println!(
+                "{:?} {:.4} {:.4} {:+.4}",
+                d.vector,
+                sent,
+                own,
+                sent / own - 1.0
+            );
+        }
+    }
+    println!("total sent/own - 1 = {:+.5}", tot_sent / tot_own - 1.0);
+}
