@@ -2,7 +2,7 @@
 //! and the iteration loops ask [`requested`] between directions, save what they have done (the
 //! directions of the iteration in progress where they keep mid-iteration checkpoints, else the
 //! last completed iteration) and return (`solve::jacobi` and `outcore::solver`); the command
-//! then exits with status 3 (see the README, "Checkpoints and signals").
+//! then exits with status 3 (see `docs/checkpoints.md`).
 //!
 //! Before the iterations start (reading, voxelizing, converting, making the out-of-core work
 //! files: work a resumed run does again anyway, and that can take minutes on a large scene, longer

@@ -54,7 +54,7 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
         /// Quality preset: resolution, directions, tolerance and tail extrapolation chosen
-        /// together from the accuracy/time study (see the README); explicit options override it.
+        /// together from the accuracy/time study (see docs/study.md); explicit options override it.
         #[arg(long, value_enum, default_value = "default")]
         quality: QualityArg,
         /// Voxels along the longest side of the scene (default: from --quality).
@@ -310,8 +310,8 @@ fn parse_size(text: &str) -> Result<(u32, u32), String> {
     }
 }
 
-/// Largest `--direct-directions`: far past any measured gain (README, "What a solve
-/// simulates"), and a typo of a few digits more would otherwise run for hours.
+/// Largest `--direct-directions`: far past any measured gain (`docs/simulation.md`),
+/// and a typo of a few digits more would otherwise run for hours.
 const MAX_DIRECT_DIRECTIONS: usize = 1_000_000;
 
 fn run(cli: Cli) -> Result<(), AppError> {

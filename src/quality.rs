@@ -7,7 +7,7 @@
 //! the direct-light pass (`solve::direct`) gathers it along 5,000 (`draft`), 20,000 (`default`)
 //! or 80,000 (`high`) dense directions from the emitters' lines only, which lets the bounces use
 //! fewer directions (193 instead of 589 for `default`, 589 instead of 1201 for `high`) at a lower
-//! error. Measured error and time of each preset: README, "Quality presets".
+//! error. Measured error and time of each preset: `docs/study.md`, "Quality presets".
 //!
 //! Options given explicitly on the command line override the preset's.
 

@@ -480,7 +480,7 @@ pub fn add_absorbed(set: &SurfelSet, direct: &DirectLight, stats: &mut super::So
     }
 }
 
-/// What the pass gained where it was measured, for the report (README, "Accuracy against
+/// What the pass gained where it was measured, for the report (docs/study.md, "Accuracy against
 /// time": the Cornell study; the time from "What a solve simulates").
 pub const MEASURED_GAIN: &str = "at resolution 32 with 193 bounce directions the mean error \
      at the study's probes falls from 11.5 % to 5.3 % (the largest from 76 % to 35 %) with \

@@ -181,7 +181,7 @@ impl Analysis {
                 "every material is grey (equal Kd and Ke channels): one channel solved and \
                  copied to the other two, saving the gather and update of two channels (measured: \
                  4 % of the iteration time on the furnace, nothing measurable on a grey Cornell \
-                 box, where finding partners dominates; README)"
+                 box, where finding partners dominates; docs/simulation.md)"
             } else {
                 "some material has unequal RGB channels: three channels solved"
             },
@@ -197,7 +197,7 @@ impl Analysis {
                          extrapolations) when the iteration's change shrank by a steady factor; \
                          measured saving: the furnace exact in 4 iterations instead of 87 \
                          (rho 0.9) or 914 (rho 0.99), 20 to 35 % of the iterations on the \
-                         Cornell box at tolerances of 1e-3 and below (README)",
+                         Cornell box at tolerances of 1e-3 and below (docs/simulation.md)",
                         stats.extrapolations
                     )
                 } else {
@@ -267,7 +267,7 @@ impl Analysis {
                      directions from the {} lines through them only ({:.3} s, against {:.3} s \
                      for the {} iterations' gathering), and the iterations gathered only the \
                      reflected light B - E along {} directions. Measured on the Cornell box \
-                     (README, \"What a solve simulates\"): {}",
+                     (docs/simulation.md): {}",
                     d.directions,
                     d.lines,
                     d.seconds,
