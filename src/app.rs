@@ -1280,6 +1280,7 @@ pub fn run_study(
                 name: scene.to_string(),
                 scene: loaded,
                 analytic: None,
+                path_traced: None,
             }
         }
     };

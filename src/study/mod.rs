@@ -6,6 +6,9 @@
 //! shows the acceleration's gain), and the **resolution** (voxel size). Each run is timed
 //! (voxelize + solve, wall clock) and its error measured against a reference:
 //! - the analytic answer where the scene has one (the furnace: `B = E / (1 - rho)` everywhere);
+//! - a path-traced reference where one is committed (the Cornell box: `reference`, Mitsuba 3 at
+//!   the study's own 300 probe points, built into the program), so that errors voxrad makes at
+//!   every setting still show;
 //! - otherwise a run at much higher settings than any swept one (stated in the outputs).
 //!
 //! **Like with like.** Runs at different resolutions have different surfels, so errors are
@@ -29,12 +32,14 @@ use glam::DVec3;
 use std::path::Path;
 use std::time::Instant;
 
-/// A scene to study and, where it has one, its analytic radiosity (the same on every surface).
+/// A scene to study and, where it has one, its analytic radiosity (the same on every surface)
+/// or a path-traced reference at fixed probe points (`reference`).
 #[derive(Clone, Debug)]
 pub struct StudyScene {
     pub name: String,
     pub scene: Scene,
     pub analytic: Option<f64>,
+    pub path_traced: Option<reference::Reference>,
 }
 
 /// Emission and reflectance of the built-in furnace.
@@ -50,12 +55,14 @@ impl StudyScene {
                     name: format!("furnace (E = {e}, rho = {rho})"),
                     scene: gen::furnace(e, rho),
                     analytic: Some(e / (1.0 - rho)),
+                    path_traced: None,
                 })
             }
             "cornell" => Some(StudyScene {
                 name: "Cornell box".to_string(),
                 scene: gen::cornell_box(),
                 analytic: None,
+                path_traced: Some(reference::Reference::cornell()),
             }),
             _ => None,
         }
@@ -304,8 +311,26 @@ pub fn run(
     plan: &Plan,
     mut progress: impl FnMut(&Run),
 ) -> Result<Study, String> {
-    let probes = probe_points(&scene.scene, plan.probes, 0x5eed);
+    let probes = match &scene.path_traced {
+        Some(r) => r.points(),
+        None => probe_points(&scene.scene, plan.probes, 0x5eed),
+    };
     let (reference, described): (Vec<Option<f64>>, String) = match scene.analytic {
+        _ if scene.path_traced.is_some() => {
+            let r = scene.path_traced.as_ref().expect("checked");
+            let values: Vec<Option<f64>> = r.probes.iter().map(|p| Some(p.radiosity)).collect();
+            let noise = r.compare(&values).reference_noise;
+            (
+                values,
+                format!(
+                    "path-traced by Mitsuba 3 ({}, see its README): {} probes, mean relative \
+                     standard error {:.2} %",
+                    r.dir.display(),
+                    r.probes.len(),
+                    100.0 * noise
+                ),
+            )
+        }
         Some(b) => (
             vec![Some(3.0 * b); probes.len()],
             format!("analytic: B = E / (1 - rho) = {b:.6} on every surface"),

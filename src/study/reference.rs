@@ -59,6 +59,44 @@ impl Reference {
     pub fn load(dir: &Path) -> Result<Reference, ReferenceError> {
         let path = dir.join("reference.csv");
         let text = read(&path)?;
+        let labels = dir.join("surfaces.csv");
+        let labels = if labels.exists() {
+            Some((read(&labels)?, labels))
+        } else {
+            None
+        };
+        Self::parse(
+            dir,
+            &path,
+            &text,
+            labels.as_ref().map(|(t, p)| (t.as_str(), p.as_path())),
+        )
+    }
+
+    /// The Cornell box's reference, built into the program (the study's 300 probe points).
+    pub fn cornell() -> Reference {
+        let dir = Path::new("tests/data/reference/cornell");
+        Self::parse(
+            dir,
+            &dir.join("reference.csv"),
+            include_str!("../../tests/data/reference/cornell/reference.csv"),
+            Some((
+                include_str!("../../tests/data/reference/cornell/surfaces.csv"),
+                &dir.join("surfaces.csv"),
+            )),
+        )
+        .expect("the built-in Cornell reference parses (a unit test reads it)")
+    }
+
+    /// Parses the text of `reference.csv` (read from `path`, named in errors) and optionally of
+    /// `surfaces.csv`.
+    pub fn parse(
+        dir: &Path,
+        path: &Path,
+        text: &str,
+        labels: Option<(&str, &Path)>,
+    ) -> Result<Reference, ReferenceError> {
+        let path = path.to_path_buf();
         let bad = |line: usize, what: String| ReferenceError::Bad {
             path: path.clone(),
             line,
@@ -106,9 +144,8 @@ impl Reference {
         if probes.is_empty() {
             return Err(bad(2, "the file holds no probe".into()));
         }
-        let labels = dir.join("surfaces.csv");
-        if labels.exists() {
-            let text = read(&labels)?;
+        if let Some((text, labels)) = labels {
+            let labels = labels.to_path_buf();
             let mut count = 0;
             for (k, line) in text.lines().enumerate().skip(1) {
                 if line.trim().is_empty() {
@@ -268,6 +305,16 @@ mod tests {
         assert_eq!(c.compared, 2);
         assert!((c.mean - 0.05).abs() < 1e-12 && (c.max - 0.1).abs() < 1e-12);
         assert!((c.surfaces[0].1 - 0.1).abs() < 1e-12);
+    }
+
+    #[test]
+    fn the_built_in_cornell_reference_is_the_studys_probes() {
+        let r = Reference::cornell();
+        assert_eq!(r.probes.len(), 300);
+        let points = crate::study::probe_points(&crate::gen::cornell_box(), 300, 0x5eed);
+        for (p, (q, n)) in r.probes.iter().zip(&points) {
+            assert!(p.point.distance(*q) < 1e-9 && p.normal.distance(n.normalize()) < 1e-9);
+        }
     }
 
     #[test]
