@@ -108,7 +108,7 @@ fn main() {
                             )
                         }
                     };
-                    println!("  {k:3} v{:?} g{} n[{:.0},{:.0},{:.0}] pt[{:.2},{:.2},{:.2}] a{:.2} cov{:.2}  ahead {} behind {}", p.voxel, p.group, p.normal[0], p.normal[1], p.normal[2], p.point[0], p.point[1], p.point[2], p.area, p.coverage, show(a), show(b));
+                    println!("  {k:3} v{:?} g{} n[{:.0},{:.0},{:.0}] pt[{:.2},{:.2},{:.2}] cov{:.2}  ahead {} behind {}", p.voxel, p.group, p.normal[0], p.normal[1], p.normal[2], p.point[0], p.point[1], p.point[2], p.coverage, show(a), show(b));
                 }
                 for e in &scratch.extra {
                     println!("  extra {:?}", e);

@@ -59,9 +59,9 @@ use rayon::prelude::*;
 use std::cmp::Ordering;
 use std::time::Instant;
 
-/// Bytes of one surfel on the wire: id (4), propagation data (72), radiosity (24) and gathered
+/// Bytes of one surfel on the wire: id (4), propagation data (68), radiosity (24) and gathered
 /// light (48).
-pub const RECORD_BYTES: usize = 148;
+pub const RECORD_BYTES: usize = 144;
 
 /// Packs smaller than this are sent as they are.
 const COMPRESS_FROM: usize = 4096;
@@ -219,11 +219,11 @@ impl Held {
             .iter()
             .chain(&p.normal)
             .chain(p.extent.iter().flatten())
-            .chain([&p.coverage, &p.area])
+            .chain(std::iter::once(&p.coverage))
             .chain(self.radiosity[i].iter().flatten())
             .for_each(|f| put(f.to_le_bytes()));
         for (k, a) in self.acc[i].iter().flatten().enumerate() {
-            r[100 + 8 * k..108 + 8 * k].copy_from_slice(&a.to_le_bytes());
+            r[96 + 8 * k..104 + 8 * k].copy_from_slice(&a.to_le_bytes());
         }
         out.extend_from_slice(&r);
     }
@@ -248,9 +248,8 @@ impl Held {
                 normal: f3(32),
                 extent: [f3(44), f3(56)],
                 coverage: f(68),
-                area: f(72),
             };
-            let slot = self.store(u(0), prop, [f3(76), f3(88)], [d3(100), d3(124)]);
+            let slot = self.store(u(0), prop, [f3(72), f3(84)], [d3(96), d3(120)]);
             entries.push(OrderedEntry {
                 voxel: prop.voxel,
                 index: slot,
@@ -1189,7 +1188,6 @@ mod tests {
                 normal: [0.0, 1.0, -f],
                 extent: [[0.1, 0.2, 0.3], [f, 0.5, 0.6]],
                 coverage: 0.75,
-                area: 0.5,
             };
             let radiosity = [[f, 1.0, 2.0], [3.0, 4.0, f]];
             let acc = [[1e-300, f as f64, 2.5], [f64::MAX, 0.0, -1.0]];

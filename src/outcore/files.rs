@@ -7,15 +7,14 @@
 //! map would save no copy here, so positioned reads keep the address space flat instead.
 //!
 //! ```text
-//! static record (76 bytes), one per surfel, in a copy's order
+//! static record (72 bytes), one per surfel, in a copy's order
 //!   0 voxel    i32 x 3     8 ... see crate::voxel::Surfel
 //!  12 point    f32 x 3
 //!  24 normal   f32 x 3
 //!  36 extent   f32 x 6
 //!  60 group    u32
 //!  64 coverage f32         see solve::coverage
-//!  68 area     f32
-//!  72 id       u32         index of the surfel in the canonical (shard set) order
+//!  68 id       u32         index of the surfel in the canonical (shard set) order
 //! radiosity (24 bytes): f32 x 6, side-major (front RGB, back RGB)
 //! gathered light (48 bytes): f64 x 6, side-major
 //! ```
@@ -27,7 +26,7 @@ use std::io::{BufReader, BufWriter, Read, Write};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
-pub const STATIC_LEN: usize = 76;
+pub const STATIC_LEN: usize = 72;
 pub const RADIOSITY_LEN: usize = 24;
 pub const GATHER_LEN: usize = 48;
 
@@ -62,7 +61,6 @@ pub fn encode_static(r: &StaticRecord, out: &mut [u8; STATIC_LEN]) {
     }
     put(out, &mut at, p.group.to_le_bytes());
     put(out, &mut at, p.coverage.to_le_bytes());
-    put(out, &mut at, p.area.to_le_bytes());
     put(out, &mut at, r.id.to_le_bytes());
     debug_assert_eq!(at, STATIC_LEN);
 }
@@ -89,9 +87,8 @@ pub fn decode_static(bytes: &[u8]) -> StaticRecord {
             extent: [[f(9), f(10), f(11)], [f(12), f(13), f(14)]],
             group: u(15),
             coverage: f(16),
-            area: f(17),
         },
-        id: u(18),
+        id: u(17),
     }
 }
 

@@ -59,9 +59,6 @@ pub struct PropSurfel {
     /// Fraction of the voxel's slice of the surfel's plane that its piece covers, for a piece at
     /// the open edge of a surface (alone in its voxel, not filling it); 1 everywhere else.
     pub coverage: f32,
-    /// Area of the surfel's piece (voxel-size squared): how much of a line's cross-section the
-    /// piece blocks, once projected along the line (see [`find_partners`] on open edges).
-    pub area: f32,
 }
 
 impl PropSurfel {
@@ -75,7 +72,6 @@ impl PropSurfel {
             normal: surfel.normal,
             extent: surfel.extent,
             coverage,
-            area: surfel.area,
         }
     }
 }
@@ -93,8 +89,6 @@ struct Local {
     lo: Vec3,
     hi: Vec3,
     coverage: f32,
-    /// The piece's area projected along the line, as a fraction of the line's cross-section.
-    share: f32,
 }
 
 /// `p_c - p_r` in voxel units, exact in the integer part.
@@ -248,7 +242,6 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         let p = &surfels[m as usize];
         let normal = Vec3::from(p.normal);
         Local {
-            share: p.area * normal.dot(sf).abs() / section,
             voxel: p.voxel,
             group: p.group,
             point: Vec3::from(p.point),
@@ -277,7 +270,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }
     groups.push(locals.len());
     let group_count = groups.len() - 1;
-    open_crossings(locals, groups, open_ranges, open_items, open_slot);
+    open_crossings(locals, groups, section, open_ranges, open_items, open_slot);
     single.clear();
     single.extend((0..group_count).map(|g| {
         if groups[g + 1] - groups[g] == 1 {
@@ -340,12 +333,28 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }
 }
 
+/// Area (voxel-size squared) of a surfel's piece of an open sheet, from its coverage of its
+/// voxel's slice of its plane (`solve::coverage`; 1 for a piece that fills the slice). The
+/// slice is 1 for a plane along the grid axes; others are clipped to the voxel here, on the few
+/// lines that meet an open edge.
+fn piece_area(l: &Local) -> f32 {
+    let n = l.normal;
+    let axis_aligned = n.abs().max_element() > 1.0 - 1e-6;
+    let slice = if axis_aligned {
+        1.0
+    } else {
+        crate::solve::coverage::slice_area(n.as_dvec3(), l.point.as_dvec3()) as f32
+    };
+    l.coverage.clamp(0.0, 1.0) * slice
+}
+
 /// Finds the line's open crossings: the plane groups that have an open-edge piece (coverage
 /// below 1) on this line, with the running sums of their surfels' shares (see [`LineView::nearest`]).
 /// Most lines have none, and then this only scans the coverages.
 fn open_crossings(
     locals: &[Local],
     groups: &[usize],
+    section: f32,
     open_ranges: &mut Vec<(u32, u32, u32)>,
     open_items: &mut Vec<(u32, u32, f32)>,
     open_slot: &mut Vec<u32>,
@@ -371,8 +380,9 @@ fn open_crossings(
             let (mut here, mut at) = (0.0f32, 0);
             for k in groups[g]..groups[g + 1] {
                 if locals[k].group == range.0 {
-                    if locals[k].share > here {
-                        (here, at) = (locals[k].share, k);
+                    let share = piece_area(&locals[k]) * locals[k].ns.abs() / section;
+                    if share > here {
+                        (here, at) = (share, k);
                     }
                     open_slot[k] = slot as u32;
                 }
