@@ -1251,40 +1251,59 @@ pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), Ap
     }
 }
 
-/// `voxrad study SCENE --out DIR [--quick]`: SCENE is a built-in name (`furnace`, `cornell`) or
-/// an .obj file. Writes `study.csv`, `study.md` and `study.png` and returns the study.
+/// `voxrad study SCENE --out DIR [--quick | --presets]`: SCENE is a built-in name (`furnace`,
+/// `cornell`), an .obj file, or a directory of reference data (`scene.obj`, `reference.csv`).
+/// Writes `study.csv`, `study.md` and `study.png` and returns the study.
 pub fn run_study(
     scene: &str,
     out: &Path,
     quick: bool,
+    presets: bool,
     threads: usize,
 ) -> Result<crate::study::Study, AppError> {
     use crate::study::{Plan, StudyScene};
+    let load = |path: &Path| {
+        load_obj(path).map_err(|e| {
+            if e.is_bad_input() {
+                AppError::BadInput(e.to_string())
+            } else {
+                AppError::Failure(e.to_string())
+            }
+        })
+    };
+    let path = Path::new(scene);
     let studied = match StudyScene::builtin(scene) {
         Some(s) => s,
-        None => {
-            let path = Path::new(scene);
-            if !path.exists() {
-                return Err(AppError::BadInput(format!(
-                    "{scene}: neither a built-in scene (furnace, cornell) nor an existing .obj file"
-                )));
-            }
-            let loaded = load_obj(path).map_err(|e| {
-                if e.is_bad_input() {
-                    AppError::BadInput(e.to_string())
-                } else {
-                    AppError::Failure(e.to_string())
-                }
-            })?;
+        None if path.is_dir() => {
+            let reference = crate::study::reference::Reference::load(path)
+                .map_err(|e| AppError::BadInput(e.to_string()))?;
             StudyScene {
                 name: scene.to_string(),
-                scene: loaded,
+                scene: load(&path.join("scene.obj"))?,
                 analytic: None,
-                path_traced: None,
+                path_traced: Some(reference),
             }
         }
+        None if path.exists() => StudyScene {
+            name: scene.to_string(),
+            scene: load(path)?,
+            analytic: None,
+            path_traced: None,
+        },
+        None => {
+            return Err(AppError::BadInput(format!(
+                "{scene}: neither a built-in scene (furnace, cornell), an existing .obj file nor \
+                 a directory of reference data"
+            )))
+        }
     };
-    let mut plan = if quick { Plan::quick() } else { Plan::full() };
+    let mut plan = if quick {
+        Plan::quick()
+    } else if presets {
+        Plan::presets_only()
+    } else {
+        Plan::full()
+    };
     plan.threads = threads;
     let study = crate::study::run(&studied, &plan, |r| {
         tracing::info!(

@@ -170,7 +170,9 @@ enum Command {
     /// What accuracy costs in time: sweeps directions, tolerance and resolution, measures each
     /// run's error and time; writes study.csv, study.md and study.png.
     Study {
-        /// A built-in scene (`furnace`, `cornell`) or an OBJ file.
+        /// A built-in scene (`furnace`, `cornell`), an OBJ file, or a directory of path-traced
+        /// reference data (`scene.obj` and `reference.csv`, as in tests/data/reference/NAME),
+        /// whose probes then measure the error.
         scene: String,
         /// Output directory.
         #[arg(long)]
@@ -178,6 +180,9 @@ enum Command {
         /// A small, fast sweep (for tests and a first look).
         #[arg(long)]
         quick: bool,
+        /// Only the quality presets, no sweep.
+        #[arg(long, conflicts_with = "quick")]
+        presets: bool,
         /// Worker threads (default: all cores).
         #[arg(long, default_value_t = 0)]
         threads: usize,
@@ -465,9 +470,10 @@ fn run(cli: Cli) -> Result<(), AppError> {
             scene,
             out,
             quick,
+            presets,
             threads,
         } => {
-            let study = run_study(&scene, &out, quick, threads)?;
+            let study = run_study(&scene, &out, quick, presets, threads)?;
             eprintln!(
                 "{} runs; reference: {}; study.csv, study.md, study.png in {}",
                 study.runs.len(),

@@ -139,6 +139,19 @@ impl Plan {
         }
     }
 
+    /// Only the quality presets, no sweep: what `voxrad study --presets` runs to compare them on
+    /// a scene.
+    pub fn presets_only() -> Plan {
+        Plan {
+            directions: Vec::new(),
+            tolerances: Vec::new(),
+            resolutions: Vec::new(),
+            direct: Vec::new(),
+            presets: true,
+            ..Plan::full()
+        }
+    }
+
     /// A small study for tests (seconds).
     pub fn quick() -> Plan {
         Plan {
