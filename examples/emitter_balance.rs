@@ -7,7 +7,8 @@
 //! `cargo run --release --example emitter_balance SCENE.obj RESOLUTION DIRECTIONS [v]` prints the
 //! total (`sent / own - 1`; 0 is exact); with `v` also each direction; with `DIR=a,b,c` in the
 //! environment only that direction, with every line that carries an emitter (surfels, partners
-//! and weights), which is how the open-edge and lamp-under-ceiling rules of `solve::propagate`
+//! and weights); with `SEND=NAME` the sides of material `NAME` send instead of the emitters'
+//! (where a reflecting object creates light). That is how the open-edge and lamp-under-ceiling rules of `solve::propagate`
 //! were found.
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
@@ -30,11 +31,17 @@ fn main() {
         .map(|(s, &c)| PropSurfel::new(s, c))
         .collect();
     let n = surfels.len();
-    // radiosity 1 on emitting sides
+    // radiosity 1 on emitting sides, or with SEND=NAME on the sides of material NAME
+    let send = std::env::var("SEND").ok();
     let mut rad = vec![[[0f32; 3]; 2]; n];
     for (r, s) in rad.iter_mut().zip(&set.surfels) {
         for (side, &material) in s.material.iter().enumerate() {
-            if set.materials[material as usize].emission[0] > 0.0 {
+            let m = &set.materials[material as usize];
+            let chosen = match &send {
+                Some(name) => &m.name == name,
+                None => m.emission[0] > 0.0,
+            };
+            if chosen {
                 r[side] = [1.0; 3];
             }
         }
@@ -88,7 +95,27 @@ fn main() {
                     .iter()
                     .any(|&m| rad[m as usize][0][0] > 0.0 || rad[m as usize][1][0] > 0.0)
             {
-                println!("line {l} dir {:?}", d.vector);
+                let sent_line: f64 = line
+                    .iter()
+                    .map(|&m| {
+                        let a = &acc[m as usize];
+                        set.surfels[m as usize].area as f64 * (a[0][0] + a[1][0])
+                    })
+                    .sum();
+                let own_line: f64 = line
+                    .iter()
+                    .map(|&m| {
+                        let s = &set.surfels[m as usize];
+                        let sides = rad[m as usize].iter().filter(|r| r[0] > 0.0).count();
+                        sides as f64
+                            * s.area as f64
+                            * voxrad::solve::normalize::cosine(s.normal, d.unit)
+                    })
+                    .sum();
+                println!(
+                    "line {l} dir {:?}: sent {sent_line:.3} own {own_line:.3}",
+                    d.vector
+                );
                 for (k, &m) in line.iter().enumerate() {
                     let p = &surfels[m as usize];
                     let [a, b] = scratch.partners[k];

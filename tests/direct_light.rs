@@ -241,34 +241,58 @@ fn small_lamp_over_a_floor_is_closer_to_the_form_factor() {
 #[test]
 fn closed_box_keeps_its_power_balance() {
     // A grey closed box lit by a glowing cube (nine voxels wide, a closed object, so no open
-    // lamp edge over-counts its power): what the cube emits, the surfaces absorb, up to the
-    // discrete transport's own error, which more directions shrink. Measured: plain -1.22 %,
-    // with the pass -1.04 % (a cube three voxels wide: -12.5 % and -7.3 %).
-    let mut scene = Scene::default();
-    let wall = scene.add_material(Material::new("wall", [0.6; 3], [0.0; 3]));
-    let lamp = scene.add_material(Material::new("lamp", [0.3; 3], [50.0; 3]));
-    scene.add_box(DVec3::ZERO, DVec3::ONE, wall, true);
-    let (lo, hi) = (DVec3::new(0.35, 0.35, 0.5), DVec3::new(0.65, 0.65, 0.8));
-    scene.add_box(lo, hi, lamp, false);
-    let base = SolveOptions {
-        directions: 109,
-        tolerance: Some(1e-6),
-        accelerate: true,
-        ..Default::default()
-    };
-    let (_, plain) = run(&scene, 32, base.clone());
-    let (_, split) = run(
-        &scene,
-        32,
-        SolveOptions {
-            direct: DirectPass::On(10_000),
-            ..base
-        },
+    // lamp edge over-counts its power): what the cube emits, the surfaces absorb. Where a ray
+    // meets a face's plane is sampled at one point per receiver, so one placement of the cube
+    // against the grid sends a little too much or too little (its width rounded to rows of
+    // receivers, differently per direction); over placements that averages out. Measured over
+    // these five placements: plain (109 directions) mean +0.65 %, largest 2.0 %; with the pass
+    // (10,000 directions) mean -0.04 %, largest 2.5 %. Before the rim test of
+    // `propagate::off_the_run` every placement over-counted: means -1.3 % and -3.4 %, largest
+    // 3.8 % and 7.5 %.
+    let mut plain = Vec::new();
+    let mut split = Vec::new();
+    for offset in [0.0, 0.007, 0.013, 0.021, 0.027] {
+        let mut scene = Scene::default();
+        let wall = scene.add_material(Material::new("wall", [0.6; 3], [0.0; 3]));
+        let lamp = scene.add_material(Material::new("lamp", [0.3; 3], [50.0; 3]));
+        scene.add_box(DVec3::ZERO, DVec3::ONE, wall, true);
+        let shift = DVec3::new(1.0, 0.7, 1.3) * offset;
+        let (lo, hi) = (
+            DVec3::new(0.35, 0.35, 0.5) + shift,
+            DVec3::new(0.65, 0.65, 0.8) + shift,
+        );
+        scene.add_box(lo, hi, lamp, false);
+        let base = SolveOptions {
+            directions: 109,
+            tolerance: Some(1e-6),
+            accelerate: true,
+            ..Default::default()
+        };
+        plain.push(imbalance(&run(&scene, 32, base.clone()).1));
+        split.push(imbalance(
+            &run(
+                &scene,
+                32,
+                SolveOptions {
+                    direct: DirectPass::On(10_000),
+                    ..base
+                },
+            )
+            .1,
+        ));
+    }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let largest = |v: &[f64]| v.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    let (p, s) = (mean(&plain), mean(&split));
+    println!(
+        "closed box imbalance over placements: plain mean {p:.2e} (largest {:.2e}), with the \
+         direct pass mean {s:.2e} (largest {:.2e})",
+        largest(&plain),
+        largest(&split)
     );
-    let (p, s) = (imbalance(&plain), imbalance(&split));
-    println!("closed box imbalance: plain {p:.2e}, with the direct pass {s:.2e}");
-    assert!(s.abs() < 0.015, "imbalance {s}");
-    assert!(s.abs() < p.abs(), "plain {p}, direct pass {s}");
+    assert!(p.abs() < 0.01, "plain mean imbalance {p}");
+    assert!(s.abs() < 0.005, "direct pass mean imbalance {s}");
+    assert!(largest(&plain) < 0.035 && largest(&split) < 0.035);
 }
 
 #[test]

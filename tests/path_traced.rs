@@ -144,12 +144,14 @@ fn thin_slab_faces_match_the_path_traced_reference() {
 #[test]
 fn realistic_rooms_and_the_cornell_box_against_the_reference() {
     // (scene, resolution, largest mean error, largest |balance| where the scene is closed);
-    // measured when this test was written: window room 2.99 % and 0.04 %, corridor 8.67 % and
-    // 4.5 %, Cornell box (open at the front) 5.25 %.
-    let cases: [(&str, u32, f64, Option<f64>); 3] = [
+    // measured: window room 2.42 % and -0.59 %, corridor 9.44 % and +4.9 %, Cornell box (open
+    // at the front) 5.29 %, office 13.4 % and -10.8 % (its 6 cm lamp housings are a sixth of a
+    // voxel tall here; 30.7 % and -25 % before the rim test of `propagate::off_the_run`).
+    let cases: [(&str, u32, f64, Option<f64>); 4] = [
         ("window-room", 64, 0.04, Some(0.01)),
         ("corridor", 64, 0.10, Some(0.06)),
         ("cornell", 64, 0.06, None),
+        ("office", 64, 0.16, Some(0.13)),
     ];
     let mut failures = Vec::new();
     for (name, resolution, mean, balance_bound) in cases {

@@ -33,6 +33,17 @@
 //! lamps emitted at resolution 64. Summed over the lines, the shares add up to the sheet's
 //! projected area along the direction, which is what energy conservation asks of it.
 //!
+//! **Rims at the ends of a plane's run.** A grazing line can run through a row of a plane's
+//! voxels that hold nothing else (the middle of a lamp under its housing) before it reaches the
+//! voxel where the plane ends at another surface (the housing's end face). A ray caught in the
+//! middle would take the plane although it crosses the plane's level past that edge; so the ray
+//! is also judged against the voxel-mates at both ends of the plane's run on the line, as it is
+//! against its candidate's own voxel-mates. Without it, each edge of an object smaller than a
+//! few voxels counted up to a voxel too wide at grazing directions: the office's 6 cm lamp
+//! housings absorbed 25 % more than their lamps emitted at resolution 64 (11 % with it), and a
+//! glowing cube nine voxels wide over-counted its power by 1 to 3 % at every placement (now
+//! scattered around zero with the placement).
+//!
 //! Every surfel side receives exactly one gather per line direction, so accumulating in direction
 //! order makes the result independent of how lines are spread over threads.
 //!
@@ -190,6 +201,9 @@ pub struct LineScratch {
     open_items: Vec<(u32, u32, f32)>,
     /// For each line position: the index of its open crossing in `open_ranges`, or `u32::MAX`.
     open_slot: Vec<u32>,
+    /// For each line position: the first and last voxel group of the run of consecutive voxel
+    /// groups holding its plane (see [`LineView::off_the_run`]).
+    runs: Vec<[u32; 2]>,
 }
 
 /// Longest chain of partners one search may return.
@@ -236,6 +250,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         open_ranges,
         open_items,
         open_slot,
+        runs,
     } = scratch;
     locals.clear();
     locals.extend(line.iter().map(|&m| {
@@ -271,6 +286,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     groups.push(locals.len());
     let group_count = groups.len() - 1;
     open_crossings(locals, groups, section, open_ranges, open_items, open_slot);
+    plane_runs(locals, groups, runs);
     single.clear();
     single.extend((0..group_count).map(|g| {
         if groups[g + 1] - groups[g] == 1 {
@@ -309,6 +325,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         open_ranges,
         open_items,
         open_slot,
+        runs,
     };
     for g in 0..group_count {
         for k in groups[g]..groups[g + 1] {
@@ -396,6 +413,37 @@ fn open_crossings(
     }
 }
 
+/// For every line position, the run of its plane on the line: the first and last of the
+/// consecutive voxel groups that hold a piece of the plane, around the position's own group.
+fn plane_runs(locals: &[Local], groups: &[usize], runs: &mut Vec<[u32; 2]>) {
+    let group_count = groups.len() - 1;
+    runs.clear();
+    runs.resize(locals.len(), [0, 0]);
+    let find =
+        |g: usize, plane: u32| (groups[g]..groups[g + 1]).find(|&k| locals[k].group == plane);
+    for g in 0..group_count {
+        for k in groups[g]..groups[g + 1] {
+            let lo = match g.checked_sub(1).and_then(|p| find(p, locals[k].group)) {
+                Some(p) => runs[p][0],
+                None => g as u32,
+            };
+            runs[k][0] = lo;
+        }
+    }
+    for g in (0..group_count).rev() {
+        for k in groups[g]..groups[g + 1] {
+            let hi = match (g + 1 < group_count)
+                .then(|| find(g + 1, locals[k].group))
+                .flatten()
+            {
+                Some(n) => runs[n][1],
+                None => g as u32,
+            };
+            runs[k][1] = hi;
+        }
+    }
+}
+
 /// The plane of the last open edge a search took a share from. Open pieces of parallel planes
 /// in one layer of voxels usually do not overlap (a lamp set in an opening of the ceiling, its
 /// rim beside the opening's): their shares add up, where pieces of planes at an angle are
@@ -438,6 +486,12 @@ impl Missed {
         self.groups[..self.len].contains(&group)
     }
 
+    /// Whether one more plane can be remembered.
+    #[inline(always)]
+    fn has_room(&self) -> bool {
+        self.len < self.groups.len()
+    }
+
     #[inline(always)]
     fn insert(&mut self, group: u32) {
         if self.len < self.groups.len() && !self.contains(group) {
@@ -458,9 +512,60 @@ struct LineView<'a> {
     open_ranges: &'a [(u32, u32, u32)],
     open_items: &'a [(u32, u32, f32)],
     open_slot: &'a [u32],
+    runs: &'a [[u32; 2]],
 }
 
 impl LineView<'_> {
+    /// Whether the ray from receiver `x`, which meets the plane of candidate `c` at distance `t`,
+    /// crosses that plane off its pieces on this line: beyond the edge where the plane's run of
+    /// voxels ends at a voxel-mate bounding it (a lamp's end under its housing's end face). The
+    /// run's voxels away from its ends hold the plane alone, so a grazing ray that reaches one of
+    /// them would otherwise be caught there though it crosses the plane past the edge; each end
+    /// is judged like a voxel-mate in [`LineView::best_in`], and the candidate's own voxel is
+    /// judged there already.
+    #[inline(always)]
+    fn off_the_run(&self, x: &Local, c: usize, t: f32, dir: Vec3) -> bool {
+        let plane = self.locals[c].group;
+        let own = self.runs[c];
+        let here = self.locals[c].voxel;
+        for end in [own[0], own[1]] {
+            let range = self.groups[end as usize]..self.groups[end as usize + 1];
+            if range.len() < 2 || self.locals[range.start].voxel == here {
+                continue;
+            }
+            let Some(piece) = range.clone().find(|&k| self.locals[k].group == plane) else {
+                continue;
+            };
+            let piece = &self.locals[piece];
+            for k in range.clone() {
+                let mate = &self.locals[k];
+                if mate.group == plane || mate.group == x.group {
+                    continue;
+                }
+                let n = mate.normal;
+                if n.dot(piece.normal).abs() > 1.0 - 1e-4 {
+                    continue;
+                }
+                let base = n.dot(offset(mate, piece) - piece.point);
+                let (a, b) = (n * piece.lo, n * piece.hi);
+                let low = base + a.min(b).element_sum();
+                let high = base + a.max(b).element_sum();
+                let piece_side = if low >= -EPS {
+                    1.0
+                } else if high <= EPS {
+                    -1.0
+                } else {
+                    continue;
+                };
+                let q = dir * t - offset(x, mate);
+                if n.dot(q) * piece_side < -EPS {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
     /// For a candidate at line position `c` whose plane has an open edge on this line: the share
     /// of the line's cross-section its plane's pieces block on the search's side of voxel group
     /// `g` (capped at 1), else `None` (the candidate blocks the whole line).
@@ -724,6 +829,11 @@ impl LineView<'_> {
                     continue;
                 }
                 if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                    if missed.has_room() && self.off_the_run(x, found, t, dir) {
+                        missed.insert(candidate.group);
+                        search_here = true;
+                        continue;
+                    }
                     self.open_before_hit::<FORWARD>(
                         g,
                         x,
@@ -776,6 +886,10 @@ impl LineView<'_> {
                         continue;
                     }
                     if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                        if missed.has_room() && self.off_the_run(x, c, t, dir) {
+                            missed.insert(single);
+                            continue;
+                        }
                         self.open_before_hit::<FORWARD>(
                             g,
                             x,

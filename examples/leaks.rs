@@ -1,0 +1,129 @@
+//! Where light leaks out of a closed scene, direction by direction: every surfel side sends
+//! radiosity 1, and each front side (the side its triangles face: into the air for a scene whose
+//! solids face outwards and whose shell faces inwards) should then gather exactly its cosine with
+//! the direction, because every ray from it ends on some surface. What is missing is light that a
+//! ray let through a surface (out of the scene, or into a solid).
+//!
+//! `cargo run --release --example leaks SCENE.obj RESOLUTION DIRECTIONS` prints, per material,
+//! the missing fraction of the front sides' projected area over all directions, weighted by
+//! solid angle; with `DIR=a,b,c` in the environment only that direction, and the front sides that
+//! lose most, with their voxel, normal and surface point.
+use voxrad::geometry::directions::DirectionSet;
+use voxrad::geometry::lines::LineFrame;
+use voxrad::geometry::order;
+use voxrad::solve::dispatch::{dispatch, Lines, OrderedEntry};
+use voxrad::solve::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
+use voxrad::voxel::voxelize::{voxelize, GridSpec};
+use voxrad::voxel::FRONT;
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    if args.len() < 4 {
+        eprintln!("usage: leaks SCENE.obj RESOLUTION DIRECTIONS");
+        std::process::exit(2);
+    }
+    let scene = voxrad::scene::obj::load_obj(std::path::Path::new(&args[1])).unwrap();
+    let res: u32 = args[2].parse().unwrap();
+    let count: usize = args[3].parse().unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(res)).unwrap();
+    let coverage = voxrad::solve::coverage::coverages(&set);
+    let surfels: Vec<PropSurfel> = set
+        .surfels
+        .iter()
+        .zip(&coverage)
+        .map(|(s, &c)| PropSurfel::new(s, c))
+        .collect();
+    let n = surfels.len();
+    let radiosity = vec![[[1f32; 3]; 2]; n];
+    let only: Option<Vec<i64>> = std::env::var("DIR")
+        .ok()
+        .map(|v| v.split(',').map(|x| x.parse().unwrap()).collect());
+    let directions = DirectionSet::with_count(count);
+    let entries: Vec<Vec<OrderedEntry>> = (0..4)
+        .map(|o| {
+            let mut e: Vec<OrderedEntry> = set
+                .surfels
+                .iter()
+                .enumerate()
+                .map(|(i, s)| OrderedEntry {
+                    voxel: s.voxel,
+                    index: i as u32,
+                })
+                .collect();
+            e.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
+            e
+        })
+        .collect();
+    let materials = set.materials.len();
+    // Per material of the front side: (missing, projected) area, solid-angle weighted.
+    let mut totals = vec![(0.0f64, 0.0f64); materials];
+    let mut lines = Lines::default();
+    let mut scratch = LineScratch::default();
+    for d in &directions.directions {
+        if only.as_ref().is_some_and(|o| o.as_slice() != d.vector) {
+            continue;
+        }
+        let frame = LineFrame::new(d.vector, set.grid.dims);
+        dispatch(&entries[order::order_of(d.vector)], &frame, 1, &mut lines);
+        let input = DirectionInput {
+            unit: d.unit,
+            weight: 1.0,
+            surfels: &surfels,
+            radiosity: &radiosity,
+            channels: 1,
+        };
+        let mut acc = vec![[[0f64; 3]; 2]; n];
+        for l in 0..lines.line_count() {
+            // SAFETY: one accumulator entry per surfel, one thread, each surfel on one line.
+            unsafe { gather_line(lines.line(l), &input, &mut scratch, acc.as_mut_ptr()) };
+        }
+        let mut worst = Vec::new();
+        for (i, s) in set.surfels.iter().enumerate() {
+            let cos = voxrad::solve::normalize::cosine(s.normal, d.unit);
+            if cos < 1e-9 {
+                continue;
+            }
+            let got = acc[i][FRONT][0] / cos;
+            let missing = (1.0 - got).max(0.0);
+            let m = s.material[FRONT] as usize;
+            totals[m].0 += d.solid_angle * s.area as f64 * cos * missing;
+            totals[m].1 += d.solid_angle * s.area as f64 * cos;
+            if only.is_some() && missing > 1e-3 {
+                worst.push((missing * s.area as f64, i, got));
+            }
+        }
+        worst.sort_by(|a, b| b.0.total_cmp(&a.0));
+        for &(_, i, got) in worst.iter().take(40) {
+            let s = &set.surfels[i];
+            println!(
+                "  v{:?} n[{:.2},{:.2},{:.2}] pt[{:.2},{:.2},{:.2}] area {:.2} {} got {:.3}",
+                s.voxel,
+                s.normal[0],
+                s.normal[1],
+                s.normal[2],
+                s.point[0],
+                s.point[1],
+                s.point[2],
+                s.area,
+                set.materials[s.material[FRONT] as usize].name,
+                got
+            );
+        }
+    }
+    let (mut missing, mut projected) = (0.0, 0.0);
+    for (m, &(a, b)) in totals.iter().enumerate() {
+        if b > 0.0 {
+            println!(
+                "{:>16} missing {:.3} %",
+                set.materials[m].name,
+                100.0 * a / b
+            );
+        }
+        missing += a;
+        projected += b;
+    }
+    println!(
+        "all front sides missing {:.3} %",
+        100.0 * missing / projected
+    );
+}
