@@ -1123,6 +1123,8 @@ pub enum GenerateScene {
         tilt: [f64; 2],
         light: crate::gen::SlabLight,
     },
+    /// A twin of a furnace hard case under light from one place.
+    HardTwin(crate::gen::HardTwin),
 }
 
 /// The scene and its probes: the generator's own for the interiors, else 300 points from
@@ -1148,6 +1150,7 @@ fn generated(which: GenerateScene) -> crate::gen::Interior {
             tilt,
             light,
         } => return crate::gen::thin_slab(thickness, tilt, light),
+        GenerateScene::HardTwin(which) => return crate::gen::hard_twin(which),
     };
     let probes = crate::study::probe_points(&scene, 300, 0x5eed)
         .into_iter()

@@ -158,9 +158,12 @@ enum Command {
         /// the slab, grazing light).
         #[arg(long, value_enum, default_value = "side")]
         light: LightKind,
+        /// For `hard-twin`: which twin of a furnace hard case.
+        #[arg(long, value_enum, default_value = "white-box")]
+        twin: TwinKind,
         /// Also write the scene's probe points (x,y,z,nx,ny,nz) to this CSV file: the
-        /// generator's own for office, window-room, corridor and thin-slab, else 300 points
-        /// drawn like `voxrad study`'s (seed 0x5eed).
+        /// generator's own for office, window-room, corridor, thin-slab and hard-twin, else 300
+        /// points drawn like `voxrad study`'s (seed 0x5eed).
         #[arg(long)]
         probes: Option<PathBuf>,
         /// Also write each probe's surface label (probe,surface) to this CSV file.
@@ -242,6 +245,20 @@ enum SceneKind {
     Corridor,
     /// A closed 1 m box with a thin slab in the middle (--thickness, --tilt, --light).
     ThinSlab,
+    /// A furnace hard case's geometry lit by one lamp (--twin).
+    HardTwin,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum TwinKind {
+    /// Walls of reflectance 0.999, a small lamp in the ceiling.
+    WhiteBox,
+    /// The same box with every reflectance 0.
+    BlackBox,
+    /// A slab 0.01 thick and a cube on voxel corners (resolution 25), lit from the wall x = 0.
+    Slab,
+    /// The same with the slab tilted by 0.05 rad.
+    SlabTilted,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -491,6 +508,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             thickness,
             tilt,
             light,
+            twin,
             probes,
             surfaces,
         } => {
@@ -504,6 +522,12 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 SceneKind::Office => GenerateScene::Office,
                 SceneKind::WindowRoom => GenerateScene::WindowRoom,
                 SceneKind::Corridor => GenerateScene::Corridor,
+                SceneKind::HardTwin => GenerateScene::HardTwin(match twin {
+                    TwinKind::WhiteBox => voxrad::gen::HardTwin::WhiteBox,
+                    TwinKind::BlackBox => voxrad::gen::HardTwin::BlackBox,
+                    TwinKind::Slab => voxrad::gen::HardTwin::Slab,
+                    TwinKind::SlabTilted => voxrad::gen::HardTwin::SlabTilted,
+                }),
                 SceneKind::ThinSlab => {
                     if !(thickness.is_finite() && thickness > 0.0) {
                         return Err(AppError::BadInput(format!(

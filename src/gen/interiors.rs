@@ -12,6 +12,8 @@
 //! - [`thin_slab`]: a closed 1 m box with a 0.6 x 0.6 m slab of a given thickness in voxels (at
 //!   resolution 128) floating in the middle, axis-aligned or tilted, lit from one side wall or
 //!   at grazing angles from a strip of the ceiling beside the slab.
+//! - [`hard_twin`]: the furnace hard cases of `tests/hard_cases.rs` (a box of reflectance 0.999,
+//!   a black box, a slab thinner than a voxel and a cube on voxel corners) lit by one lamp.
 //!
 //! Every scene is closed: an inward-facing shell (a box seen from inside, possibly with an opening
 //! that an emitter fills exactly) holds everything else, so no light leaves and a solve must
@@ -988,6 +990,314 @@ pub fn thin_slab(thickness_voxels: f64, tilt_deg: [f64; 2], light: SlabLight) ->
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// Twins of the furnace hard cases.
+
+/// Which twin of a furnace hard case (`tests/hard_cases.rs`) [`hard_twin`] builds. A furnace
+/// (every wall glowing alike) cannot show a surfel that gathers from the wrong partner, since all
+/// partners have the same radiosity; each twin keeps the hard case's geometry and reflectance and
+/// lights it from one place instead.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HardTwin {
+    /// The closed unit box with walls of reflectance 0.999, lit by one small lamp in the
+    /// ceiling (twin of the reflectance-0.999 furnace cases).
+    WhiteBox,
+    /// The same box and lamp with every reflectance 0: the walls receive direct light only
+    /// (twin of the black furnace).
+    BlackBox,
+    /// A grey box (reflectance 0.5) holding the hard case's slab 0.01 thick and its cube whose
+    /// edges lie on voxel corners at resolution 25, lit by a panel in the wall x = 0 (twin of the
+    /// thin slab and aligned cube in a furnace).
+    Slab,
+    /// The same with the slab tilted by 0.05 rad about x (twin of the tilted thin slab).
+    SlabTilted,
+}
+
+impl HardTwin {
+    /// Every twin, in the order of their reference directories.
+    pub const ALL: [HardTwin; 4] = [
+        HardTwin::WhiteBox,
+        HardTwin::BlackBox,
+        HardTwin::Slab,
+        HardTwin::SlabTilted,
+    ];
+
+    /// The name of its reference directory (`tests/data/reference/<name>`).
+    pub fn name(self) -> &'static str {
+        match self {
+            HardTwin::WhiteBox => "twin-white-box",
+            HardTwin::BlackBox => "twin-black-box",
+            HardTwin::Slab => "twin-slab",
+            HardTwin::SlabTilted => "twin-slab-tilted",
+        }
+    }
+}
+
+/// Constants of [`hard_twin`].
+pub mod hard_twin_constants {
+    /// Reflectance of every surface of the white box (walls and lamp).
+    pub const WHITE_REFLECTANCE: f64 = 0.999;
+    /// Reflectance of every surface of the slab boxes (walls, slab, cube and lamp).
+    pub const GREY_REFLECTANCE: f64 = 0.5;
+    /// Emitted radiosity of every twin's lamp.
+    pub const LAMP_EMISSION: f64 = 100.0;
+    /// The boxes' lamp: `[x0, x1] x [y0, y1]` in the ceiling z = 1, facing down: 2 x 2 voxels
+    /// at resolution 13 (voxel 1/12), its edges on voxel boundaries there (and at resolutions 37
+    /// and 61). A lamp that fills an opening shares its rim voxels with the wall around it, and
+    /// such a voxel's one surfel takes the material covering most of it (see `voxel::voxelize`):
+    /// off the boundaries the lamp's area would come out in whole voxels (a 0.2 x 0.2 lamp at
+    /// x 0.15 to 0.35, y 0.4 to 0.6 emits 50 % of its power at resolution 11, 83 % at 12, 67 % at
+    /// 16, 108.5 % at 25).
+    pub const CEILING_LAMP: [f64; 4] = [3.0 / 24.0, 7.0 / 24.0, 9.0 / 24.0, 13.0 / 24.0];
+    /// The slab boxes' lamp: `[y0, y1] x [z0, z1]` in the wall x = 0, facing +x, all of it above
+    /// the slab's plane: 13 x 10 voxels at resolution 25, its edges on voxel boundaries there.
+    pub const SIDE_LAMP: [f64; 4] = [11.0 / 48.0, 37.0 / 48.0, 21.0 / 48.0, 41.0 / 48.0];
+    /// The hard case's slab: `[0.2, 0.8]^2` in x and y, `SLAB_THICKNESS` thick from z =
+    /// `SLAB_BOTTOM`, rotated by the tilt about the x axis through (0.5, 0.5, `SLAB_BOTTOM`).
+    pub const SLAB_THICKNESS: f64 = 0.01;
+    pub const SLAB_BOTTOM: f64 = 0.3;
+    /// Tilt of [`super::HardTwin::SlabTilted`], radians.
+    pub const SLAB_TILT: f64 = 0.05;
+    /// The cube `[CUBE_MIN, CUBE_MAX]^3`: from voxel corner to voxel corner at resolution 25
+    /// (voxel centres at multiples of 1/24, corners half a voxel off).
+    pub const CUBE_MIN: f64 = 13.5 / 24.0;
+    pub const CUBE_MAX: f64 = 18.5 / 24.0;
+    /// The resolution the slab, the cube and the probe margins are measured in (voxel 1/24).
+    pub const RESOLUTION: u32 = 25;
+}
+
+/// Twins of the furnace hard cases under light from one place, in the hard cases' frame (the unit
+/// box `[0, 1]^3`, z up: the floor is z = 0, the ceiling z = 1). All closed; every lamp is a
+/// one-sided quad (`Ke` 100) filling an opening of the shell, facing in, with the reflectance of
+/// the walls.
+///
+/// - [`HardTwin::WhiteBox`] / [`HardTwin::BlackBox`]: walls and lamp of reflectance 0.999 / 0;
+///   the lamp is 1/6 x 1/6 ([`hard_twin_constants::CEILING_LAMP`], off-centre) in the ceiling.
+///   Probes (labels `floor`, `ceiling`, `wall x=0`, `wall x=1`, `wall y=0`, `wall y=1`): a
+///   3 x 3 grid at 15, 50 and 85 % of each wall (the ceiling's point on the lamp left out), plus
+///   seven by the lamp (three on the wall x = 0 below it, two on the ceiling beside it, two on the
+///   floor).
+/// - [`HardTwin::Slab`] / [`HardTwin::SlabTilted`]: walls of reflectance 0.5, the hard case's
+///   slab and cube (reflectance 0.5), a 0.54 x 0.42 panel ([`hard_twin_constants::SIDE_LAMP`]) in
+///   the wall x = 0 above the slab's plane: the slab's top is lit directly, its bottom only by
+///   reflected light, the cube's -x face directly and its +x face not at all. Probes: a 5 x 5
+///   grid on the slab's top and bottom at 10 to 90 % (labels `slab top`, `slab bottom`; before
+///   the tilt), three along each edge of both faces 0.6 voxel (at resolution 25) from it
+///   (`slab top rim`, `slab bottom rim`), a 3 x 3 grid at 20, 50 and 80 % on each face of the
+///   cube (`cube -x`, ..., by its normal), and 19 on the walls near them.
+pub fn hard_twin(which: HardTwin) -> Interior {
+    use hard_twin_constants::*;
+    let mut b = Builder::new(&format!("generator:hard_twin({which:?})"));
+    match which {
+        HardTwin::WhiteBox | HardTwin::BlackBox => {
+            let rho = if which == HardTwin::WhiteBox {
+                WHITE_REFLECTANCE
+            } else {
+                0.0
+            };
+            let wall = b.material("wall", [rho; 3], [0.0; 3]);
+            let lamp = b.material("lamp", [rho; 3], [LAMP_EMISSION; 3]);
+            let [x0, x1, y0, y1] = CEILING_LAMP;
+            let (lo, hi) = (v(x0, y0, 1.0), v(x1, y1, 1.0));
+            b.shell(DVec3::ZERO, DVec3::ONE, [wall; 6], NONE6, Some((5, lo, hi)));
+            b.emitter(lo, hi, DVec3::NEG_Z, lamp);
+            let mut probes = Vec::new();
+            for (f, &outward) in FACE_NORMALS.iter().enumerate() {
+                let axis = f / 2;
+                let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+                for a in [0.15, 0.5, 0.85] {
+                    for c in [0.15, 0.5, 0.85] {
+                        let mut p = DVec3::ZERO;
+                        p[axis] = if f % 2 == 0 { 0.0 } else { 1.0 };
+                        p[u] = a;
+                        p[w] = c;
+                        let on_lamp = f == 5
+                            && (x0 - 0.05..=x1 + 0.05).contains(&p.x)
+                            && (y0 - 0.05..=y1 + 0.05).contains(&p.y);
+                        if !on_lamp {
+                            probes.push(twin_probe(p, -outward));
+                        }
+                    }
+                }
+            }
+            for p in [
+                v(0.0, 0.5, 0.92),
+                v(0.0, 0.5, 0.75),
+                v(0.25, 0.68, 1.0),
+                v(0.45, 0.5, 1.0),
+                v(0.25, 0.5, 0.0),
+                v(0.6, 0.3, 0.0),
+                v(0.0, 0.7, 0.9),
+            ] {
+                let n = match p {
+                    _ if p.x == 0.0 => DVec3::X,
+                    _ if p.z == 1.0 => DVec3::NEG_Z,
+                    _ => DVec3::Z,
+                };
+                probes.push(twin_probe(p, n));
+            }
+            Interior {
+                scene: b.scene,
+                probes,
+            }
+        }
+        HardTwin::Slab | HardTwin::SlabTilted => {
+            let rho = GREY_REFLECTANCE;
+            let wall = b.material("wall", [rho; 3], [0.0; 3]);
+            let solid = b.material("solid", [rho; 3], [0.0; 3]);
+            let lamp = b.material("lamp", [rho; 3], [LAMP_EMISSION; 3]);
+            let [y0, y1, z0, z1] = SIDE_LAMP;
+            let (lo, hi) = (v(0.0, y0, z0), v(0.0, y1, z1));
+            b.shell(DVec3::ZERO, DVec3::ONE, [wall; 6], NONE6, Some((0, lo, hi)));
+            b.emitter(lo, hi, DVec3::X, lamp);
+            let tilt = if which == HardTwin::SlabTilted {
+                SLAB_TILT
+            } else {
+                0.0
+            };
+            let (c, s) = (tilt.cos(), tilt.sin());
+            // The hard case's rotation: about the x axis through (0.5, 0.5, SLAB_BOTTOM), applied
+            // to the slab `[0.2, 0.8]^2 x [0, SLAB_THICKNESS]` (local z from its bottom).
+            let place = |x: f64, y: f64, z: f64| {
+                if tilt == 0.0 {
+                    return v(x, y, SLAB_BOTTOM + z);
+                }
+                let y = y - 0.5;
+                v(x, 0.5 + c * y - s * z, SLAB_BOTTOM + s * y + c * z)
+            };
+            let turn = |n: DVec3| {
+                if tilt == 0.0 {
+                    n
+                } else {
+                    v(n.x, c * n.y - s * n.z, s * n.y + c * n.z)
+                }
+            };
+            let (smin, smax) = (v(0.2, 0.2, 0.0), v(0.8, 0.8, SLAB_THICKNESS));
+            for (f, &n) in FACE_NORMALS.iter().enumerate() {
+                let corners = box_face(smin, smax, f).map(|q| place(q.x, q.y, q.z));
+                add_facing(&mut b.scene, &corners, turn(n), solid);
+            }
+            super::add_solid_box(
+                &mut b.scene,
+                DVec3::splat(CUBE_MIN),
+                DVec3::splat(CUBE_MAX),
+                [solid; 6],
+                false,
+            );
+            let mut probes = Vec::new();
+            let voxel = 1.0 / (RESOLUTION - 1) as f64;
+            for (label, rim, z, n) in [
+                ("slab top", "slab top rim", SLAB_THICKNESS, DVec3::Z),
+                ("slab bottom", "slab bottom rim", 0.0, DVec3::NEG_Z),
+            ] {
+                for i in 0..5 {
+                    for j in 0..5 {
+                        let (x, y) = (0.26 + 0.12 * i as f64, 0.26 + 0.12 * j as f64);
+                        probes.push(Probe {
+                            point: place(x, y, z),
+                            normal: turn(n),
+                            surface: label.to_string(),
+                        });
+                    }
+                }
+                let near = 0.6 * voxel;
+                for along in [0.35, 0.5, 0.65] {
+                    for (x, y) in [
+                        (0.2 + near, along),
+                        (0.8 - near, along),
+                        (along, 0.2 + near),
+                        (along, 0.8 - near),
+                    ] {
+                        probes.push(Probe {
+                            point: place(x, y, z),
+                            normal: turn(n),
+                            surface: rim.to_string(),
+                        });
+                    }
+                }
+            }
+            const CUBE_LABELS: [&str; 6] = [
+                "cube -x", "cube +x", "cube -y", "cube +y", "cube -z", "cube +z",
+            ];
+            for (f, &n) in FACE_NORMALS.iter().enumerate() {
+                let axis = f / 2;
+                let (u, w) = ((axis + 1) % 3, (axis + 2) % 3);
+                for a in [0.2, 0.5, 0.8] {
+                    for c in [0.2, 0.5, 0.8] {
+                        let mut p = DVec3::ZERO;
+                        p[axis] = if f % 2 == 0 { CUBE_MIN } else { CUBE_MAX };
+                        p[u] = CUBE_MIN + a * (CUBE_MAX - CUBE_MIN);
+                        p[w] = CUBE_MIN + c * (CUBE_MAX - CUBE_MIN);
+                        probes.push(Probe {
+                            point: p,
+                            normal: n,
+                            surface: CUBE_LABELS[f].to_string(),
+                        });
+                    }
+                }
+            }
+            for p in [
+                v(0.35, 0.35, 0.0),
+                v(0.65, 0.35, 0.0),
+                v(0.35, 0.65, 0.0),
+                v(0.65, 0.65, 0.0),
+                v(0.67, 0.67, 1.0),
+                v(0.5, 0.3, 1.0),
+                v(0.3, 0.7, 1.0),
+                v(1.0, 0.67, 0.67),
+                v(1.0, 0.5, 0.3),
+                v(1.0, 0.3, 0.5),
+                v(0.5, 0.0, 0.3),
+                v(0.7, 0.0, 0.67),
+                v(0.3, 0.0, 0.15),
+                v(0.5, 1.0, 0.3),
+                v(0.67, 1.0, 0.67),
+                v(0.3, 1.0, 0.15),
+                v(0.0, 0.5, 0.3),
+                v(0.0, 0.5, 0.15),
+                v(0.0, 0.12, 0.6),
+            ] {
+                let n = if p.z == 0.0 {
+                    DVec3::Z
+                } else if p.z == 1.0 {
+                    DVec3::NEG_Z
+                } else if p.x == 0.0 {
+                    DVec3::X
+                } else if p.x == 1.0 {
+                    DVec3::NEG_X
+                } else if p.y == 0.0 {
+                    DVec3::Y
+                } else {
+                    DVec3::NEG_Y
+                };
+                probes.push(twin_probe(p, n));
+            }
+            Interior {
+                scene: b.scene,
+                probes,
+            }
+        }
+    }
+}
+
+/// A probe on a wall of the unit box, labelled by the wall (`floor`, `ceiling`, `wall x=0`, ...).
+fn twin_probe(point: DVec3, normal: DVec3) -> Probe {
+    let surface = match axis_of(normal) {
+        2 if normal.z > 0.0 => "floor".to_string(),
+        2 => "ceiling".to_string(),
+        axis => format!(
+            "wall {}={}",
+            ["x", "y"][axis],
+            if normal[axis] > 0.0 { 0 } else { 1 }
+        ),
+    };
+    Probe {
+        point,
+        normal,
+        surface,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1005,6 +1315,9 @@ mod tests {
                     v.push(("thin", thin_slab(t, tilt, light)));
                 }
             }
+        }
+        for twin in HardTwin::ALL {
+            v.push((twin.name(), hard_twin(twin)));
         }
         v
     }
@@ -1137,6 +1450,105 @@ mod tests {
             if side.scene.materials[t.material as usize].is_emitter() {
                 assert!((t.cross().normalize() - DVec3::X).length() < 1e-12);
             }
+        }
+    }
+
+    /// The twins' lamps face in, and their edges lie on voxel boundaries at the resolutions the
+    /// tests use, so that the voxelized lamp has exactly its area (a voxel shared by a lamp and
+    /// the wall around it takes one material); the slab and the cube are the hard case's.
+    #[test]
+    fn hard_twins_keep_the_hard_cases_geometry_and_exact_lamps() {
+        use crate::voxel::voxelize::{voxelize, GridSpec};
+        use hard_twin_constants::*;
+        for (twin, facing, resolutions, area) in [
+            (
+                HardTwin::WhiteBox,
+                DVec3::NEG_Z,
+                &[13, 37, 61][..],
+                1.0 / 36.0,
+            ),
+            (HardTwin::BlackBox, DVec3::NEG_Z, &[13, 37][..], 1.0 / 36.0),
+            (
+                HardTwin::Slab,
+                DVec3::X,
+                &[25][..],
+                (26.0 / 48.0) * (20.0 / 48.0),
+            ),
+            (
+                HardTwin::SlabTilted,
+                DVec3::X,
+                &[25][..],
+                (26.0 / 48.0) * (20.0 / 48.0),
+            ),
+        ] {
+            let s = hard_twin(twin);
+            let mut lamp_area = 0.0;
+            for t in &s.scene.triangles {
+                if s.scene.materials[t.material as usize].is_emitter() {
+                    assert!(
+                        (t.cross().normalize() - facing).length() < 1e-12,
+                        "{twin:?}"
+                    );
+                    lamp_area += t.area();
+                }
+            }
+            assert!((lamp_area - area).abs() < 1e-12, "{twin:?}: {lamp_area}");
+            for &r in resolutions {
+                let set = voxelize(&s.scene, GridSpec::Resolution(r)).unwrap();
+                let unit = set.grid.voxel_size * set.grid.voxel_size;
+                let emitting: f64 = set
+                    .surfels
+                    .iter()
+                    .filter(|x| set.materials[x.material[0] as usize].is_emitter())
+                    .map(|x| x.area as f64 * unit)
+                    .sum();
+                assert!(
+                    (emitting - area).abs() < 1e-5 * area,
+                    "{twin:?} at {r}: voxelized lamp {emitting} for {area}"
+                );
+            }
+        }
+        // The slab: 0.01 thick, [0.2, 0.8]^2, from z = 0.3; tilted, about the x axis through
+        // (0.5, 0.5, 0.3) as the hard case turns it; the cube from voxel corner to voxel corner.
+        let slab = |s: &Interior| -> Vec<DVec3> {
+            let solid = s
+                .scene
+                .materials
+                .iter()
+                .position(|m| m.name == "solid")
+                .unwrap();
+            let mut points: Vec<DVec3> = s
+                .scene
+                .triangles
+                .iter()
+                .filter(|t| t.material as usize == solid)
+                .flat_map(|t| t.vertices)
+                .filter(|p| p.z < 0.5)
+                .collect();
+            points.sort_by(|a, b| a.to_array().partial_cmp(&b.to_array()).unwrap());
+            points.dedup();
+            points
+        };
+        let flat = slab(&hard_twin(HardTwin::Slab));
+        assert_eq!(flat.len(), 8);
+        for p in &flat {
+            assert!([0.2, 0.8].contains(&p.x) && [0.2, 0.8].contains(&p.y));
+            assert!([SLAB_BOTTOM, SLAB_BOTTOM + SLAB_THICKNESS].contains(&p.z));
+        }
+        let (c, sn) = (SLAB_TILT.cos(), SLAB_TILT.sin());
+        for p in slab(&hard_twin(HardTwin::SlabTilted)) {
+            // Undo the rotation: back on the flat slab's corners.
+            let (y, z) = (p.y - 0.5, p.z - SLAB_BOTTOM);
+            let back = DVec3::new(p.x, 0.5 + c * y + sn * z, SLAB_BOTTOM - sn * y + c * z);
+            assert!(flat.iter().any(|q| q.distance(back) < 1e-12), "{p}");
+        }
+        let voxel = 1.0 / (RESOLUTION - 1) as f64;
+        for edge in [CUBE_MIN, CUBE_MAX] {
+            let k = edge / voxel - 0.5;
+            assert!(
+                (k - k.round()).abs() < 1e-12,
+                "cube edge {edge} is not on a voxel corner"
+            );
         }
     }
 
@@ -1306,6 +1718,15 @@ mod tests {
                     ));
                 }
             }
+        }
+        for twin in HardTwin::ALL {
+            // The twins' tests need their data: it must be there.
+            assert!(
+                root.join(twin.name()).join("reference.csv").exists(),
+                "tests/data/reference/{} is missing: run tools/reference/make_data.py",
+                twin.name()
+            );
+            scenes.push((twin.name().to_string(), hard_twin(twin)));
         }
         let dir = tempfile::tempdir().unwrap();
         let mut checked = 0;

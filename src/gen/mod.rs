@@ -19,7 +19,9 @@ pub mod obj_writer;
 pub mod procedural;
 
 pub use cornell::cornell_box;
-pub use interiors::{corridor, office, thin_slab, window_room, Interior, Probe, SlabLight};
+pub use interiors::{
+    corridor, hard_twin, office, thin_slab, window_room, HardTwin, Interior, Probe, SlabLight,
+};
 pub use obj_writer::write_obj;
 pub use procedural::{
     building, furnace, parallel_rectangles_form_factor, parallel_squares,

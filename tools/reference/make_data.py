@@ -36,7 +36,7 @@ def thin(light, t, tilted):
     return name, args
 
 
-# (name, generate arguments or None for the Cornell box, paths per probe)
+# (name, generate arguments, paths per probe[, extra mitsuba_reference.py arguments])
 SCENES = [
     ("cornell", ["cornell"], 500_000),
     ("office", ["office"], 1_000_000),
@@ -47,15 +47,28 @@ for _tilted in (False, True):
     for _light in ("side", "top"):
         for _t in ("0.5", "1", "0.3", "2"):
             SCENES.append(thin(_light, _t, _tilted) + (300_000,))
+# Twins of the furnace hard cases (tests/hard_case_twins.rs). The white box's reflectance 0.999
+# needs paths without Russian roulette (see mitsuba_reference.py, "Reflectance near 1"): 9,300
+# bounces each, which leave out about 0.999^9300 = 9e-5 of B.
+SCENES += [
+    ("twin-white-box", ["hard-twin", "--twin", "white-box"], 2_000,
+     ["--max-depth", "9300", "--rr-depth", "9300"]),
+    ("twin-black-box", ["hard-twin", "--twin", "black-box"], 100_000),
+    ("twin-slab", ["hard-twin", "--twin", "slab"], 200_000),
+    ("twin-slab-tilted", ["hard-twin", "--twin", "slab-tilted"], 200_000),
+]
 
 
 def spread(ref):
     """Probe count, median and largest relative standard error of B (worst channel per probe) over the
     probes that see light, and the number that do not (B below 1e-4 of the median: probes
-    covered by a solid, such as the Cornell box's floor points under the blocks)."""
+    covered by a solid, such as the Cornell box's floor points under the blocks). Where B is 0 at
+    every probe (a black scene: B = E and no probe is on an emitter) the figures are those of the
+    irradiance H instead."""
     d = np.genfromtxt(ref, delimiter=",", names=True)
-    b = np.stack([d[f"B_{c}"] for c in "rgb"], axis=1)
-    se = np.stack([d[f"se_B_{c}"] for c in "rgb"], axis=1)
+    q = "B" if any(np.any(d[f"B_{c}"] > 0) for c in "rgb") else "H"
+    b = np.stack([d[f"{q}_{c}"] for c in "rgb"], axis=1)
+    se = np.stack([d[f"se_{q}_{c}"] for c in "rgb"], axis=1)
     lit = b.sum(axis=1) > 1e-4 * np.median(b.sum(axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(b > 0, se / np.where(b > 0, b, 1), 0.0).max(axis=1)[lit]
@@ -81,7 +94,8 @@ def main() -> int:
                 "scene,probes,paths,seed,seconds,median_rel_se_B,max_rel_se_B,covered,"
                 "mitsuba,variant,estimator\n"
             )
-    for index, (name, gen, paths) in enumerate(SCENES):
+    for index, (name, gen, paths, *extra) in enumerate(SCENES):
+        extra = extra[0] if extra else []
         if args.only and name not in args.only:
             continue
         paths = max(2, int(paths * args.scale))
@@ -112,7 +126,7 @@ def main() -> int:
         ref = os.path.join(out, "reference.csv")
         subprocess.run(
             [sys.executable, TOOL, obj, "--points", os.path.join(out, "probes.csv"), "--out",
-             ref, "--paths", str(paths), "--seed", str(seed), "--variant", args.variant],
+             ref, "--paths", str(paths), "--seed", str(seed), "--variant", args.variant, *extra],
             check=True,
         )
         seconds = time.time() - start

@@ -32,6 +32,15 @@ Estimators (``--estimator``):
     The plain estimator: cosine-weighted directions traced with the ``path`` integrator,
     ``H = pi * mean(L_i)``. Kept as a cross-check of ``nee`` (``validate.py`` runs both).
 
+Reflectance near 1 (``--max-depth``, ``--rr-depth``): Mitsuba's Russian roulette keeps a path
+with probability ``q = min(max throughput, 0.95)`` and divides its throughput by ``q``; where the
+reflectance is above ``sqrt(0.95) = 0.975`` everywhere the throughput of a surviving path grows
+without bound and the estimator's variance is infinite (its standard errors mean nothing). For
+such scenes turn the roulette off and truncate instead: ``--max-depth D --rr-depth D`` traces
+every path to depth ``D``, and the light that needs more bounces, a fraction of about
+``rho^D`` of ``B``, is left out (``D`` = 9,300 leaves out 1e-4 at ``rho`` 0.999). A path then
+costs ``D`` bounces, but its many vertices also make it a better sample.
+
 One "path" of a probe is one sample of each half. The standard errors are the sample standard
 deviation over the paths divided by ``sqrt(paths)`` (paths are independent).
 
@@ -47,6 +56,10 @@ Example::
 
     python3 tools/reference/mitsuba_reference.py scene.obj --points probes.csv \\
         --out reference.csv --paths 1000000 --seed 1
+
+    # reflectance 0.999: no roulette, paths of 9,300 bounces
+    python3 tools/reference/mitsuba_reference.py box.obj --points probes.csv \\
+        --out reference.csv --paths 2000 --max-depth 9300 --rr-depth 9300
 
 Needs ``pip install mitsuba drjit numpy``; the LLVM variants need ``libllvm`` (Debian:
 ``libllvm19``). Without it, ``--variant scalar_rgb`` works (much slower, one ray at a time).
@@ -413,13 +426,15 @@ def sample_pass_scalar(mi, scene, integrator, sampler, origin, n, s, t, estimato
     return out
 
 
-def estimate(mi, scene, probes, eps, paths, seed, wavefront, estimator, log):
+def estimate(
+    mi, scene, probes, eps, paths, seed, wavefront, estimator, log, max_depth=-1, rr_depth=5
+):
     """Mean and standard error of H per probe: arrays (P, 3), (P, 3)."""
     count = len(probes)
     n = probes[:, 3:6]
     origin = probes[:, :3] + eps * n
     s, t = frames(n)
-    integrator = mi.load_dict({"type": "path", "max_depth": -1})
+    integrator = mi.load_dict({"type": "path", "max_depth": max_depth, "rr_depth": rr_depth})
     scalar = mi.variant().startswith("scalar")
     per_pass = max(1, min(paths, wavefront // count)) if not scalar else 1
     total = np.zeros((count, 3))
@@ -495,6 +510,19 @@ def main(argv=None) -> int:
     parser.add_argument(
         "--wavefront", type=int, default=1 << 20, help="lanes per pass (all probes together)"
     )
+    parser.add_argument(
+        "--max-depth",
+        type=int,
+        default=-1,
+        help="longest path the path integrator traces (-1: unbounded, the default)",
+    )
+    parser.add_argument(
+        "--rr-depth",
+        type=int,
+        default=5,
+        help="depth at which Russian roulette starts (default 5; set it to --max-depth to turn "
+        "it off, see 'Reflectance near 1' above)",
+    )
     parser.add_argument("--threads", type=int, default=0, help="worker threads (0: all)")
     parser.add_argument("--quiet", action="store_true", help="no progress lines")
     args = parser.parse_args(argv)
@@ -531,7 +559,8 @@ def main(argv=None) -> int:
               file=sys.stderr)
     traced = time.time()
     h, se_h = estimate(
-        mi, scene, probes, eps, args.paths, args.seed, args.wavefront, args.estimator, log
+        mi, scene, probes, eps, args.paths, args.seed, args.wavefront, args.estimator, log,
+        args.max_depth, args.rr_depth,
     )
     write_rows(args.out, probes, h, se_h, rho, emit, args.paths)
     if log:
