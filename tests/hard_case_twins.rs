@@ -211,26 +211,23 @@ fn white_box_with_a_tight_tolerance_stops_at_the_f32_floor_near_the_path_traced_
     assert!(balance.abs() < 0.035, "power balance {balance}");
 }
 
+/// Tail extrapolation at reflectance 0.999 under a lamp. It used to diverge (13 directions:
+/// 4 jumps by iteration 20 and `B` 1,260 times the reference, f32 overflow by iteration 100):
+/// the change norms looked geometric while an earlier jump's overshoot was being taken back, and
+/// each jump overshot again. Now no jump is made while part of the change is falling
+/// (`solve::accelerate`, `FALLING_LIMIT`).
 #[test]
-#[ignore = "known defect (src/solve/accelerate.rs): tail extrapolation diverges at reflectance \
-            0.999 under a lamp. Measured (white box, resolution 13, tolerance 1e-4): with 13 \
-            directions 4 extrapolations by iteration 20 and B 1,260 times the reference, B \
-            infinite (f32 overflow) by iteration 100 after 25 to 27 extrapolations, with or \
-            without the direct pass; with 49 directions mean error 5.0 % after 100 iterations, \
-            then 298 extrapolations by iteration 1,000 and B 28 times the reference. The \
-            furnace (uniform B) extrapolates exactly once and stops after 4 iterations. Likely \
-            cause: the jump clamps falling values at E but adds the full tail to rising ones, \
-            so an uneven field gains energy at every jump"]
 fn white_box_with_tail_extrapolation_converges() {
     let name = "twin-white-box";
     let reference = reference(name);
-    let mut accelerated = options(WHITE.1, 1e-4, 3_000);
+    let mut accelerated = options(WHITE.1, 1e-4, 4_500);
     accelerated.accelerate = true;
     let (set, solution) = run(&scene_of(name), WHITE.0, &accelerated);
     let values = probe_values(&set, &solution, &reference);
     let c = compare(name, &reference, &values, &solution, 60);
     assert!(solution.stats.converged, "{:?}", solution.stats);
-    // As the plain solve (mean 2.84 %, balance +2.82 %), in a fraction of its iterations.
+    // As the plain solve (mean 3.27 %, balance +3.29 %, 8,857 iterations), in a third of its
+    // iterations. Measured: 2,837 iterations, mean 3.33 %, balance +3.35 %.
     assert!(c.mean < 0.035, "mean error {}", c.mean);
     let balance = imbalance(&solution);
     assert!(balance.abs() < 0.035, "power balance {balance}");

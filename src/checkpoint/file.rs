@@ -581,8 +581,8 @@ mod tests {
 
     fn header(surfels: u64, within: Option<u64>) -> Header {
         let mut extrapolation = Extrapolation::default();
-        extrapolation.observe(1.0, 0.5);
-        extrapolation.observe(0.5, 0.25);
+        extrapolation.observe(1.0, 0.5, 0.0);
+        extrapolation.observe(0.5, 0.25, 0.0);
         Header {
             identity: Identity {
                 solver: Solver::InMemory,

@@ -1024,7 +1024,7 @@ impl<'a> DataSolver<'a> {
         } else {
             Vec::new()
         };
-        let (mut change, mut total) = (0.0f64, 0.0f64);
+        let (mut change, mut total, mut falling) = (0.0f64, 0.0f64, 0.0f64);
         for e in &held.order {
             let i = e.index as usize;
             let id = held.ids[i] as usize;
@@ -1035,19 +1035,21 @@ impl<'a> DataSolver<'a> {
                 for ch in 0..self.channels {
                     let b = self.emission[id][side][ch] as f64
                         + self.reflectance[id][side][ch] * held.acc[i][side][ch] / norm;
-                    change += area * (b - held.radiosity[i][side][ch] as f64).abs();
+                    let d = b - held.radiosity[i][side][ch] as f64;
+                    change += area * d.abs();
+                    falling += area * (-d).max(0.0);
                     total += area * b;
                     held.radiosity[i][side][ch] = b as f32;
                 }
             }
         }
         let mut sums = if self.group == 0 {
-            [change, total]
+            [change, total, falling]
         } else {
-            [0.0, 0.0]
+            [0.0, 0.0, 0.0]
         };
         world.sum_in_place(&mut sums);
-        let [change, total] = sums;
+        let [change, total, falling] = sums;
         let stop = convergence.record(iteration, change, total, self.options, stats, |r| {
             extrapolation.error_estimate(r)
         });
@@ -1056,7 +1058,7 @@ impl<'a> DataSolver<'a> {
         }
         if self.options.accelerate {
             let relative = stats.last_change;
-            if let Some(factor) = extrapolation.observe(change, relative) {
+            if let Some(factor) = extrapolation.observe(change, relative, falling) {
                 let emission: Vec<[[f32; 3]; 2]> = held
                     .ids
                     .iter()

@@ -414,8 +414,11 @@ fn run(
             break;
         }
         if let Some(path) = &previous {
-            if let Some(factor) = extrapolation.observe(result.sums.change, stats.solve.last_change)
-            {
+            if let Some(factor) = extrapolation.observe(
+                result.sums.change,
+                stats.solve.last_change,
+                result.sums.falling,
+            ) {
                 extrapolate_canonical(source, &work, &plan, path, factor, &mut io)?;
                 // The jump is not an iteration's change: the stopping rule starts again.
                 convergence.restart();
@@ -585,6 +588,8 @@ struct Update {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct UpdateSums {
     pub change: f64,
+    /// Area times the decrease, where a value fell (see `solve::accelerate`).
+    pub falling: f64,
     pub total: f64,
     pub emitted: [f64; 3],
     pub absorbed: [f64; 3],
@@ -616,7 +621,9 @@ pub fn update_surfel(
         for ch in 0..3 {
             let e = m.emission[ch] as f32 as f64;
             let b = e + m.reflectance[ch] * h[side][ch] / norm;
-            sums.change += area * (b - previous[side][ch] as f64).abs();
+            let d = b - previous[side][ch] as f64;
+            sums.change += area * d.abs();
+            sums.falling += area * (-d).max(0.0);
             sums.total += area * b;
             b_new[side][ch] = b as f32;
             sums.emitted[ch] += m.emission[ch] * area * area_unit;

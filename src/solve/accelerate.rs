@@ -15,6 +15,12 @@
 //!   scene with `q` near 1 would put energy in that the next iterations must take out);
 //! - the extrapolated value never goes below the emission (`B >= E`) nor below the current value
 //!   where the change is positive (the tail of a non-negative series is non-negative);
+//! - only while the iteration is still monotone: plain Jacobi from `B_0 = E` only raises values,
+//!   so a falling part of the change (more than [`FALLING_LIMIT`] of it) means an earlier jump
+//!   overshot somewhere and the iterations are taking it back. The change norms can look
+//!   geometric then (at reflectance 0.999 under a lamp they do), but extrapolating a correction
+//!   with a factor near `1 / (1 - q)` overshoots again, and repeated jumps diverged (`B` a
+//!   thousand times the answer within 20 iterations in `tests/hard_case_twins.rs`);
 //! - after an extrapolation the change history starts again, and the solver's stopping rule must
 //!   do the same (an extrapolation is a jump, not an iteration's change); until it has two fresh
 //!   changes it estimates the error left with the contraction measured before the jump
@@ -31,6 +37,10 @@ const NOISE_FLOOR: f64 = 1e-6;
 
 /// Two successive ratios of change norms must agree to this relative difference.
 const RATIO_AGREEMENT: f64 = 2e-2;
+
+/// Largest falling part of an iteration's change (area times the decrease, over the change
+/// norm) at which it still counts as the monotone tail of plain Jacobi.
+pub const FALLING_LIMIT: f64 = 1e-3;
 
 /// Decides when to extrapolate, from the per-iteration change norms alone.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -59,13 +69,17 @@ impl Extrapolation {
         }
     }
 
-    /// Records iteration `k`'s change norm `change` (absolute) and its relative change
-    /// `relative` (`change / total`); returns the factor `q / (1 - q)` to extrapolate with, or
-    /// `None` to iterate plainly.
-    pub fn observe(&mut self, change: f64, relative: f64) -> Option<f64> {
+    /// Records iteration `k`'s change norm `change` (absolute, sum of area times |d|), its
+    /// relative change `relative` (`change / total`) and its falling part `falling` (sum of area
+    /// times the decrease where values went down); returns the factor `q / (1 - q)` to
+    /// extrapolate with, or `None` to iterate plainly.
+    pub fn observe(&mut self, change: f64, relative: f64, falling: f64) -> Option<f64> {
         self.changes.push(change);
         let n = self.changes.len();
         if n < 3 || relative < NOISE_FLOOR || !change.is_finite() {
+            return None;
+        }
+        if falling > FALLING_LIMIT * change {
             return None;
         }
         let (a, b, c) = (
@@ -137,7 +151,7 @@ mod tests {
         for k in 1..=3 {
             let prev = b;
             b += e * rho.powi(k);
-            factor = ex.observe(b - prev, (b - prev) / b);
+            factor = ex.observe(b - prev, (b - prev) / b, 0.0);
         }
         let f = factor.expect("three geometric changes are enough");
         let mut current = [[[b as f32; 3]; 2]];
@@ -151,15 +165,26 @@ mod tests {
     #[test]
     fn no_extrapolation_while_ratios_disagree_or_in_noise() {
         let mut ex = Extrapolation::default();
-        assert_eq!(ex.observe(1.0, 0.1), None);
-        assert_eq!(ex.observe(0.5, 0.05), None);
+        assert_eq!(ex.observe(1.0, 0.1, 0.0), None);
+        assert_eq!(ex.observe(0.5, 0.05, 0.0), None);
         // Ratio 0.5 then 0.8: not geometric yet.
-        assert_eq!(ex.observe(0.4, 0.04), None);
+        assert_eq!(ex.observe(0.4, 0.04, 0.0), None);
         // Geometric but below the noise floor.
         let mut quiet = Extrapolation::default();
         for c in [1e-8, 0.5e-8, 0.25e-8] {
-            assert_eq!(quiet.observe(c, c), None);
+            assert_eq!(quiet.observe(c, c, 0.0), None);
         }
+    }
+
+    #[test]
+    fn no_extrapolation_while_an_overshoot_is_taken_back() {
+        // Geometric change norms, but a tenth of the last change is values falling.
+        let mut ex = Extrapolation::default();
+        assert_eq!(ex.observe(1.0, 0.1, 0.0), None);
+        assert_eq!(ex.observe(0.5, 0.05, 0.0), None);
+        assert_eq!(ex.observe(0.25, 0.025, 0.025), None);
+        // Once the values only rise again, the tail is extrapolated.
+        assert!(ex.observe(0.125, 0.0125, 0.0).is_some());
     }
 
     #[test]

@@ -419,7 +419,7 @@ fn run(
         if options.accelerate {
             previous.clone_from(&radiosity);
         }
-        let (mut change, mut total) = (0.0f64, 0.0f64);
+        let (mut change, mut total, mut falling) = (0.0f64, 0.0f64, 0.0f64);
         for k in 0..n {
             let s = &set.surfels[k];
             let norm = cosine_sum[s.normal_id as usize];
@@ -431,7 +431,9 @@ fn run(
                     if let Some(d) = &direct {
                         b += reflectance[k][side][ch] * d.irradiance[k][side][ch];
                     }
-                    change += area * (b - radiosity[k][side][ch] as f64).abs();
+                    let d = b - radiosity[k][side][ch] as f64;
+                    change += area * d.abs();
+                    falling += area * (-d).max(0.0);
                     total += area * b;
                     radiosity[k][side][ch] = b as f32;
                 }
@@ -447,7 +449,7 @@ fn run(
             break;
         }
         if options.accelerate {
-            if let Some(factor) = extrapolation.observe(change, relative) {
+            if let Some(factor) = extrapolation.observe(change, relative, falling) {
                 super::accelerate::extrapolate(&mut radiosity, &previous, &emission, factor);
                 // The jump is not an iteration's change: the stopping rule starts again.
                 convergence.restart();

@@ -362,7 +362,7 @@ impl Solver<'_> {
             )?;
             held = next;
             stats.updates += surfels * d_count as u64;
-            let mut sums = [result.change, result.total];
+            let mut sums = [result.change, result.total, result.falling];
             self.comm.sum_in_place(&mut sums);
             seconds.reduce += t.elapsed().as_secs_f64();
             let stop = convergence.record(
@@ -379,7 +379,7 @@ impl Solver<'_> {
                 break;
             }
             if self.options.accelerate {
-                if let Some(factor) = extrapolation.observe(sums[0], stats.last_change) {
+                if let Some(factor) = extrapolation.observe(sums[0], stats.last_change, sums[2]) {
                     let t = Instant::now();
                     generation += 1;
                     held = self.extrapolate(held, generation, dir, &plan, factor, &mut io)?;
