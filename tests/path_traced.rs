@@ -144,9 +144,9 @@ fn thin_slab_faces_match_the_path_traced_reference() {
 #[test]
 fn realistic_rooms_and_the_cornell_box_against_the_reference() {
     // (scene, resolution, largest mean error, largest |balance| where the scene is closed);
-    // measured: window room 2.42 % and -0.59 %, corridor 9.44 % and +4.9 %, Cornell box (open
-    // at the front) 5.29 %, office 13.4 % and -10.8 % (its 6 cm lamp housings are a sixth of a
-    // voxel tall here; 30.7 % and -25 % before the rim test of `propagate::off_the_run`).
+    // measured: window room 2.4 % and -0.58 %, corridor 8.8 % and +4.4 %, Cornell box (open at
+    // the front) 5.3 %, office 14.0 % and -10.5 % (its 6 cm lamp housings are a sixth of a voxel
+    // tall here; 30.7 % and -25 % before the rim test of `propagate::off_the_run`).
     let cases: [(&str, u32, f64, Option<f64>); 4] = [
         ("window-room", 64, 0.04, Some(0.01)),
         ("corridor", 64, 0.10, Some(0.06)),
