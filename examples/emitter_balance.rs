@@ -13,7 +13,7 @@
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
 use voxrad::geometry::order;
-use voxrad::solve::dispatch::{dispatch, Lines, OrderedEntry};
+use voxrad::solve::dispatch::{dispatch, Lines};
 use voxrad::solve::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 
@@ -47,21 +47,7 @@ fn main() {
         }
     }
     let dirs = DirectionSet::with_count(ndir);
-    let entries: Vec<Vec<OrderedEntry>> = (0..4)
-        .map(|o| {
-            let mut e: Vec<OrderedEntry> = set
-                .surfels
-                .iter()
-                .enumerate()
-                .map(|(i, s)| OrderedEntry {
-                    voxel: s.voxel,
-                    index: i as u32,
-                })
-                .collect();
-            e.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
-            e
-        })
-        .collect();
+    let entries = voxrad::solve::dispatch::lexicographic_orders(&set);
     let mut lines = Lines::default();
     let (mut tot_sent, mut tot_own) = (0.0, 0.0);
     let only: Option<Vec<i64>> = std::env::var("DIR")

@@ -15,7 +15,7 @@
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
 use voxrad::geometry::order;
-use voxrad::solve::dispatch::{dispatch, Lines, OrderedEntry};
+use voxrad::solve::dispatch::{dispatch, Lines};
 use voxrad::solve::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 use voxrad::voxel::FRONT;
@@ -49,21 +49,7 @@ fn main() {
     });
     let verbose = args.get(4).is_some_and(|a| a == "v");
     let directions = DirectionSet::with_count(count);
-    let entries: Vec<Vec<OrderedEntry>> = (0..4)
-        .map(|o| {
-            let mut e: Vec<OrderedEntry> = set
-                .surfels
-                .iter()
-                .enumerate()
-                .map(|(i, s)| OrderedEntry {
-                    voxel: s.voxel,
-                    index: i as u32,
-                })
-                .collect();
-            e.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
-            e
-        })
-        .collect();
+    let entries = voxrad::solve::dispatch::lexicographic_orders(&set);
     let materials = set.materials.len();
     // Per surfel: (missing, projected) area of its front side, solid-angle weighted, and whether
     // any ray from it met a surface (a face in contact with another, such as a wall's foot on the

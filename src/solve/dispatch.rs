@@ -18,6 +18,27 @@ pub struct OrderedEntry {
     pub index: u32,
 }
 
+/// The surfels of `set` in each of the four lexicographic orders (`geometry::order`), sorted once
+/// per solve: every direction's dispatch reads the order of its octant.
+pub fn lexicographic_orders(set: &crate::voxel::SurfelSet) -> Vec<Vec<OrderedEntry>> {
+    (0..4)
+        .into_par_iter()
+        .map(|o| {
+            let mut entries: Vec<OrderedEntry> = set
+                .surfels
+                .iter()
+                .enumerate()
+                .map(|(i, s)| OrderedEntry {
+                    voxel: s.voxel,
+                    index: i as u32,
+                })
+                .collect();
+            entries.sort_by_key(|e| (crate::geometry::order::sort_key(o, e.voxel), e.index));
+            entries
+        })
+        .collect()
+}
+
 /// The lines of one direction: `members[starts[l]..starts[l + 1]]` are line `l`'s surfel indices,
 /// sorted along the direction. Buffers are reused across directions.
 #[derive(Default)]

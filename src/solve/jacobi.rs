@@ -201,24 +201,8 @@ fn run(
 
     let surfels = prop_surfels(set);
     // The four lexicographic orders, sorted once.
-    let orders: Vec<Vec<OrderedEntry>> = pool.install(|| {
-        (0..4)
-            .into_par_iter()
-            .map(|o| {
-                let mut entries: Vec<OrderedEntry> = set
-                    .surfels
-                    .iter()
-                    .enumerate()
-                    .map(|(i, s)| OrderedEntry {
-                        voxel: s.voxel,
-                        index: i as u32,
-                    })
-                    .collect();
-                entries.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
-                entries
-            })
-            .collect()
-    });
+    let orders: Vec<Vec<OrderedEntry>> =
+        pool.install(|| super::dispatch::lexicographic_orders(set));
     // This rank's directions (all of them on one process).
     let mine = crate::distribute::dealt(directions.len(), comm.rank(), comm.size());
     let frames: Vec<LineFrame> = directions

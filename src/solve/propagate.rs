@@ -770,21 +770,12 @@ impl LineView<'_> {
                 if k3 == k2 || k3 == k || mate.group == c.group {
                     return true;
                 }
-                // Which side of the mate's plane the candidate's piece lies on, from the piece's
-                // bounding box; a piece running through the plane (a T-junction) is not bounded
-                // by it.
-                let n = mate.normal;
-                let base = n.dot(offset(mate, c) - c.point);
-                let (a, b) = (n * c.lo, n * c.hi);
-                let low = base + a.min(b).element_sum();
-                let high = base + a.max(b).element_sum();
-                let piece_side = if low >= -EPS {
-                    1.0
-                } else if high <= EPS {
-                    -1.0
-                } else {
+                // Which side of the mate's plane the candidate's piece lies on; a piece running
+                // through the plane (a T-junction) is not bounded by it.
+                let Some(piece_side) = side_of(mate, c) else {
                     return true;
                 };
+                let n = mate.normal;
                 // Crossing point relative to the mate's point.
                 let q = dir * t - offset(x, mate);
                 n.dot(q) * piece_side >= -EPS
