@@ -7,9 +7,9 @@
 //! `cargo run --release --example emitter_balance SCENE.obj RESOLUTION DIRECTIONS [v]` prints the
 //! total (`sent / own - 1`; 0 is exact); with `v` also each direction; with `DIR=a,b,c` in the
 //! environment only that direction, with every line that carries an emitter (surfels, partners
-//! and weights); with `SEND=NAME` the sides of material `NAME` send instead of the emitters'
-//! (where a reflecting object creates light). That is how the open-edge and lamp-under-ceiling rules of `solve::propagate`
-//! were found.
+//! and weights, and the line's sent and own sums); with `SEND=NAME` the sides of material
+//! `NAME` send instead of the emitters' (where a reflecting object creates light). That is how
+//! the open-edge, lamp-under-ceiling and rim rules of `solve::propagate` were found.
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
 use voxrad::geometry::order;
