@@ -216,7 +216,17 @@ fn run(
     let direct = options
         .direct
         .directions_for(set, directions.len())
-        .map(|dense| super::direct::gather_direct(set, &surfels, &emission, &dense, comm, pool));
+        .map(|dense| {
+            super::direct::gather_direct(
+                set,
+                &surfels,
+                &emission,
+                &dense,
+                super::direct::SenderBalance::PerDirection,
+                comm,
+                pool,
+            )
+        });
     let mut reflected = Vec::new();
 
     let channels = if options.grey && super::effects::is_grey(set) {
