@@ -120,8 +120,51 @@ pub enum SenderBalance {
     Off,
 }
 
-/// Directions per block: enough parallel work per block, a bounded list of contributions.
-const BLOCK: usize = 256;
+/// Consecutive directions (neighbours on the sphere) among which a sender's power that no
+/// receiver's ray met along one of them (a few percent of a lamp two voxels wide) is sent along
+/// the others.
+const GROUP: usize = 32;
+
+/// Directions per block (a multiple of [`GROUP`]): enough parallel work per block, a bounded
+/// list of contributions.
+const BLOCK: usize = 4 * GROUP;
+
+/// Each sender's scale in each direction of a group: the power its own rays carry over what its
+/// receivers gathered from it, times the group's share of its power that no receiver gathered
+/// (1 without the balance). Indexed like each direction's `senders`.
+fn group_scales(group: &[DirectionLight], balance: SenderBalance) -> Vec<Vec<f64>> {
+    if balance == SenderBalance::Off {
+        return group.iter().map(|d| vec![1.0; d.senders.len()]).collect();
+    }
+    // By sender: its power over the group, and the part of it along directions where some
+    // receiver gathered from it.
+    let mut power: HashMap<(u32, usize), (f64, f64)> = HashMap::new();
+    for direction in group {
+        for (key, sender) in &direction.senders {
+            let sum = power.entry(*key).or_default();
+            sum.0 += sender.own;
+            if sender.sent > 0.0 {
+                sum.1 += sender.own;
+            }
+        }
+    }
+    group
+        .iter()
+        .map(|direction| {
+            direction
+                .senders
+                .iter()
+                .map(|(key, sender)| {
+                    let (all, caught) = power[key];
+                    if sender.sent <= 0.0 || sender.own <= 0.0 {
+                        return 1.0;
+                    }
+                    (sender.own / sender.sent * all / caught).clamp(1.0 / MAX_SCALE, MAX_SCALE)
+                })
+                .collect()
+        })
+        .collect()
+}
 
 /// Gathers the direct light of `set` along `directions`, this rank's share of the directions
 /// (dealt as `distribute::dealt` deals them), summed over the ranks of `comm`. The work runs on
@@ -144,7 +187,13 @@ pub fn gather_direct(
         .collect();
     let table = VoxelTable::new(set);
     let cosine_sum = pool.install(|| cosine_sums(&set.normals, directions));
-    let mine = crate::distribute::dealt(directions.len(), comm.rank(), comm.size());
+    // Groups of consecutive directions (neighbours on the sphere), dealt over the ranks: a
+    // sender's scale is settled over a group, so it does not depend on the rank count.
+    let groups = directions.len().div_ceil(GROUP);
+    let mine: Vec<usize> = crate::distribute::dealt(groups, comm.rank(), comm.size())
+        .into_iter()
+        .flat_map(|g| g * GROUP..((g + 1) * GROUP).min(directions.len()))
+        .collect();
     let mut acc = vec![[[0f64; 3]; 2]; set.surfels.len()];
     // By surfel side: how much the senders' scales moved its gathered weights.
     let mut rescaled = vec![[0f64; 2]; set.surfels.len()];
@@ -155,13 +204,12 @@ pub fn gather_direct(
     };
     let context = Context {
         dims: set.grid.dims,
-        set,
-        cosine_sum: &cosine_sum,
-        balance,
         surfels,
         emission,
         emitters: &emitters,
         table: &table,
+        set,
+        cosine_sum: &cosine_sum,
     };
     for block in mine.chunks(BLOCK) {
         let gathered: Vec<DirectionLight> = pool.install(|| {
@@ -172,19 +220,20 @@ pub fn gather_direct(
                 })
                 .collect()
         });
-        for direction in gathered {
-            stats.lines += direction.lines;
-            stats.line_surfels += direction.line_surfels;
-            for (index, light, shift) in direction.received {
-                let to = &mut acc[index as usize];
-                for side in 0..2 {
-                    for ch in 0..3 {
-                        to[side][ch] += light[side][ch];
+        // The block starts a group and holds whole groups (but for the last one).
+        for group in gathered.chunks(GROUP) {
+            let scales = group_scales(group, balance);
+            for (direction, scales) in group.iter().zip(&scales) {
+                stats.lines += direction.lines;
+                stats.line_surfels += direction.line_surfels;
+                for &(member, side, sender, light, weight) in &direction.contributions {
+                    let scale = scales[sender as usize];
+                    let (member, side) = (member as usize, side as usize);
+                    for (t, l) in acc[member][side].iter_mut().zip(light) {
+                        *t += l * scale;
                     }
+                    rescaled[member][side] += weight * (scale - 1.0);
                 }
-                let by = &mut rescaled[index as usize];
-                by[0] += shift[0];
-                by[1] += shift[1];
             }
         }
     }
@@ -218,12 +267,15 @@ pub fn gather_direct(
 }
 
 /// What one direction's emitter lines gave.
+#[derive(Default)]
 struct DirectionLight {
     lines: u64,
     line_surfels: u64,
-    /// Receivers, their gathered light (`H`, not yet divided by `S`) and how much the senders'
-    /// scales moved their gathered weights, by side.
-    received: Vec<(u32, SideLight, [f64; 2])>,
+    /// The emitting plane sides met, by (plane group, side), in that order.
+    senders: Vec<((u32, usize), Sender)>,
+    /// Light from emitters: (receiver, its side, index in `senders`, light before the sender's
+    /// scale, the weight it was gathered with).
+    contributions: Vec<(u32, u8, u32, [f64; 3], f64)>,
 }
 
 /// A task's reusable buffers: one line at a time, copied into local arrays so that
@@ -247,11 +299,10 @@ struct Buffers {
 
 /// One side of an emitting plane in one direction: the power its receivers gathered from it and
 /// the power its own rays carry (both in `A W |n.s| / S(n)`, without the emission).
-#[derive(Default)]
+#[derive(Clone, Copy, Default)]
 struct Sender {
     sent: f64,
     own: f64,
-    scale: f64,
 }
 
 /// The most a sender's light is scaled up or down in one direction.
@@ -263,7 +314,6 @@ struct Context<'a> {
     set: &'a SurfelSet,
     /// `S_dense(n)` by normal id.
     cosine_sum: &'a [f64],
-    balance: SenderBalance,
     surfels: &'a [PropSurfel],
     emission: &'a [[[f32; 3]; 2]],
     emitters: &'a [u32],
@@ -281,11 +331,7 @@ impl Context<'_> {
         );
         b.line_ids.sort_unstable();
         b.line_ids.dedup();
-        let mut out = DirectionLight {
-            lines: 0,
-            line_surfels: 0,
-            received: Vec::new(),
-        };
+        let mut out = DirectionLight::default();
         let weight = d.solid_angle / std::f64::consts::PI;
         b.senders.clear();
         b.sender_at.clear();
@@ -306,30 +352,31 @@ impl Context<'_> {
             find_partners(&b.local_line, &b.local_surfels, d.unit, &mut b.scratch);
             self.balance_line(d, weight, b);
         }
-        // Each emitting plane's side sends, along this direction, what its own rays carry:
-        // `A |n.s| W / S(n)` per piece whose ray meets a surface. The receivers that caught it
-        // share it in proportion to what they gathered.
-        for sender in &mut b.senders {
-            sender.scale = if self.balance == SenderBalance::Off {
-                1.0
-            } else if sender.sent > 0.0 && sender.own > 0.0 {
-                (sender.own / sender.sent).clamp(1.0 / MAX_SCALE, MAX_SCALE)
-            } else {
-                1.0
-            };
-        }
-        b.contributions.sort_by_key(|c| c.0);
-        for &(member, side, sender, light, weight) in &b.contributions {
-            let scale = b.senders[sender as usize].scale;
-            if out.received.last().is_none_or(|r| r.0 != member) {
-                out.received.push((member, [[0.0; 3]; 2], [0.0; 2]));
+        out.senders = b
+            .sender_at
+            .iter()
+            .map(|(&key, &i)| (key, b.senders[i]))
+            .collect();
+        // In a fixed order: the hash map's is not.
+        out.senders.sort_by_key(|s| s.0);
+        let order: HashMap<(u32, usize), u32> = out
+            .senders
+            .iter()
+            .enumerate()
+            .map(|(i, s)| (s.0, i as u32))
+            .collect();
+        let renumber: Vec<u32> = {
+            let mut r = vec![0; b.senders.len()];
+            for (&key, &i) in &b.sender_at {
+                r[i] = order[&key];
             }
-            let to = out.received.last_mut().expect("pushed above");
-            for (t, l) in to.1[side as usize].iter_mut().zip(light) {
-                *t += l * scale;
-            }
-            to.2[side as usize] += weight * (scale - 1.0);
-        }
+            r
+        };
+        out.contributions = b
+            .contributions
+            .iter()
+            .map(|&(m, side, sender, light, w)| (m, side, renumber[sender as usize], light, w))
+            .collect();
         out
     }
 
