@@ -563,47 +563,50 @@ impl LineView<'_> {
         t: f32,
         dir: Vec3,
     ) -> usize {
-        // The run from the candidate's voxel on, along the search: the search met nothing of
-        // the plane before it.
-        let [first, last] = self.runs[c];
-        let (first, last) = if FORWARD {
-            (g_c as u32, last)
-        } else {
-            (first, g_c as u32)
-        };
-        if first == last {
+        // A voxel-mate of the receiver (the other wall at a corner) is met where the two meet.
+        if self.locals[c].voxel == x.voxel {
             return c;
         }
+        let plane = self.locals[c].group;
         let main = self.main;
         let layer = (x.voxel[main] as f32 + x.point[main] + dir[main] * t).floor() as i32;
-        // Voxel groups along the line have monotone main coordinates, rising along `s`.
-        let rising = self.locals[self.groups[first as usize]].voxel[main]
-            <= self.locals[self.groups[last as usize]].voxel[main];
-        let before = |g: usize| {
-            let v = self.locals[self.groups[g]].voxel[main];
-            if rising {
-                v < layer
-            } else {
-                v > layer
+        let coordinate = |g: usize| self.locals[self.groups[g]].voxel[main];
+        // Walk from the candidate's voxel along the search (the search met nothing of the plane
+        // before it), one layer at a time towards the crossing's, while the next voxel holds the
+        // plane alone (a voxel holding another surface too, a wall standing on the floor, may
+        // block the ray before the plane beyond: only the search's own tests there can tell)
+        // and lies in the next layer (a gap ends it too). The walk is the same whichever way
+        // the line is listed, so the out-of-core solver, which lists some lines the other way,
+        // finds the same partner.
+        let group_count = self.groups.len() - 1;
+        let mut at = g_c;
+        loop {
+            let here = coordinate(at);
+            if here == layer {
+                break;
             }
-        };
-        // The first voxel group of the run not before the crossing's layer (binary search).
-        let (mut lo, mut hi) = (first as usize, last as usize);
-        while lo < hi {
-            let mid = (lo + hi) / 2;
-            if before(mid) {
-                lo = mid + 1;
+            let next = if FORWARD {
+                at + 1
+            } else if at == 0 {
+                break;
             } else {
-                hi = mid;
+                at - 1
+            };
+            if next >= group_count || self.single[next] != plane {
+                break;
             }
+            let there = coordinate(next);
+            // Towards the crossing's layer, by one layer.
+            if (there - here).abs() != 1 || (layer - there).abs() >= (layer - here).abs() {
+                break;
+            }
+            at = next;
         }
-        let at = lo;
         if self.locals[self.groups[at]].voxel == self.locals[c].voxel {
             return c;
         }
         // A plane held twice there (two coincident pieces facing opposite ways): the piece
         // whose front faces the receiver, as in `best_in`.
-        let plane = self.locals[c].group;
         let mut chosen: Option<usize> = None;
         for k in self.groups[at]..self.groups[at + 1] {
             let piece = &self.locals[k];
