@@ -168,7 +168,9 @@ fn white_box_at_reflectance_0_999_converges_to_the_path_traced_answer() {
     // As in the furnace, the stopping rule must keep going for thousands of iterations.
     assert!(stats.converged, "{stats:?}");
     assert!(stats.iterations > 5_000, "{stats:?}");
-    // Measured (with the senders' balance of the direct pass, `solve::direct`: 8,909 iterations,
+    // Measured (with the partner taken where the ray crosses a plane's run, `propagate`,
+    // `where_crossed`: mean 1.50 %, max 3.7 %, balance +2.33 %; with the senders' balance of
+    // the direct pass, `solve::direct`, before it: 8,909 iterations,
     // mean 2.72 %, max 6.2 %, balance +2.57 %; after the rim test of `propagate::off_the_run`
     // and before the balance: 8,857 iterations, mean 3.27 %,
     // max 7.2 %, balance +3.29 %; before it:) 8,931 iterations; mean 2.84 %, max 6.9 %, every
@@ -177,8 +179,8 @@ fn white_box_at_reflectance_0_999_converges_to_the_path_traced_answer() {
     // the light per bounce shows a thousand times larger). The direct pass alone delivers 2.4 %
     // less than the lamp emits (see `black_box_walls_receive_the_path_traced_direct_light`); the
     // answer's level follows the balance.
-    assert!(c.mean < 0.035, "mean error {}", c.mean);
-    assert!(c.max < 0.085, "largest error {}", c.max);
+    assert!(c.mean < 0.02, "mean error {}", c.mean);
+    assert!(c.max < 0.05, "largest error {}", c.max);
     let failures = faces_above(name, &c, |_| 0.04);
     assert!(failures.is_empty(), "{failures:#?}");
     let balance = imbalance(&solution);
@@ -205,8 +207,8 @@ fn white_box_with_a_tight_tolerance_stops_at_the_f32_floor_near_the_path_traced_
     // Where it stops, the answer is no further from the reference than the converged one: no
     // drift, no blow-up. Measured: stalled after 9,381 iterations; mean 2.84 %, max 6.9 %, walls
     // 2.5 to 3.2 % low, power balance +2.81 %, as in the converged solve.
-    assert!(c.mean < 0.035, "mean error {}", c.mean);
-    assert!(c.max < 0.085, "largest error {}", c.max);
+    assert!(c.mean < 0.02, "mean error {}", c.mean);
+    assert!(c.max < 0.05, "largest error {}", c.max);
     let failures = faces_above(name, &c, |_| 0.04);
     assert!(failures.is_empty(), "{failures:#?}");
     let balance = imbalance(&solution);
@@ -276,8 +278,8 @@ fn thin_slab_and_grid_aligned_cube_under_side_light_match_the_reference() {
     // (`solve::direct`): mean 3.26 %, max 14.9 %, slab top -3.96 %, its rims -5.87 %, bottom
     // -3.18 %, its rims -2.98 %, cube +x -4.90 %, +y +3.40 %; balance +0.36 %. With the
     // partner taken where the ray crosses a plane's run (`propagate`, `where_crossed`): mean
-    // 3.35 %, max 16.4 %, slab top -5.70 %, its rims -7.55 %, bottom -1.94 %, its rims -1.94 %,
-    // cube +x -6.46 %; floor +1.60 %, ceiling +1.58 %; balance +0.50 %.
+    // 3.27 %, max 16.5 %, balance +0.49 %; its first version measured slab top -5.70 %, its rims
+    // -7.55 %, bottom -1.94 %, its rims -1.94 %, cube +x -6.46 %.
     assert!(c.mean < 0.035, "mean error {}", c.mean);
     assert!(c.max < 0.18, "largest error {}", c.max);
     let failures = faces_above("twin-slab", &c, slab_face_bound);
@@ -372,7 +374,7 @@ fn black_box_walls_receive_the_path_traced_direct_light() {
     // above the ceiling's plane: 11 to 73 % low at 13, 10 to 25 % low on three walls at 37;
     // lower points are up to 29 % too bright at 13.
     for (resolution, directions, mean, max, face, balance_bound) in [
-        (13, 49, 0.24, 0.8, 0.25, 0.03),
+        (13, 49, 0.19, 0.8, 0.25, 0.03),
         (37, 193, 0.075, 0.29, 0.065, 0.012),
     ] {
         // The black box itself: one pass, B = E on the lamp's front and 0 everywhere else, and
