@@ -44,6 +44,12 @@
 //! glowing cube nine voxels wide over-counted its power by 1 to 3 % at every placement (now
 //! scattered around zero with the placement).
 //!
+//! **Where along a run.** Once a plane is hit, its partner piece is the one in the voxel of the
+//! plane's run whose layer along the line's main axis holds the ray's crossing point, not the
+//! run's first voxel (`LineView::where_crossed`): a lamp that fills an opening of a ceiling is
+//! the ceiling's plane, and was unseen at grazing elevations while the first voxel took every
+//! ray.
+//!
 //! Every surfel side receives exactly one gather per line direction, so accumulating in direction
 //! order makes the result independent of how lines are spread over threads.
 //!
