@@ -10,8 +10,8 @@
 //! `B = E + rho * (H_dense(E) / S_dense(n) + H_coarse(B - E) / S_coarse(n))`.
 //!
 //! Each term is divided by the cosine sum of its own direction set (`normalize`; for the dense
-//! term, adjusted as below), so a uniform field is reproduced by each: the furnace stays exactly `E / (1 - rho)`, and the power balance
-//! (emitted against absorbed) holds as in a plain solve.
+//! term, adjusted as below), so a uniform field is reproduced by each: the furnace stays exactly
+//! `E / (1 - rho)`, and the power balance (emitted against absorbed) holds as in a plain solve.
 //!
 //! **Each emitter sends its power, direction by direction** ([`SenderBalance`]). A receiver's
 //! ray is one point sample of where it meets a plane, so along one direction a lamp smaller than
@@ -25,7 +25,9 @@
 //! (`t_e` the share of the emitter's ray along `s` that meets a surface, 0 where it leaves the
 //! scene), and what its receivers gathered from it is scaled by `own / sent` (within
 //! [`MAX_SCALE`]). The emitters' lines hold every receiver of an emitter, so this needs nothing
-//! beyond the pass's own lines.
+//! beyond the pass's own lines. Where no receiver's ray met an emitter along a direction, its
+//! power there goes along the other directions of its [`GROUP`] of consecutive ones (neighbours
+//! on the sphere); groups are dealt whole over ranks, so the rank count does not change it.
 //!
 //! Scaling a sender moves its receivers' gathered weights away from `S(n)`, which a uniform
 //! field would notice (a furnace with the pass was 1.3 % off at resolution 8). Each side's
@@ -52,7 +54,7 @@
 
 use super::normalize::cosine;
 use super::normalize::cosine_sums;
-use super::propagate::{find_partners, LineScratch, PropSurfel};
+use super::propagate::{find_partners, for_each_link, LineScratch, PropSurfel};
 use crate::distribute::Comm;
 use crate::geometry::directions::{Direction, DirectionSet};
 use crate::geometry::lines::LineFrame;
@@ -400,55 +402,42 @@ impl Context<'_> {
             })
         };
         let surfel = |k: usize| &self.set.surfels[members[k] as usize];
-        // `n.s` in f32, as propagation decides which side faces along the direction.
-        let unit = d.unit.as_vec3();
-        let ns = |k: usize| glam::Vec3::from(surfel(k).normal).dot(unit);
-        let side_facing = |along: f32| if along > 0.0 { FRONT } else { BACK };
         // The chain total of each position's search ahead (0) and behind (1).
         totals.clear();
         totals.resize(members.len(), [0.0; 2]);
-        let mut gather = |k: usize, which: u8, position: u32, w: f32| {
-            if position == u32::MAX {
+        for_each_link(scratch, d.unit, |link| {
+            totals[link.receiver][link.which as usize] += link.share as f64;
+            if link.cosine == 0.0 {
                 return;
             }
-            totals[k][which as usize] += w as f64;
-            let r = surfel(k);
-            let cos = cosine(r.normal, d.unit);
-            if cos == 0.0 {
-                return;
-            }
-            let p = position as usize;
-            let (to_side, from_side) = if which == 0 {
-                (side_facing(ns(k)), side_facing(-ns(p)))
-            } else {
-                (side_facing(-ns(k)), side_facing(ns(p)))
-            };
-            let e = self.emission[members[p] as usize][from_side];
+            let e = self.emission[members[link.partner] as usize][link.from_side];
             if e.iter().all(|&v| v <= 0.0) {
                 return;
             }
-            let f = cos * weight * w as f64;
-            let sender = sender_index(senders, surfel(p).group, from_side);
+            let r = surfel(link.receiver);
+            let f = link.cosine * weight * link.share as f64;
+            let sender = sender_index(senders, surfel(link.partner).group, link.from_side);
             senders[sender].sent += r.area as f64 * f / self.cosine_sum[r.normal_id as usize];
             contributions.push((
-                members[k],
-                to_side as u8,
+                members[link.receiver],
+                link.to_side as u8,
                 sender as u32,
                 e.map(|v| v as f64 * f),
                 f,
             ));
+        });
+        // `n.s` in f32, as propagation decides which side faces along the direction.
+        let unit = d.unit.as_vec3();
+        let side_facing = |k: usize, sign: f32| {
+            if glam::Vec3::from(surfel(k).normal).dot(unit) * sign > 0.0 {
+                FRONT
+            } else {
+                BACK
+            }
         };
-        for (k, [ahead, behind]) in scratch.partners.iter().enumerate() {
-            gather(k, 0, ahead.0, ahead.1);
-            gather(k, 1, behind.0, behind.1);
-        }
-        for &(k, which, position, w) in &scratch.extra {
-            gather(k as usize, which, position, w);
-        }
         for (k, total) in totals.iter().enumerate() {
             let c = surfel(k);
-            let along = ns(k);
-            for (which, side) in [(0, side_facing(along)), (1, side_facing(-along))] {
+            for (which, side) in [(0, side_facing(k, 1.0)), (1, side_facing(k, -1.0))] {
                 if self.emission[members[k] as usize][side]
                     .iter()
                     .all(|&v| v <= 0.0)

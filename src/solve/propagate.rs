@@ -1044,13 +1044,42 @@ pub unsafe fn gather_line(
 ) {
     let s = input.unit;
     find_partners(line, input.surfels, s, scratch);
-    let gather = |k: usize, which: u8, position: u32, weight: f32| {
-        let local = &scratch.locals[k];
-        // The cosine in f64, exactly as `normalize::cosine` computes it for S(n).
-        let cos = crate::solve::normalize::cosine(local.normal.to_array(), s);
-        if cos == 0.0 || position == u32::MAX {
+    for_each_link(scratch, s, |link| {
+        if link.cosine == 0.0 {
             return;
         }
+        let from = input.radiosity[line[link.partner] as usize][link.from_side];
+        // SAFETY: see the function's contract.
+        let to = unsafe { &mut (*acc.add(line[link.receiver] as usize))[link.to_side] };
+        let f = link.cosine * input.weight * link.share as f64;
+        for (t, b) in to.iter_mut().zip(from).take(input.channels) {
+            *t += b as f64 * f;
+        }
+    });
+}
+
+/// One partner link of a line: receiver `receiver`'s side `to_side` gathers `share` of its ray
+/// along the direction from side `from_side` of `partner` (line positions).
+#[derive(Clone, Copy, Debug)]
+pub struct Link {
+    pub receiver: usize,
+    pub to_side: usize,
+    pub partner: usize,
+    pub from_side: usize,
+    pub share: f32,
+    /// `|n.s|` of the receiver in f64, exactly as `normalize::cosine` computes it for `S(n)`.
+    pub cosine: f64,
+    /// 0: the partner lies ahead along `s`; 1: behind.
+    pub which: u8,
+}
+
+/// Calls `f` for every partner link that [`find_partners`] left in `scratch` for direction `s`.
+pub fn for_each_link(scratch: &LineScratch, s: DVec3, mut f: impl FnMut(Link)) {
+    let mut link = |k: usize, which: u8, position: u32, share: f32| {
+        if position == u32::MAX {
+            return;
+        }
+        let local = &scratch.locals[k];
         let partner = &scratch.locals[position as usize];
         // The receiver's side facing the partner gathers from the partner's side facing it.
         let (to_side, from_side) = if which == 0 {
@@ -1058,19 +1087,21 @@ pub unsafe fn gather_line(
         } else {
             (side_along(-local.ns), side_along(partner.ns))
         };
-        let from = input.radiosity[line[position as usize] as usize][from_side];
-        // SAFETY: see the function's contract.
-        let to = unsafe { &mut (*acc.add(line[k] as usize))[to_side] };
-        let f = cos * input.weight * weight as f64;
-        for (t, b) in to.iter_mut().zip(from).take(input.channels) {
-            *t += b as f64 * f;
-        }
+        f(Link {
+            receiver: k,
+            to_side,
+            partner: position as usize,
+            from_side,
+            share,
+            cosine: crate::solve::normalize::cosine(local.normal.to_array(), s),
+            which,
+        });
     };
     for (k, [ahead, behind]) in scratch.partners.iter().enumerate() {
-        gather(k, 0, ahead.0, ahead.1);
-        gather(k, 1, behind.0, behind.1);
+        link(k, 0, ahead.0, ahead.1);
+        link(k, 1, behind.0, behind.1);
     }
-    for &(k, which, position, weight) in &scratch.extra {
-        gather(k as usize, which, position, weight);
+    for &(k, which, position, share) in &scratch.extra {
+        link(k as usize, which, position, share);
     }
 }
