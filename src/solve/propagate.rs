@@ -50,6 +50,12 @@
 //! the ceiling's plane, and was unseen at grazing elevations while the first voxel took every
 //! ray.
 //!
+//! **Boxes.** A piece is known here by its point, normal and bounding box in its voxel. A box
+//! that runs through a voxel-mate's plane means a piece that does (a T-junction), unless it pokes
+//! through by no more than a box can reach past its own piece (`box_overshoot`): the end face of
+//! a tilted slab, sheared in its own plane, only touches the slab's top and bottom planes that
+//! its box crosses (`side_of`).
+//!
 //! Every surfel side receives exactly one gather per line direction, so accumulating in direction
 //! order makes the result independent of how lines are spread over threads.
 //!
