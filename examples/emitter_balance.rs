@@ -14,7 +14,7 @@ use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
 use voxrad::geometry::order;
 use voxrad::solve::dispatch::{dispatch, Lines};
-use voxrad::solve::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
+use voxrad::solve::propagate::{gather_line, prop_surfels, DirectionInput, LineScratch};
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 
 fn main() {
@@ -23,13 +23,7 @@ fn main() {
     let res: u32 = args[2].parse().unwrap();
     let ndir: usize = args[3].parse().unwrap();
     let set = voxelize(&scene, GridSpec::Resolution(res)).unwrap();
-    let cov = voxrad::solve::coverage::coverages(&set);
-    let surfels: Vec<PropSurfel> = set
-        .surfels
-        .iter()
-        .zip(&cov)
-        .map(|(s, &c)| PropSurfel::new(s, c))
-        .collect();
+    let surfels = prop_surfels(&set);
     let n = surfels.len();
     // radiosity 1 on emitting sides, or with SEND=NAME on the sides of material NAME
     let send = std::env::var("SEND").ok();

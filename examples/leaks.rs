@@ -16,7 +16,7 @@ use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
 use voxrad::geometry::order;
 use voxrad::solve::dispatch::{dispatch, Lines};
-use voxrad::solve::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
+use voxrad::solve::propagate::{gather_line, prop_surfels, DirectionInput, LineScratch};
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 use voxrad::voxel::FRONT;
 
@@ -30,13 +30,7 @@ fn main() {
     let res: u32 = args[2].parse().unwrap();
     let count: usize = args[3].parse().unwrap();
     let set = voxelize(&scene, GridSpec::Resolution(res)).unwrap();
-    let coverage = voxrad::solve::coverage::coverages(&set);
-    let surfels: Vec<PropSurfel> = set
-        .surfels
-        .iter()
-        .zip(&coverage)
-        .map(|(s, &c)| PropSurfel::new(s, c))
-        .collect();
+    let surfels = prop_surfels(&set);
     let n = surfels.len();
     let radiosity = vec![[[1f32; 3]; 2]; n];
     let only: Option<Vec<i64>> = std::env::var("DIR")

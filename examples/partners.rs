@@ -26,7 +26,7 @@ use voxrad::geometry::lines::LineFrame;
 use voxrad::geometry::order;
 use voxrad::solve::direct::DirectPass;
 use voxrad::solve::dispatch::{dispatch, Lines};
-use voxrad::solve::propagate::{find_partners, for_each_link, LineScratch, PropSurfel};
+use voxrad::solve::propagate::{find_partners, for_each_link, prop_surfels, LineScratch};
 use voxrad::solve::{solve, Solution, SolveOptions};
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 use voxrad::voxel::{absolute_position, SurfelSet, BACK, FRONT};
@@ -152,13 +152,7 @@ fn main() {
             }
         })
         .collect();
-    let coverage = voxrad::solve::coverage::coverages(&set);
-    let surfels: Vec<PropSurfel> = set
-        .surfels
-        .iter()
-        .zip(&coverage)
-        .map(|(s, &c)| PropSurfel::new(s, c))
-        .collect();
+    let surfels = prop_surfels(&set);
     let solution = std::env::var("VALUES").is_ok().then(|| {
         let options = SolveOptions {
             directions: count,

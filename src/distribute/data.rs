@@ -48,11 +48,11 @@ use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
 use crate::solve::dispatch::{dispatch, Lines, OrderedEntry};
 use crate::solve::jacobi::{
-    gather_all_lines, material_tables, prop_surfels, worker_pool, Checkpoints, Convergence,
-    SolveError, SolveOptions,
+    gather_all_lines, material_tables, worker_pool, Checkpoints, Convergence, SolveError,
+    SolveOptions,
 };
 use crate::solve::normalize::cosine_sums;
-use crate::solve::propagate::{DirectionInput, PropSurfel};
+use crate::solve::propagate::{prop_surfels, DirectionInput, PropSurfel};
 use crate::solve::{Solution, SolveStats};
 use crate::voxel::SurfelSet;
 use rayon::prelude::*;

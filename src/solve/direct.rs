@@ -713,7 +713,7 @@ mod tests {
             .num_threads(2)
             .build()
             .unwrap();
-        let surfels = crate::solve::jacobi::prop_surfels(&set);
+        let surfels = crate::solve::propagate::prop_surfels(&set);
         let (emission, reflectance) = crate::solve::jacobi::material_tables(&set);
         let direct = gather_direct(
             &set,

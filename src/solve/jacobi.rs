@@ -21,7 +21,7 @@
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::normalize::cosine_sums;
-use super::propagate::{gather_line, DirectionInput, LineScratch, PropSurfel};
+use super::propagate::{gather_line, prop_surfels, DirectionInput, LineScratch};
 use super::{Solution, SolveStats};
 use crate::checkpoint::{Interruption, Loaded, Saver};
 use crate::distribute::{Comm, SingleProcess};
@@ -152,16 +152,6 @@ pub(crate) fn worker_pool(
             message: e.to_string(),
         })?;
     Ok((threads, pool))
-}
-
-/// What propagation reads of every surfel (with its open-edge coverage).
-pub(crate) fn prop_surfels(set: &SurfelSet) -> Vec<PropSurfel> {
-    let coverage = super::coverage::coverages(set);
-    set.surfels
-        .iter()
-        .zip(&coverage)
-        .map(|(s, &coverage)| PropSurfel::new(s, coverage))
-        .collect()
 }
 
 /// Emission `E` (f32, as radiosity is stored) and reflectance of every surfel, by side.

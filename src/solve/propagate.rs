@@ -99,6 +99,16 @@ impl PropSurfel {
     }
 }
 
+/// What propagation reads of every surfel of `set` (with its open-edge coverage).
+pub fn prop_surfels(set: &crate::voxel::SurfelSet) -> Vec<PropSurfel> {
+    let coverage = super::coverage::coverages(set);
+    set.surfels
+        .iter()
+        .zip(&coverage)
+        .map(|(s, &coverage)| PropSurfel::new(s, coverage))
+        .collect()
+}
+
 /// A surfel of the line being processed, with its cosine to the direction.
 #[derive(Clone, Copy, Debug)]
 struct Local {
