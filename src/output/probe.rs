@@ -8,7 +8,8 @@
 //! layer nearest the probe point along `n` counts (sides within [`LAYER_VOXELS`] of the height,
 //! along `n`, of the side nearest the point's tangent plane): in a slab thinner than the search
 //! radius the far face's inner side faces the same way as the near face's outer side but looks
-//! into the slab, and under a rug the floor faces up as the rug does but is covered. If every such side
+//! into the slab, under a rug the floor faces up as the rug does but is covered, and a lamp hung
+//! just under a ceiling faces down as the ceiling does but is another surface. If every such side
 //! has zero area (voxels only touched by the surface), sides are weighted by inverse distance. If
 //! there is none, the radiosity is 0 and [`ProbeRow::found`] is false.
 //!
@@ -32,9 +33,13 @@ pub const PROBE_RADIUS_VOXELS: f64 = 1.5;
 pub const MAX_LINE_BYTES: usize = 4096;
 /// Smallest cosine between a surfel side's normal and the probe normal for the side to count.
 pub const MIN_NORMAL_DOT: f64 = 0.5;
-/// Thickness (voxels, along the probe normal) of the layer of sides a probe averages: the surfels
-/// of a plane all lie on it, a rug 1 cm thick at 16 cm voxels lies 0.06 voxel above the floor.
-pub const LAYER_VOXELS: f64 = 0.05;
+/// Thickness (voxels, along the probe normal) of the layer of sides a probe averages. The surfels
+/// of a plane all lie on it, so the layer only has to allow for a probe normal a little off the
+/// plane's (1e-3 off moves a side 1.5 voxels away by 0.0015). Sheets of other surfaces facing the
+/// same way lie outside it: a rug 1 cm thick at 16 cm voxels (0.06 voxel above the floor), and a
+/// lamp hung 1 cm under a ceiling at 39 cm voxels (0.026 voxel), which a layer of 0.05 voxel
+/// took in and read probes on the ceiling beside it as the lamp (44 times too bright).
+pub const LAYER_VOXELS: f64 = 0.01;
 
 /// The answer for one probe point.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -415,6 +420,47 @@ mod tests {
         let on_minus = DVec3::new(-1.0 + 0.5 * 2.35, 2.0 + 0.5 * 2.0, 0.5 + 0.5 * 2.0);
         let row = index.lookup(on_minus, -DVec3::X);
         assert_eq!(row.radiosity, [2.0; 3]);
+    }
+
+    #[test]
+    fn a_lamp_hung_just_under_a_ceiling_is_not_the_ceiling() {
+        // A ceiling facing -y at height 2.5 (B = 1) and, 0.026 voxel under it, a lamp facing -y
+        // (B = 100): the corridor of tests/data/reference at resolution 32, where lamps 1 cm
+        // under the ceiling read as the ceiling and put probes beside them 44 times too bright.
+        let mut surfels = Vec::new();
+        let mut radiosity = Vec::new();
+        for x in 0..4 {
+            for z in 0..4 {
+                surfels.push(testutil::surfel(
+                    [x, 2, z],
+                    [0.5, 0.5, 0.5],
+                    [0.0, -1.0, 0.0],
+                    1.0,
+                ));
+                radiosity.push([[1.0; 3], [0.0; 3]]);
+                if x < 2 {
+                    surfels.push(testutil::surfel(
+                        [x, 2, z],
+                        [0.5, 0.474, 0.5],
+                        [0.0, -1.0, 0.0],
+                        1.0,
+                    ));
+                    radiosity.push([[100.0; 3], [0.0; 3]]);
+                }
+            }
+        }
+        let set = testutil::set_of(surfels, 0.5);
+        let solution = Solution {
+            radiosity,
+            stats: Default::default(),
+        };
+        let results = Results::from_solution(&set, &solution).unwrap();
+        let index = ProbeIndex::new(&results);
+        let voxel_units = |x: f64, y: f64, z: f64| results.grid.to_world(DVec3::new(x, y, z));
+        let ceiling = index.lookup(voxel_units(2.0, 2.5, 2.0), -DVec3::Y);
+        assert_eq!(ceiling.radiosity, [1.0; 3]);
+        let lamp = index.lookup(voxel_units(1.0, 2.474, 2.0), -DVec3::Y);
+        assert_eq!(lamp.radiosity, [100.0; 3]);
     }
 
     #[test]
