@@ -480,3 +480,24 @@ fn a_failed_solve_keeps_the_earlier_result() {
         .collect();
     assert_eq!(names.len(), files.len(), "{names:?}");
 }
+
+/// `voxrad solve --help` describes each preset with the values it sets (they had drifted apart:
+/// the help said 589 and 1,201 directions where the presets use 193 and 589).
+#[test]
+fn solve_help_describes_the_presets_as_they_are() {
+    let out = voxrad(&["solve", "--help"]);
+    assert_ok(&out, "solve --help");
+    let help = text(&out.stdout);
+    for quality in voxrad::quality::Quality::ALL {
+        let p = quality.preset();
+        let described = format!(
+            "resolution {}, {} directions, tolerance {:e}",
+            p.resolution, p.directions, p.tolerance
+        );
+        assert!(
+            help.contains(&described),
+            "{}: the help does not say \"{described}\"",
+            quality.name()
+        );
+    }
+}
