@@ -310,6 +310,7 @@ mod tests {
     use super::*;
     use crate::output::testutil;
     use crate::solve::Solution;
+    use crate::voxel::Surfel;
 
     /// A wall in the plane x = 2.5 (voxel units), front facing +x with B = (1, 2, 3), back facing
     /// -x with B = (4, 5, 6); one voxel of the wall also holds a floor surfel facing +y (B = 9).
@@ -329,15 +330,18 @@ mod tests {
             0.5,
         ));
         radiosity.push([[9.0; 3], [0.0; 3]]);
+        results_of(surfels, radiosity)
+    }
+
+    /// The results of surfels with the given radiosity, on the grid of `testutil::set_of` (voxel
+    /// size 0.5).
+    fn results_of(surfels: Vec<Surfel>, radiosity: Vec<[[f32; 3]; 2]>) -> Results {
         let set = testutil::set_of(surfels, 0.5);
-        Results::from_solution(
-            &set,
-            &Solution {
-                radiosity,
-                stats: Default::default(),
-            },
-        )
-        .unwrap()
+        let solution = Solution {
+            radiosity,
+            stats: Default::default(),
+        };
+        Results::from_solution(&set, &solution).unwrap()
     }
 
     /// World position of a voxel-unit point of the `wall` grid (origin (-1, 2, 0.5), size 0.5).
@@ -407,12 +411,7 @@ mod tests {
                 radiosity.push([[2.0; 3], [0.0; 3]]);
             }
         }
-        let set = testutil::set_of(surfels, 0.5);
-        let solution = Solution {
-            radiosity,
-            stats: Default::default(),
-        };
-        let results = Results::from_solution(&set, &solution).unwrap();
+        let results = results_of(surfels, radiosity);
         let index = ProbeIndex::new(&results);
         let on_plus = DVec3::new(-1.0 + 0.5 * 2.65, 2.0 + 0.5 * 2.0, 0.5 + 0.5 * 2.0);
         let row = index.lookup(on_plus, DVec3::X);
@@ -449,12 +448,7 @@ mod tests {
                 }
             }
         }
-        let set = testutil::set_of(surfels, 0.5);
-        let solution = Solution {
-            radiosity,
-            stats: Default::default(),
-        };
-        let results = Results::from_solution(&set, &solution).unwrap();
+        let results = results_of(surfels, radiosity);
         let index = ProbeIndex::new(&results);
         let voxel_units = |x: f64, y: f64, z: f64| results.grid.to_world(DVec3::new(x, y, z));
         let ceiling = index.lookup(voxel_units(2.0, 2.5, 2.0), -DVec3::Y);
