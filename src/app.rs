@@ -177,21 +177,7 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
 
     // Simulate only what the scene calls for (see `solve::effects`).
     let analysis = crate::solve::effects::analyse(&set);
-    let mut shaped = analysis.shape(&cmd.solve);
-    // The data and hybrid modes' loop gathers B whole (their ranks own lines, not directions).
-    let direct_unavailable = match mode {
-        Mode::Data { .. } | Mode::Hybrid { .. }
-            if shaped.direct != crate::solve::direct::DirectPass::Off =>
-        {
-            shaped.direct = crate::solve::direct::DirectPass::Off;
-            Some(format!(
-                "--distribute {} gathers every light along the solve's directions (no direct \
-                 pass in the data and hybrid modes yet; --distribute directions has it)",
-                mode.name()
-            ))
-        }
-        _ => None,
-    };
+    let shaped = analysis.shape(&cmd.solve);
     let directions = DirectionSet::with_count(shaped.directions);
     let t = Instant::now();
     let solution = solve_in_memory(cmd, &set, &directions, &shaped, comm, mode)?;
@@ -244,7 +230,7 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     report.set_phase("reduce", stats.reduce_seconds);
     // The whole solve call (set-up, iterations, communication): what a speed-up compares.
     report.set_phase("solve", solve_seconds);
-    report.effects = analysis.effects(&cmd.solve, stats, direct_unavailable.as_deref());
+    report.effects = analysis.effects(&cmd.solve, stats, None);
     if let Some(direct) = &stats.direct {
         // Inside "solve": the direct-light pass, before the iterations.
         report.set_phase("direct", direct.seconds);

@@ -17,10 +17,16 @@
 //! 5. **dispatch and propagate**: the in-memory solver's, on the held surfels, which now hold
 //!    every line they touch whole.
 //!
+//! **The direct-light pass** (`solve::direct`) runs once before the iterations, as on one
+//! process: every rank holds the scene, so its dense directions are dealt over the world and its
+//! light summed across it; the lines then carry `B - E` and the update adds `rho` times the
+//! direct light, surfel by surfel.
+//!
 //! A surfel's gathered light is accumulated in direction order, on whichever rank holds it, and
 //! each line is processed from the same surfels in the same order as on one process: the data
 //! mode gives the single-process radiosity bit for bit (the stopping rule's sums are added in
-//! another grouping, which can only move a borderline stop by one iteration).
+//! another grouping, which can only move a borderline stop by one iteration; the direct pass's
+//! light is summed across ranks, as in the directions mode, and agrees to rounding).
 //!
 //! **Checkpoints.** At an iteration boundary the radiosity is gathered by id and rank 0 writes
 //! it. Inside an iteration the whole world agrees between two steps (one direction of every
@@ -46,6 +52,7 @@ use crate::checkpoint::{CheckpointError, Gathered, Interruption, Radiosity, Save
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
+use crate::solve::direct::{gather_direct, DirectLight, SenderBalance};
 use crate::solve::dispatch::{dispatch, Lines, OrderedEntry};
 use crate::solve::jacobi::{
     gather_all_lines, material_tables, worker_pool, Checkpoints, Convergence, SolveError,
@@ -364,6 +371,22 @@ pub fn solve_data(
     let peers = comm.split(group_comm.rank());
     let mut solver = DataSolver::new(set, directions, options, threads, &pool, groups, group);
     solver.compress = compress;
+    // The direct light, once, as the one-process solver gathers it: every rank holds the whole
+    // scene here, so the pass deals its directions over the world (see `solve::direct`).
+    solver.direct = options
+        .direct
+        .directions_for(set, directions.len())
+        .map(|dense| {
+            gather_direct(
+                set,
+                &solver.surfels,
+                &solver.emission,
+                &dense,
+                SenderBalance::PerDirection,
+                comm,
+                &pool,
+            )
+        });
     solver.run(comm, group_comm.as_ref(), peers.as_ref(), checkpoints)
 }
 
@@ -384,6 +407,8 @@ struct DataSolver<'a> {
     reflectance: Vec<[[f64; 3]; 2]>,
     surfels: Vec<PropSurfel>,
     channels: usize,
+    /// The direct light of every surfel by id (`solve::direct`); the lines then carry `B - E`.
+    direct: Option<DirectLight>,
 }
 
 /// Per-rank bookkeeping of the phases and of what moved.
@@ -434,6 +459,7 @@ impl<'a> DataSolver<'a> {
             } else {
                 3
             },
+            direct: None,
         }
     }
 
@@ -485,6 +511,7 @@ impl<'a> DataSolver<'a> {
             ..Default::default()
         };
         let mut lines = Lines::default();
+        let mut reflected = Vec::new();
         let mut stats = SolveStats {
             channels: self.channels,
             directions: d_count,
@@ -615,7 +642,7 @@ impl<'a> DataSolver<'a> {
                 };
                 self.redistribute(&mut held, held_order, o, group_comm, &mut tally, k, owner);
                 held_order = Some(o);
-                self.propagate(k, &mut held, &mut lines, &mut tally);
+                self.propagate(k, &mut held, &mut lines, &mut reflected, &mut tally);
                 progress.inc(1);
             }
             // (With mid-iteration checkpoints the world agreed between the steps already.)
@@ -979,17 +1006,41 @@ impl<'a> DataSolver<'a> {
         tally.seconds.merge += t.elapsed().as_secs_f64();
     }
 
-    /// Dispatch and propagation of direction `k` over the held surfels.
-    fn propagate(&self, k: usize, held: &mut Held, lines: &mut Lines, tally: &mut Tally) {
+    /// Dispatch and propagation of direction `k` over the held surfels. With the direct pass the
+    /// lines carry `B - E`, by slot in `reflected` (refilled here: the held surfels change with
+    /// every direction).
+    fn propagate(
+        &self,
+        k: usize,
+        held: &mut Held,
+        lines: &mut Lines,
+        reflected: &mut Vec<Radiosity>,
+        tally: &mut Tally,
+    ) {
         let d = &self.directions.directions[k];
         let t0 = Instant::now();
         let Held {
+            ids,
             prop,
             radiosity,
             acc,
             order,
             ..
         } = held;
+        if self.direct.is_some() {
+            // The one-process solver's `DirectLight::reflected`, by slot.
+            reflected.resize(radiosity.len(), [[0.0; 3]; 2]);
+            for e in order.iter() {
+                let slot = e.index as usize;
+                let (b, e) = (&radiosity[slot], &self.emission[ids[slot] as usize]);
+                for side in 0..2 {
+                    for ch in 0..3 {
+                        reflected[slot][side][ch] =
+                            (b[side][ch] as f64 - e[side][ch] as f64) as f32;
+                    }
+                }
+            }
+        }
         let t1 = self.pool.install(|| {
             dispatch(order, &self.frames[k], self.threads, lines);
             let t1 = Instant::now();
@@ -997,7 +1048,11 @@ impl<'a> DataSolver<'a> {
                 unit: d.unit,
                 weight: d.solid_angle / std::f64::consts::PI,
                 surfels: prop,
-                radiosity,
+                radiosity: if self.direct.is_some() {
+                    reflected
+                } else {
+                    radiosity
+                },
                 channels: self.channels,
             };
             gather_all_lines(lines, &input, acc, self.threads);
@@ -1033,8 +1088,11 @@ impl<'a> DataSolver<'a> {
             let area = s.area as f64;
             for side in 0..2 {
                 for ch in 0..self.channels {
-                    let b = self.emission[id][side][ch] as f64
+                    let mut b = self.emission[id][side][ch] as f64
                         + self.reflectance[id][side][ch] * held.acc[i][side][ch] / norm;
+                    if let Some(direct) = &self.direct {
+                        b += self.reflectance[id][side][ch] * direct.irradiance[id][side][ch];
+                    }
                     let d = b - held.radiosity[i][side][ch] as f64;
                     change += area * d.abs();
                     falling += area * (-d).max(0.0);
@@ -1161,6 +1219,10 @@ impl<'a> DataSolver<'a> {
         for ch in 0..3 {
             stats.emitted_power[ch] = flat[n * 6 + ch];
             stats.absorbed_power[ch] = flat[n * 6 + 3 + ch];
+        }
+        if let Some(direct) = &self.direct {
+            crate::solve::direct::add_absorbed(self.set, direct, stats);
+            stats.direct = Some(direct.stats.clone());
         }
         flat[..n * 6]
             .chunks_exact(6)

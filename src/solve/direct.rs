@@ -43,9 +43,9 @@
 //!
 //! **When** ([`DirectPass`]): asked for with a count, or automatically where the emitters are
 //! small ([`small_emitters`]: at most 5 % of the surfels emit), capped to what about
-//! [`BUDGET_ITERATIONS`] iterations cost ([`affordable_directions`]). The in-memory solver runs it
-//! (on one process or dealing its directions over ranks); the out-of-core solver and the data
-//! and hybrid modes do not have it yet. A stop signal during the pass is answered at the first
+//! [`BUDGET_ITERATIONS`] iterations cost ([`affordable_directions`]). Every in-memory solve runs it
+//! (one process, and every MPI mode: the dense directions are dealt over all ranks, each of
+//! which holds the whole scene); the out-of-core solvers do not have it yet. A stop signal during the pass is answered at the first
 //! direction after it.
 //!
 //! **Determinism.** Directions are taken in blocks; a block's directions run in parallel, each
