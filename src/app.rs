@@ -493,7 +493,15 @@ fn out_of_core_identity(
         channels: if options.grey { 1 } else { 3 },
         accelerate: options.accelerate,
         scene_checksum: source.checksum(window).map_err(ooc_error)?,
-    })
+    }
+    .with_direct_pass(
+        match options.direct {
+            // Resolved by the analysis (`Analysis::shape`).
+            crate::solve::direct::DirectPass::On(n) if n > 0 => Some(DirectionSet::with_count(n)),
+            _ => None,
+        }
+        .as_ref(),
+    ))
 }
 
 /// Sets the report's total time and peak RSS, writes it beside the staged outputs and moves
@@ -653,6 +661,10 @@ fn solve_out_of_core_to(
     report.set_phase("band_read", stats.read_seconds);
     report.set_phase("band_write", stats.write_seconds);
     report.set_phase("update", stats.update_seconds);
+    if let Some(direct) = &stats.solve.direct {
+        // Before the iterations: the direct-light pass out of core.
+        report.set_phase("direct", direct.seconds);
+    }
     report.set_phase("write", write_seconds);
     report.out_of_core = Some(OutOfCoreReport::new(
         budget,
@@ -661,11 +673,10 @@ fn solve_out_of_core_to(
         stats.bands,
         stats.surfels * stats.solve.directions as u64 * stats.solve.iterations as u64,
     ));
-    report.effects = analysis.effects(
-        &cmd.solve,
-        &stats.solve,
-        Some("the out-of-core solver gathers all light along the solve's directions (no direct pass out of core yet)"),
-    );
+    if let (Some(ooc), Some(direct)) = (report.out_of_core.as_mut(), &stats.solve.direct) {
+        ooc.direct_light_parts = direct.parts;
+    }
+    report.effects = analysis.effects(&cmd.solve, &stats.solve, None);
     report.effects.push(Effect::new(
         "out of core",
         true,
@@ -814,7 +825,19 @@ fn run_solve_data_out_of_core(
     let read_seconds = started.elapsed().as_secs_f64();
     // Simulate only what the scene calls for, as the one-process solvers do.
     let analysis = analyse_source(&source, budget)?;
-    let shaped = analysis.shape(&cmd.solve);
+    let mut shaped = analysis.shape(&cmd.solve);
+    if shaped.direct != crate::solve::direct::DirectPass::Off && comm.rank() == 0 {
+        // Not in this mode yet: said here and in the report, never dropped in silence.
+        tracing::warn!(
+            "the direct-light pass is not built for the data mode out of core yet: the small \
+             emitters' light is gathered along the solve's {} directions only, where it aliases \
+             into stripes (the Cornell box at resolution 128: 5.1 % mean error against 1.8 % \
+             with the pass); one process with --memory, or --distribute data without \
+             --memory, runs it",
+            DirectionSet::with_count(shaped.directions).len()
+        );
+    }
+    shaped.direct = crate::solve::direct::DirectPass::Off;
     let directions = DirectionSet::with_count(shaped.directions);
     let identity = out_of_core_identity(&source, &directions, &shaped, budget)?;
     let (resume, state) = open_checkpoint_on_rank0(cmd, comm, &identity)?;
@@ -907,7 +930,7 @@ fn run_solve_data_out_of_core(
     report.effects = analysis.effects(
         &cmd.solve,
         &stats,
-        Some("the data mode gathers all light along the solve's directions (no direct pass)"),
+        Some("the data mode out of core has no direct-light pass yet; its light is gathered along the solve's directions (one process with --memory, or --distribute data without --memory, runs it)"),
     );
     report.effects.push(Effect::new(
         "out of core",

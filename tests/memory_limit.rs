@@ -126,6 +126,9 @@ fn solves_a_shard_set_16_times_its_memory_limit() {
         "2",
         "--memory",
         &format!("{}MiB", budget >> 20),
+        // The bands' memory is what this measures (the direct-light pass has its own test).
+        "--direct-directions",
+        "0",
     ]
     .iter()
     .map(|a| a.to_string())
@@ -187,6 +190,91 @@ fn solves_a_shard_set_16_times_its_memory_limit() {
     let got: Vec<_> = got.iter().map(|e| e.1).collect();
     let expected: Vec<_> = expected.iter().map(|e| e.1).collect();
     let worst = common::worst_relative_difference(&got, &expected);
+    println!("worst relative difference to the in-memory solve: {worst:.2e}");
+    assert!(worst <= 1e-5, "{worst:e}");
+}
+
+/// The direct-light pass out of core (`outcore::direct`) under the same kind of limit: the
+/// emitters' lines of its dense directions held in parts within the budget, its answer the
+/// in-memory pass's.
+#[test]
+fn the_direct_light_pass_stays_within_the_budget() {
+    let limit = 32u64 << 20;
+    let budget = 4u64 << 20;
+    let tmp = tempfile::tempdir().unwrap();
+    let set = voxelize(&voxrad::gen::cornell_box(), GridSpec::Resolution(96)).unwrap();
+    let shards = tmp.path().join("cornell.shards");
+    common::write_shard_set(&set, &shards, 2);
+    let out = tmp.path().join("out");
+    let args: Vec<String> = [
+        "solve",
+        shards.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--directions",
+        "13",
+        "--iterations",
+        "1",
+        "--threads",
+        "2",
+        "--memory",
+        "4MiB",
+        "--direct-directions",
+        "3000",
+    ]
+    .iter()
+    .map(|a| a.to_string())
+    .collect();
+    let (code, stderr, _) = run_limited(&args, limit);
+    assert_eq!(code, Some(0), "{stderr}");
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let peak = report["peak_rss_bytes"].as_u64().unwrap();
+    let parts = report["out_of_core"]["direct_light_parts"]
+        .as_u64()
+        .unwrap();
+    println!(
+        "{} surfels, peak RSS {:.1} MiB, budget 4 MiB, the pass in {parts} parts",
+        set.surfels.len(),
+        peak as f64 / (1 << 20) as f64
+    );
+    assert!(parts > 1, "a small budget takes the pass in parts: {parts}");
+    assert!(
+        peak <= budget + ALLOWANCE_BYTES,
+        "peak RSS {peak} above budget {budget} + allowance {ALLOWANCE_BYTES}"
+    );
+    let options = SolveOptions {
+        directions: 13,
+        max_iterations: 1,
+        tolerance: None,
+        threads: 2,
+        direct: voxrad::solve::direct::DirectPass::On(3000),
+        ..Default::default()
+    };
+    let reference = solve_with(&set, &DirectionSet::with_count(13), &options).unwrap();
+    let key = |voxel: [i32; 3], normal: [f32; 3], point: [f32; 3]| {
+        (voxel, normal.map(f32::to_bits), point.map(f32::to_bits))
+    };
+    let mut expected: Vec<_> = set
+        .surfels
+        .iter()
+        .zip(&reference.radiosity)
+        .map(|(s, b)| (key(s.voxel, s.normal, s.point), *b))
+        .collect();
+    expected.sort_by_key(|e| e.0);
+    let results = voxrad::output::results::read_results(&out.join("surfels.bin")).unwrap();
+    let mut got: Vec<_> = results
+        .records
+        .iter()
+        .map(|r| (key(r.voxel, r.normal, r.point), r.radiosity))
+        .collect();
+    got.sort_by_key(|e| e.0);
+    assert_eq!(got.len(), expected.len());
+    assert!(got.iter().zip(&expected).all(|(a, b)| a.0 == b.0));
+    let worst = common::worst_relative_difference(
+        &got.iter().map(|e| e.1).collect::<Vec<_>>(),
+        &expected.iter().map(|e| e.1).collect::<Vec<_>>(),
+    );
     println!("worst relative difference to the in-memory solve: {worst:.2e}");
     assert!(worst <= 1e-5, "{worst:e}");
 }

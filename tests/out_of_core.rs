@@ -149,3 +149,103 @@ fn grey_extrapolated_furnace_out_of_core() {
         .iter()
         .all(|b| b.iter().all(|s| s[0] == s[1] && s[1] == s[2])));
 }
+
+/// The direct-light pass out of core (`outcore::direct`): the emitters' lines gathered in parts
+/// of whole direction groups within the budget give the in-memory pass's light, so the answer
+/// and the energy balance are those of the in-memory solve, whatever the number of parts.
+#[test]
+fn direct_light_pass_out_of_core_matches_the_in_memory_pass() {
+    let set = voxelize(&voxrad::gen::cornell_box(), GridSpec::Resolution(32)).expect("voxelize");
+    let directions = DirectionSet::with_count(49);
+    let options = SolveOptions {
+        directions: 49,
+        max_iterations: 3,
+        tolerance: None,
+        threads: 2,
+        direct: voxrad::solve::direct::DirectPass::On(2000),
+        ..Default::default()
+    };
+    let reference = solve_with(&set, &directions, &options).expect("solve");
+    let in_memory = reference
+        .stats
+        .direct
+        .as_ref()
+        .expect("the pass ran in memory");
+    let work = tempfile::tempdir().expect("tempdir");
+    for budget in [64u64 << 20, 1 << 20] {
+        let source = InMemorySource::new(&set);
+        let solution = solve_out_of_core(&source, &directions, &options, budget, work.path())
+            .unwrap_or_else(|e| panic!("budget {budget}: {e}"));
+        let direct = solution.stats.solve.direct.as_ref().expect("the pass ran");
+        let worst = common::worst_relative_difference(
+            &solution.radiosity().expect("read radiosity"),
+            &reference.radiosity,
+        );
+        println!(
+            "budget {budget}: the pass in {} part(s), worst relative difference {worst:.2e}",
+            direct.parts
+        );
+        assert!(worst <= 1e-5, "budget {budget}: {worst:e}");
+        // The same lines, the same surfels on them.
+        assert_eq!(direct.lines, in_memory.lines, "budget {budget}");
+        assert_eq!(
+            direct.line_surfels, in_memory.line_surfels,
+            "budget {budget}"
+        );
+        if budget <= 1 << 20 {
+            assert!(direct.parts > 1, "budget {budget}: {} part", direct.parts);
+        }
+        for ch in 0..3 {
+            let (got, want) = (
+                solution.stats.solve.absorbed_power[ch],
+                reference.stats.absorbed_power[ch],
+            );
+            assert!(
+                (got - want).abs() <= 1e-9 * want,
+                "channel {ch}: absorbed {got} out of core, {want} in memory"
+            );
+        }
+    }
+}
+
+/// The data mode out of core decides grey on the materials its surfels use, as the one-process
+/// solvers do: a caller asking for one channel on a coloured scene (the Cornell box's red and
+/// green walls) gets the three-channel answer, not the first channel copied.
+#[test]
+fn data_mode_out_of_core_solves_a_coloured_scene_in_three_channels() {
+    let set = voxelize(&voxrad::gen::cornell_box(), GridSpec::Resolution(24)).expect("voxelize");
+    let directions = DirectionSet::with_count(49);
+    let options = SolveOptions {
+        directions: 49,
+        max_iterations: 2,
+        tolerance: None,
+        threads: 1,
+        grey: true,
+        ..Default::default()
+    };
+    let reference = solve_with(&set, &directions, &options).expect("solve");
+    assert_eq!(reference.stats.channels, 3);
+    let source = InMemorySource::new(&set);
+    let work = tempfile::tempdir().expect("tempdir");
+    let solution = voxrad::distribute::ooc::solve_data_out_of_core(
+        &source,
+        &directions,
+        &options,
+        &voxrad::distribute::SingleProcess,
+        16 << 20,
+        work.path(),
+        None,
+    )
+    .expect("data mode out of core");
+    assert_eq!(solution.stats.channels, 3);
+    let mut radiosity = Vec::new();
+    solution
+        .for_each(&source, |_, b| {
+            radiosity.push(*b);
+            Ok(())
+        })
+        .expect("results");
+    let worst = common::worst_relative_difference(&radiosity, &reference.radiosity);
+    println!("worst relative difference {worst:.2e}");
+    assert!(worst <= 1e-5, "{worst:e}");
+}

@@ -52,17 +52,9 @@ fn shard_set_and_memory_budget_give_the_obj_answer() {
     let set = voxelize(&scene, GridSpec::Resolution(32)).unwrap();
     let shards = tmp.path().join("cornell.shards");
     common::write_shard_set(&set, &shards, 3);
-    // No direct-light pass in memory: out of core has none yet.
-    let common_args = [
-        "--directions",
-        "49",
-        "--iterations",
-        "4",
-        "--threads",
-        "2",
-        "--direct-directions",
-        "0",
-    ];
+    // The default preset's direct-light pass (small emitters) in every path: out of core it
+    // holds the surfels of its emitters' lines in parts within the budget.
+    let common_args = ["--directions", "49", "--iterations", "4", "--threads", "2"];
     let obj_out = tmp.path().join("obj");
     let mut args = vec!["solve", obj.to_str().unwrap(), "--out"];
     let obj_out_s = s(&obj_out);
@@ -123,6 +115,14 @@ fn shard_set_and_memory_budget_give_the_obj_answer() {
             "{report}"
         );
         let bands = ooc["bands"].as_u64().unwrap();
+        let parts = ooc["direct_light_parts"].as_u64().unwrap();
+        println!("{name}: the direct-light pass in {parts} part(s)");
+        if name == "shard set" {
+            assert_eq!(parts, 1, "{name}: a roomy budget holds every line at once");
+        } else {
+            // The parts add up to the whole pass, as in memory.
+            assert!(parts > 1, "{name}: {parts} part(s)");
+        }
         if name == "shard set" {
             // A roomy budget: one band per direction, and the previews are written.
             assert_eq!(bands, 49 * 4, "{name}");

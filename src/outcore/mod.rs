@@ -21,6 +21,9 @@
 //! three gather files back to canonical order ([`scatter`]), computes `B = E + rho H / S(n)`
 //! there, and sends the new radiosity back to the three copies.
 //!
+//! **The direct-light pass** ([`direct`]) for small emitters runs before the iterations, on
+//! parts of the scene that hold its emitters' lines, within the same budget.
+//!
 //! **Memory** ([`budget`]): the row histogram of one copy, the per-layer cursors, then one of
 //! (a band's arrays and line counters | a sort bucket | a permutation chunk) at a time, and
 //! fixed-size I/O buffers. Not counted: code, stacks and the allocator's own overhead, a few
@@ -28,6 +31,7 @@
 
 pub mod band;
 pub mod budget;
+pub mod direct;
 pub mod files;
 pub mod scatter;
 pub mod solver;

@@ -6,6 +6,11 @@
 //! file chunk by chunk, from the radiosity the update replaced (kept in one more work file).
 //! [`update_surfel`] is the per-surfel update the data mode out of core shares.
 //!
+//! **The direct-light pass** ([`super::direct`]) runs once after the first update (`B = E`),
+//! into a direct-light file in canonical order that every update reads (`B` gains `rho` times
+//! it); the axis copies then receive `B - E` instead of `B`, written beside the canonical
+//! radiosity after each update, and the bands gather only the reflected light, as in memory.
+//!
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
 //! copies from the source, their radiosity from the canonical file). Inside an iteration
@@ -160,7 +165,7 @@ fn solve_in_pool(
             options,
             budget_bytes,
             work_parent,
-            threads,
+            (threads, &pool),
             checkpoints,
         )
     })
@@ -210,7 +215,7 @@ fn run(
     options: &SolveOptions,
     budget_bytes: u64,
     work_parent: &Path,
-    threads: usize,
+    (threads, pool): (usize, &rayon::ThreadPool),
     mut checkpoints: Option<OocCheckpoints>,
 ) -> Result<OocSolution, OocError> {
     let info = source.info();
@@ -240,11 +245,42 @@ fn run(
 
     // B = E to start with; tells whether anything emits.
     let t = Instant::now();
-    let first = update(source, &work, &plan, &cosine_sum, false, 3, None, &mut io)?;
-    send_to_copies(&work, &plan, &mut io)?;
-    let mut fold_seconds = 0.0;
+    let first = update(
+        source,
+        &work,
+        &plan,
+        &cosine_sum,
+        false,
+        3,
+        None,
+        None,
+        &mut io,
+    )?;
     stats.update_seconds += t.elapsed().as_secs_f64();
     let any_light = first.sums.emitted.iter().any(|&e| e > 0.0);
+    // The direct light, once (see `super::direct`); the iterations then gather only `B - E`.
+    let shape = crate::solve::direct::Shape {
+        emitting: first.emitting as usize,
+        surfels: work.count as usize,
+        longest_axis: info.grid.dims.into_iter().max().unwrap_or(0),
+        directions: directions.len(),
+    };
+    let direct = match options.direct.resolve(shape) {
+        Some(count) if any_light => Some(super::direct::gather_direct_out_of_core(
+            source,
+            &DirectionSet::with_count(count),
+            &plan,
+            pool,
+            work.dir.path(),
+            &mut io,
+        )?),
+        _ => None,
+    };
+    let direct_path = direct.as_ref().map(|d| d.path.as_path());
+    let t = Instant::now();
+    send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
+    let mut fold_seconds = 0.0;
+    stats.update_seconds += t.elapsed().as_secs_f64();
     // As `solve::jacobi`: one channel for a grey scene, checked here on the materials used.
     let channels = if options.grey && first.grey { 1 } else { 3 };
     stats.solve.channels = channels;
@@ -284,6 +320,7 @@ fn run(
     if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
         let t = Instant::now();
         resume_axes = restore(&file, &work, &plan, &axis_ends, &mut io)?;
+        send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         first_iteration = convergence.resume(&file.header.state, &file.path, &mut stats.solve);
         extrapolation = file.header.state.extrapolation.clone();
@@ -397,6 +434,7 @@ fn run(
             gathered_any,
             channels,
             previous.as_deref(),
+            direct_path,
             &mut io,
         )?;
         // Right after an extrapolation the change history starts again (see `accelerate`).
@@ -424,7 +462,7 @@ fn run(
                 convergence.restart();
             }
         }
-        send_to_copies(&work, &plan, &mut io)?;
+        send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         // A boundary the solve goes on from (as in `solve::jacobi`).
         if iteration < options.max_iterations {
@@ -444,6 +482,18 @@ fn run(
     stats.solve.extrapolations = extrapolation.count;
     stats.solve.emitted_power = last.sums.emitted;
     stats.solve.absorbed_power = last.sums.absorbed;
+    if let Some(d) = direct {
+        // As `solve::direct::add_absorbed`: the direct light's power after the reflected one's.
+        for (a, d) in stats
+            .solve
+            .absorbed_power
+            .iter_mut()
+            .zip(last.sums.absorbed_direct)
+        {
+            *a += d;
+        }
+        stats.solve.direct = Some(d.stats);
+    }
     stats.solve.dispatch_seconds = times.dispatch;
     stats.solve.propagate_seconds = times.propagate;
     stats.read_seconds = times.read;
@@ -506,7 +556,8 @@ fn save_within(
 }
 
 /// Puts a checkpoint's radiosity (the canonical order's, checked against its checksum before
-/// anything is solved from it) into the canonical radiosity file and every axis copy, and a
+/// anything is solved from it) into the canonical radiosity file (the caller sends it to the
+/// axis copies), and a
 /// mid-iteration checkpoint's sum into the canonical sum; returns the axes of the iteration
 /// that sum holds (0 at a boundary). `axis_ends` are the directions done after each axis.
 fn restore(
@@ -571,7 +622,6 @@ fn restore(
         io.written += s.finish()?;
         io.read += work.count * GATHER_LEN as u64;
     }
-    send_to_copies(work, plan, io)?;
     Ok(axes)
 }
 
@@ -581,6 +631,8 @@ struct Update {
     sums: UpdateSums,
     /// Every material on a surfel side has three equal channels (see `solve::effects`).
     grey: bool,
+    /// Surfels with an emitting side (what the direct pass's decision reads).
+    emitting: u64,
 }
 
 /// What an update of `B` adds up over the surfels it updates: the change and the total (for the
@@ -593,16 +645,20 @@ pub struct UpdateSums {
     pub total: f64,
     pub emitted: [f64; 3],
     pub absorbed: [f64; 3],
+    /// The part of `absorbed` the direct light deposits, kept apart (added last, as in memory).
+    pub absorbed_direct: [f64; 3],
 }
 
 /// One surfel's new radiosity `B = E + rho H / S(n)` from its light `h` (only the first channel
-/// gathered when `channels` is 1), adding to `sums`. Both out-of-core solvers (one process and
-/// the data mode) update through this function, so their answers agree bit for bit.
+/// gathered when `channels` is 1), plus `rho` times its `direct` light where the direct pass
+/// ran, adding to `sums`. Both out-of-core solvers (one process and the data mode) update
+/// through this function, so their answers agree bit for bit.
 #[allow(clippy::too_many_arguments)]
 pub fn update_surfel(
     materials: &[crate::scene::Material],
     material: [u32; 2],
     mut h: crate::outcore::files::Gathered,
+    direct: Option<&Gathered>,
     channels: usize,
     previous: &Radiosity,
     norm: f64,
@@ -620,7 +676,12 @@ pub fn update_surfel(
         let m = &materials[material[side] as usize];
         for ch in 0..3 {
             let e = m.emission[ch] as f32 as f64;
-            let b = e + m.reflectance[ch] * h[side][ch] / norm;
+            let mut b = e + m.reflectance[ch] * h[side][ch] / norm;
+            if let Some(d) = direct {
+                b += m.reflectance[ch] * d[side][ch];
+                sums.absorbed_direct[ch] +=
+                    (1.0 - m.reflectance[ch]) * d[side][ch] * (area * area_unit);
+            }
             let d = b - previous[side][ch] as f64;
             sums.change += area * d.abs();
             sums.falling += area * (-d).max(0.0);
@@ -700,13 +761,23 @@ fn update(
     gathered: bool,
     channels: usize,
     previous: Option<&Path>,
+    direct: Option<&Path>,
     io: &mut IoCounters,
 ) -> Result<Update, OocError> {
     let info = source.info();
     let kept = previous.map(RecordFile::open).transpose()?;
+    let direct = direct.map(RecordFile::open).transpose()?;
+    let mut d_bytes = vec![
+        0u8;
+        if direct.is_some() {
+            chunk_len(plan, work) * GATHER_LEN
+        } else {
+            0
+        }
+    ];
     let mut used = vec![false; info.materials.len()];
     let n = work.count;
-    let chunk = plan.chunk_surfels.min(n).max(1);
+    let chunk = chunk_len(plan, work) as u64;
     let canonical = RecordFile::open(&work.canonical_radiosity)?;
     let canonical_gathered = RecordFile::open(&work.canonical_gathered)?;
     let mut stream = source.stream(plan.io_bytes as u64)?;
@@ -727,6 +798,15 @@ fn update(
         }
         let prev = &mut bytes[..len as usize * RADIOSITY_LEN];
         canonical.read_at(start * RADIOSITY_LEN as u64, prev, io)?;
+        let d_slots = &mut d_bytes[..if direct.is_some() {
+            len as usize * GATHER_LEN
+        } else {
+            0
+        }];
+        if let Some(direct) = &direct {
+            direct.read_at(start * GATHER_LEN as u64, d_slots, io)?;
+        }
+        let mut d_slots = d_slots.chunks_exact(GATHER_LEN);
         if kept.is_some() {
             old.clear();
             old.extend_from_slice(prev);
@@ -742,10 +822,18 @@ fn update(
             for m in s.material {
                 used[m as usize] = true;
             }
+            result.emitting += s.material.iter().any(|&m| {
+                info.materials[m as usize]
+                    .emission
+                    .iter()
+                    .any(|&e| e as f32 > 0.0)
+            }) as u64;
+            let d = d_slots.next().map(decode_gathered);
             let b_new = update_surfel(
                 &info.materials,
                 s.material,
                 decode_gathered(h_slot),
+                d.as_ref(),
                 channels,
                 &decode_radiosity(slot),
                 cosine_sum[s.normal_id as usize],
@@ -843,8 +931,55 @@ fn extrapolate_canonical(
     Ok(())
 }
 
-/// Sends the canonical radiosity to each copy, in copy order, one copy at a time.
-fn send_to_copies(work: &WorkSet, plan: &MemoryPlan, io: &mut IoCounters) -> Result<(), OocError> {
+/// Surfels per chunk of an update.
+fn chunk_len(plan: &MemoryPlan, work: &WorkSet) -> usize {
+    plan.chunk_surfels.min(work.count).max(1) as usize
+}
+
+/// Sends what the lines carry to the axis copies: the canonical radiosity `B`, or with the
+/// direct pass the reflected part `B - E` (as `solve::direct::DirectLight::reflected` makes
+/// it), written beside it first.
+fn send_lit(
+    source: &dyn SurfelSource,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    direct: bool,
+    io: &mut IoCounters,
+) -> Result<(), OocError> {
+    if !direct {
+        return send_to_copies(work, plan, &work.canonical_radiosity, io);
+    }
+    let info = source.info();
+    let reflected = work.dir.path().join("radiosity-reflected.bin");
+    let mut out = SeqWriter::create(&reflected, plan.io_bytes)?;
+    let mut radiosity = SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)?;
+    let mut record = [0u8; RADIOSITY_LEN];
+    for s in source.stream(plan.io_bytes as u64)? {
+        let s = s?;
+        let b = decode_radiosity(&radiosity.expect_record()?);
+        let mut r: Radiosity = [[0.0; 3]; 2];
+        for side in 0..2 {
+            let e = info.materials[s.material[side] as usize].emission;
+            for ch in 0..3 {
+                r[side][ch] = (b[side][ch] as f64 - e[ch] as f32 as f64) as f32;
+            }
+        }
+        encode_radiosity(&r, &mut record);
+        out.write(&record)?;
+    }
+    io.read += work.count * (RADIOSITY_LEN + crate::storage::RECORD_LEN) as u64;
+    io.written += out.finish()?;
+    send_to_copies(work, plan, &reflected, io)
+}
+
+/// Sends the canonical values of `from` (radiosity-sized records) to each copy, in copy order,
+/// one copy at a time.
+fn send_to_copies(
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    from: &Path,
+    io: &mut IoCounters,
+) -> Result<(), OocError> {
     let n = work.count;
     let chunk = plan.chunk_surfels.min(n).max(1);
     let buffer = plan.bucket_buffer(n.div_ceil(chunk));
@@ -857,8 +992,7 @@ fn send_to_copies(work: &WorkSet, plan: &MemoryPlan, io: &mut IoCounters) -> Res
             buffer,
         )?;
         let mut positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
-        let mut radiosity =
-            SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)?;
+        let mut radiosity = SeqReader::<RADIOSITY_LEN>::open(from, plan.io_bytes)?;
         while let Some(p) = positions.next_record()? {
             scatter.push(u32::from_le_bytes(p) as u64, &radiosity.expect_record()?)?;
         }

@@ -152,6 +152,10 @@ pub struct OutOfCoreReport {
     pub bytes_written_per_voxel_direction: f64,
     /// Bands the directions were cut into, over all iterations.
     pub bands: u64,
+    /// The direct-light pass's parts: groups of dense directions whose lines' surfels were held
+    /// at once (one pass over the scene each; 0 without the pass).
+    #[serde(default)]
+    pub direct_light_parts: u64,
 }
 
 impl OutOfCoreReport {
@@ -166,6 +170,7 @@ impl OutOfCoreReport {
             bytes_read_per_voxel_direction: bytes_read as f64 / updates,
             bytes_written_per_voxel_direction: bytes_written as f64 / updates,
             bands,
+            direct_light_parts: 0,
         }
     }
 }

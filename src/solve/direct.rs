@@ -45,7 +45,9 @@
 //! small ([`small_emitters`]: at most 5 % of the surfels emit), capped to what about
 //! [`BUDGET_ITERATIONS`] iterations cost ([`affordable_directions`]). Every in-memory solve runs it
 //! (one process, and every MPI mode: the dense directions are dealt over all ranks, each of
-//! which holds the whole scene); the out-of-core solvers do not have it yet. A stop signal during the pass is answered at the first
+//! which holds the whole scene), and so does the one-process out-of-core solver, on parts of the
+//! scene that hold the emitters' lines (`outcore::direct`, through [`gather_groups`]); the data
+//! mode out of core does not have it yet. A stop signal during the pass is answered at the first
 //! direction after it.
 //!
 //! **Determinism.** Directions are taken in blocks; a block's directions run in parallel, each
@@ -81,6 +83,9 @@ pub struct DirectStats {
     pub line_surfels: u64,
     /// Wall clock of the pass (cosine sums included).
     pub seconds: f64,
+    /// Out of core: the parts the dense directions were taken in (`outcore::direct`); 0 in
+    /// memory.
+    pub parts: u64,
 }
 
 /// The direct light of every surfel side: `H_dense(E) / S_dense(n)`.
@@ -181,13 +186,7 @@ pub fn gather_direct(
     pool: &rayon::ThreadPool,
 ) -> DirectLight {
     let started = Instant::now();
-    let emitters: Vec<u32> = emission
-        .iter()
-        .enumerate()
-        .filter(|(_, e)| e.iter().flatten().any(|&v| v > 0.0))
-        .map(|(i, _)| i as u32)
-        .collect();
-    let table = VoxelTable::new(set);
+    let emitters = emitting(emission);
     let cosine_sum = pool.install(|| cosine_sums(&set.normals, directions));
     // Groups of consecutive directions (neighbours on the sphere), dealt over the ranks: a
     // sender's scale is settled over a group, so it does not depend on the rank count.
@@ -204,41 +203,24 @@ pub fn gather_direct(
         emitting_surfels: emitters.len(),
         ..Default::default()
     };
-    let context = Context {
-        dims: set.grid.dims,
+    let sums = Sums {
+        light: &mut acc,
+        rescaled: &mut rescaled,
+        stats: &mut stats,
+    };
+    gather_groups(
+        set,
         surfels,
         emission,
-        emitters: &emitters,
-        table: &table,
-        set,
-        cosine_sum: &cosine_sum,
-    };
-    for block in mine.chunks(BLOCK) {
-        let gathered: Vec<DirectionLight> = pool.install(|| {
-            block
-                .par_iter()
-                .map_init(Buffers::default, |buffers, &k| {
-                    context.direction(&directions.directions[k], buffers)
-                })
-                .collect()
-        });
-        // The block starts a group and holds whole groups (but for the last one).
-        for group in gathered.chunks(GROUP) {
-            let scales = group_scales(group, balance);
-            for (direction, scales) in group.iter().zip(&scales) {
-                stats.lines += direction.lines;
-                stats.line_surfels += direction.line_surfels;
-                for &(member, side, sender, light, weight) in &direction.contributions {
-                    let scale = scales[sender as usize];
-                    let (member, side) = (member as usize, side as usize);
-                    for (t, l) in acc[member][side].iter_mut().zip(light) {
-                        *t += l * scale;
-                    }
-                    rescaled[member][side] += weight * (scale - 1.0);
-                }
-            }
-        }
-    }
+        &emitters,
+        &cosine_sum,
+        directions,
+        &mine,
+        balance,
+        pool,
+        true,
+        sums,
+    );
     if comm.size() > 1 {
         let mut flat: Vec<f64> = acc.iter().flatten().flatten().copied().collect();
         flat.extend(rescaled.iter().flatten());
@@ -266,6 +248,124 @@ pub fn gather_direct(
         irradiance: acc,
         stats,
     }
+}
+
+/// Where [`gather_groups`] adds its light, indexed like the surfels it is given: the light from
+/// emitters (before the division by `S + shift`), each side's shift of its gathered weights,
+/// and the pass's counts.
+pub(crate) struct Sums<'a> {
+    pub light: &'a mut [SideLight],
+    pub rescaled: &'a mut [[f64; 2]],
+    pub stats: &'a mut DirectStats,
+}
+
+/// Dense directions per group (a sender's scale is settled over a group): a partial pass must
+/// take whole groups to add what the whole pass adds, in the same order.
+pub(crate) const DIRECTIONS_PER_GROUP: usize = GROUP;
+
+/// Adds to `sums` the direct light of the dense directions `which` (whole groups, in order) on
+/// the surfels of `set`: every receiver's light from its emitting partners, scaled by its
+/// sender's balance, in direction order. `emitters` are the emitting surfels, `cosine_sum`
+/// `S_dense(n)` by normal id. The out-of-core pass calls it on a part of a scene that holds every
+/// surfel on the emitters' lines of `which` (a line is walked through the surfels present only).
+/// `bitmap` lets the voxel table keep an occupancy bit per voxel of the grid (up to 32 MiB),
+/// which answers the empty voxels a line crosses faster.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn gather_groups(
+    set: &SurfelSet,
+    surfels: &[PropSurfel],
+    emission: &[[[f32; 3]; 2]],
+    emitters: &[u32],
+    cosine_sum: &[f64],
+    directions: &DirectionSet,
+    which: &[usize],
+    balance: SenderBalance,
+    pool: &rayon::ThreadPool,
+    bitmap: bool,
+    sums: Sums,
+) {
+    let table = VoxelTable::new(set, bitmap);
+    let context = Context {
+        dims: set.grid.dims,
+        surfels,
+        emission,
+        emitters,
+        table: &table,
+        set,
+        cosine_sum,
+    };
+    for block in which.chunks(BLOCK) {
+        let gathered: Vec<DirectionLight> = pool.install(|| {
+            block
+                .par_iter()
+                .map_init(Buffers::default, |buffers, &k| {
+                    context.direction(&directions.directions[k], buffers)
+                })
+                .collect()
+        });
+        // The block starts a group and holds whole groups (but for the last one).
+        for group in gathered.chunks(GROUP) {
+            let scales = group_scales(group, balance);
+            for (direction, scales) in group.iter().zip(&scales) {
+                sums.stats.lines += direction.lines;
+                sums.stats.line_surfels += direction.line_surfels;
+                for &(member, side, sender, light, weight) in &direction.contributions {
+                    let scale = scales[sender as usize];
+                    let (member, side) = (member as usize, side as usize);
+                    for (t, l) in sums.light[member][side].iter_mut().zip(light) {
+                        *t += l * scale;
+                    }
+                    sums.rescaled[member][side] += weight * (scale - 1.0);
+                }
+            }
+        }
+    }
+}
+
+/// Calls `f` on every voxel of line `line` of `frame` inside a grid of `dims`, in order along
+/// `vector`.
+pub(crate) fn for_each_voxel_on_line(
+    frame: &LineFrame,
+    dims: [u32; 3],
+    vector: [i64; 3],
+    line: u64,
+    mut f: impl FnMut([i32; 3]),
+) {
+    let (i, j) = (line / frame.nj, line % frame.nj);
+    let layers = dims[frame.main] as usize;
+    let forward = vector[frame.main] > 0;
+    for step in 0..layers {
+        let layer = if forward { step } else { layers - 1 - step };
+        let (su, sv) = frame.layer_shift(layer);
+        // Outside the grid on this layer (an oblique line enters it late or leaves early).
+        if i < su || j < sv {
+            continue;
+        }
+        let (u, v) = (i - su, j - sv);
+        if u >= dims[frame.u] as u64 || v >= dims[frame.v] as u64 {
+            continue;
+        }
+        let mut voxel = [0i32; 3];
+        voxel[frame.main] = layer as i32;
+        voxel[frame.u] = u as i32;
+        voxel[frame.v] = v as i32;
+        f(voxel);
+    }
+}
+
+/// Whether a surfel whose sides emit `e` is an emitter of the pass (a side's `E` is positive).
+pub(crate) fn emits(e: &[[f32; 3]; 2]) -> bool {
+    e.iter().flatten().any(|&v| v > 0.0)
+}
+
+/// The emitting surfels among those of `emission`.
+pub(crate) fn emitting(emission: &[[[f32; 3]; 2]]) -> Vec<u32> {
+    emission
+        .iter()
+        .enumerate()
+        .filter(|(_, e)| emits(e))
+        .map(|(i, _)| i as u32)
+        .collect()
 }
 
 /// What one direction's emitter lines gave.
@@ -456,33 +556,16 @@ impl Context<'_> {
     /// gives: voxel by voxel along the line, by surfel index within a voxel).
     fn walk(&self, frame: &LineFrame, vector: [i64; 3], line: u64, members: &mut Vec<u32>) {
         members.clear();
-        let (i, j) = (line / frame.nj, line % frame.nj);
-        let layers = self.dims[frame.main] as usize;
-        let forward = vector[frame.main] > 0;
-        for step in 0..layers {
-            let layer = if forward { step } else { layers - 1 - step };
-            let (su, sv) = frame.layer_shift(layer);
-            // Outside the grid on this layer (an oblique line enters it late or leaves early).
-            if i < su || j < sv {
-                continue;
-            }
-            let (u, v) = (i - su, j - sv);
-            if u >= self.dims[frame.u] as u64 || v >= self.dims[frame.v] as u64 {
-                continue;
-            }
-            let mut voxel = [0i32; 3];
-            voxel[frame.main] = layer as i32;
-            voxel[frame.u] = u as i32;
-            voxel[frame.v] = v as i32;
+        for_each_voxel_on_line(frame, self.dims, vector, line, |voxel| {
             if let Some((first, end)) = self.table.surfels_of(voxel) {
                 members.extend(first..end);
             }
-        }
+        });
     }
 }
 
 /// Grids up to this many voxels get an occupancy bit per voxel (32 MiB at most).
-const MAX_BITMAP_VOXELS: u64 = 1 << 28;
+pub(crate) const MAX_BITMAP_VOXELS: u64 = 1 << 28;
 
 /// From a voxel to the range of its surfels (which are adjacent in a surfel set). Most voxels a
 /// line crosses are empty (the air of a room): an occupancy bitmap answers those without a hash
@@ -494,12 +577,12 @@ struct VoxelTable {
 }
 
 impl VoxelTable {
-    fn new(set: &SurfelSet) -> Self {
+    fn new(set: &SurfelSet, bitmap: bool) -> Self {
         let mut map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>> = HashMap::default();
         let dims = set.grid.dims.map(u64::from);
         let voxels = dims[0] * dims[1] * dims[2];
-        let mut occupied =
-            (voxels <= MAX_BITMAP_VOXELS).then(|| vec![0u64; voxels.div_ceil(64) as usize]);
+        let mut occupied = (bitmap && voxels <= MAX_BITMAP_VOXELS)
+            .then(|| vec![0u64; voxels.div_ceil(64) as usize]);
         let s = &set.surfels;
         let mut first = 0;
         while first < s.len() {

@@ -154,6 +154,7 @@ pub fn solve_data_out_of_core(
         comm,
         threads,
         pool: &pool,
+        channels: std::cell::Cell::new(3),
     };
     solver.run(budget, work_parent, checkpoints)
 }
@@ -165,6 +166,8 @@ struct Solver<'a> {
     comm: &'a dyn Comm,
     threads: usize,
     pool: &'a rayon::ThreadPool,
+    /// Channels gathered, decided once the slices are read (see [`Solver::channels`]).
+    channels: std::cell::Cell<usize>,
 }
 
 /// What one update of `B` found on this rank.
@@ -213,6 +216,11 @@ impl Solver<'_> {
         self.comm.sum_in_place(&mut counts);
         let [voxels, surfels] = counts.map(|c| c as u64);
         let any_light = self.comm.max_u64(slice.any_light as u64) == 1;
+        // Grey decided on the materials the surfels use, as the one-process solvers decide it:
+        // a caller's `grey` alone would solve a coloured scene in one channel.
+        let coloured = self.comm.max_u64(slice.coloured as u64) == 1;
+        self.channels
+            .set(if self.options.grey && !coloured { 1 } else { 3 });
         let setup_seconds = started.elapsed().as_secs_f64();
         let mut held = slice.held;
         let mut largest_share = held.count;
@@ -552,6 +560,7 @@ impl Solver<'_> {
                 &info.materials,
                 material,
                 decode_gathered(&w[EARLIER_AT..]),
+                None,
                 self.channels(),
                 &previous,
                 cosine_sum[normal_id as usize],
@@ -573,14 +582,10 @@ impl Solver<'_> {
         Ok((held, result))
     }
 
-    /// Channels gathered: 1 for a grey scene (`options.grey` comes from the analysis of the
-    /// materials the surfels use, as for the one-process solver), else 3.
+    /// Channels gathered: 1 for a grey scene (asked for by `options.grey` and checked on the
+    /// materials the surfels use when the slices are read), else 3.
     fn channels(&self) -> usize {
-        if self.options.grey {
-            1
-        } else {
-            3
-        }
+        self.channels.get()
     }
 
     /// Adds the geometric tail `factor * (B - B_previous)` to the held surfels' radiosity with

@@ -21,6 +21,8 @@ pub(super) struct Slice {
     pub first: u64,
     pub voxels: u64,
     pub any_light: bool,
+    /// Some material a surfel side of the slice uses has unequal channels (`solve::effects`).
+    pub coloured: bool,
 }
 
 impl Solver<'_> {
@@ -55,6 +57,7 @@ impl Solver<'_> {
             },
             voxels: 0,
             any_light: false,
+            coloured: false,
         };
         for s in stream {
             let s = s?;
@@ -124,6 +127,8 @@ impl Solver<'_> {
             let mut b: [[f32; 3]; 2] = [[0.0; 3]; 2];
             for (side, b_side) in b.iter_mut().enumerate() {
                 let m = &info.materials[s.material[side] as usize];
+                let equal = |v: &[f64; 3]| v[0] == v[1] && v[1] == v[2];
+                slice.coloured |= !(equal(&m.reflectance) && equal(&m.emission));
                 for (ch, value) in b_side.iter_mut().enumerate() {
                     let e = m.emission[ch] as f32 as f64;
                     *value = (e + m.reflectance[ch] * 0.0 / norm) as f32;
