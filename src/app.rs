@@ -981,6 +981,7 @@ fn open_checkpoint_on_rank0(
         0 => return Ok((None, None)),
         2 => {
             return Err(checkpoint_error(failure.unwrap_or_else(|| {
+                checkpoint::let_rank_0_speak_first();
                 CheckpointError::Bad {
                     path: path.clone(),
                     what: "rank 0 could not read it (see rank 0's message)".to_string(),

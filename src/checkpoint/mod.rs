@@ -430,9 +430,12 @@ pub fn load_shared(
     match comm.max_u64(status) {
         0 => return Ok(None),
         2 => {
-            return Err(failure.unwrap_or_else(|| CheckpointError::Bad {
-                path: path.to_path_buf(),
-                what: "rank 0 could not read it (see rank 0's message)".to_string(),
+            return Err(failure.unwrap_or_else(|| {
+                let_rank_0_speak_first();
+                CheckpointError::Bad {
+                    path: path.to_path_buf(),
+                    what: "rank 0 could not read it (see rank 0's message)".to_string(),
+                }
             }))
         }
         _ => {}
@@ -485,9 +488,12 @@ fn share(comm: &dyn Comm, path: &Path, bytes: Vec<u8>) -> Result<file::Parsed, C
         }
     }
     if comm.max_u64(failure.is_some() as u64) == 1 {
-        return Err(failure.unwrap_or_else(|| CheckpointError::Bad {
-            path: path.to_path_buf(),
-            what: "rank 0 refused it (see rank 0's message)".to_string(),
+        return Err(failure.unwrap_or_else(|| {
+            let_rank_0_speak_first();
+            CheckpointError::Bad {
+                path: path.to_path_buf(),
+                what: "rank 0 refused it (see rank 0's message)".to_string(),
+            }
         }));
     }
     let head = broadcast_bytes(comm, head);
@@ -538,6 +544,14 @@ fn share(comm: &dyn Comm, path: &Path, bytes: Vec<u8>) -> Result<file::Parsed, C
 
 /// Rank 0's `bytes` on every rank, through the solver's only collectives (`max_u64` and the sum
 /// in rank order): four bytes per f64, whole numbers that a sum with zeros keeps exactly.
+/// Waits a moment on a rank that learned that rank 0 refused a checkpoint, before it fails too.
+/// The launcher ends the whole job when the first rank exits with an error: had this rank
+/// exited at once, rank 0 could be killed before it printed why, and the user would read only
+/// "see rank 0's message" (seen under load in the MPI tests).
+pub(crate) fn let_rank_0_speak_first() {
+    std::thread::sleep(std::time::Duration::from_secs(2));
+}
+
 fn broadcast_bytes(comm: &dyn Comm, bytes: Vec<u8>) -> Vec<u8> {
     let len = comm.max_u64(bytes.len() as u64) as usize;
     let mut words = vec![0f64; len.div_ceil(4)];

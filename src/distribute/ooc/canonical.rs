@@ -109,9 +109,12 @@ impl Solver<'_> {
         }
         // Every rank learns whether rank 0 could read it before any waits for its slice.
         if self.comm.max_u64(failure.is_some() as u64) == 1 {
-            return Err(failure.unwrap_or_else(|| OocError::BadData {
-                source_name: "the checkpoint".to_string(),
-                what: "rank 0 could not read it (see rank 0's message)".to_string(),
+            return Err(failure.unwrap_or_else(|| {
+                crate::checkpoint::let_rank_0_speak_first();
+                OocError::BadData {
+                    source_name: "the checkpoint".to_string(),
+                    what: "rank 0 could not read it (see rank 0's message)".to_string(),
+                }
             }));
         }
         let outgoing: Vec<Option<PathBuf>> = (0..ranks)
