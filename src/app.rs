@@ -1016,7 +1016,7 @@ fn open_checkpoint_on_rank0(
         iteration: words[0] as u64,
         ranks: comm.size() as u32,
         previous_change: (words[1] == 1.0).then_some(words[2]),
-        extrapolation: crate::solve::accelerate::Extrapolation::from_parts(
+        extrapolation: crate::checkpoint::ExtrapolationState::from_parts(
             changes,
             words[3] as usize,
             (words[4] == 1.0).then_some(words[5]),

@@ -15,6 +15,7 @@
 
 pub mod app;
 pub mod checkpoint;
+pub mod comm;
 pub mod convert;
 pub mod distribute;
 pub mod gen;

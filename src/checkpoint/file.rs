@@ -25,8 +25,7 @@
 //! or the new one, never a mixture. (A fixed temporary name, rather than a random one, so that
 //! repeated kills do not pile up stray files; only one solve writes into an out directory.)
 
-use super::{CheckpointError, Header, Identity, Solver, State};
-use crate::solve::accelerate::Extrapolation;
+use super::{CheckpointError, ExtrapolationState, Header, Identity, Solver, State};
 use std::fs::File;
 use std::io::{BufWriter, Read, Write};
 use std::path::{Path, PathBuf};
@@ -227,7 +226,7 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
             iteration,
             ranks,
             previous_change,
-            extrapolation: Extrapolation::from_parts(changes, count, last_ratio),
+            extrapolation: ExtrapolationState::from_parts(changes, count, last_ratio),
             within,
             data_groups,
         },
@@ -524,7 +523,9 @@ pub fn write(
     }
     // The rename is durable only once the directory is synced. Best effort, as for the other
     // outputs: the data itself is already on disk.
-    if let Ok(dir) = File::open(crate::output::atomic::parent_dir(path)) {
+    // (A bare file name has an empty parent: the current directory.)
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty());
+    if let Ok(dir) = File::open(parent.unwrap_or(Path::new("."))) {
         let _ = dir.sync_all();
     }
     Ok(())
@@ -580,9 +581,10 @@ mod tests {
     use super::*;
 
     fn header(surfels: u64, within: Option<u64>) -> Header {
-        let mut extrapolation = Extrapolation::default();
-        extrapolation.observe(1.0, 0.5, 0.0);
-        extrapolation.observe(0.5, 0.25, 0.0);
+        let mut observed = crate::solve::accelerate::Extrapolation::default();
+        observed.observe(1.0, 0.5, 0.0);
+        observed.observe(0.5, 0.25, 0.0);
+        let extrapolation = ExtrapolationState::from(&observed);
         Header {
             identity: Identity {
                 solver: Solver::InMemory,

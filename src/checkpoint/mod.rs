@@ -41,10 +41,9 @@ pub mod file;
 
 pub use file::{CheckpointFile, Gathered, Radiosity};
 
-use crate::distribute::Comm;
+use crate::comm::Comm;
 use crate::geometry::directions::DirectionSet;
 use crate::scene::Material;
-use crate::solve::accelerate::Extrapolation;
 use crate::voxel::{Grid, Surfel, SurfelSet};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -247,6 +246,33 @@ pub fn hash_surfel(h: &mut crc32fast::Hasher, s: &Surfel) {
 }
 
 /// The solver's bookkeeping at an iteration boundary.
+/// The tail extrapolation's whole state (`solve::accelerate::Extrapolation`): the change norms
+/// since its last jump, its count of jumps and the ratio that allowed the last one. A resumed
+/// solve must extrapolate exactly when the uninterrupted one would. Plain data here, so that the
+/// checkpoints do not depend on the solver.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExtrapolationState {
+    pub changes: Vec<f64>,
+    pub count: usize,
+    pub last_ratio: Option<f64>,
+}
+
+impl ExtrapolationState {
+    /// The change norms, the count and the last ratio.
+    pub fn parts(&self) -> (&[f64], usize, Option<f64>) {
+        (&self.changes, self.count, self.last_ratio)
+    }
+
+    /// The state [`ExtrapolationState::parts`] gave.
+    pub fn from_parts(changes: Vec<f64>, count: usize, last_ratio: Option<f64>) -> Self {
+        ExtrapolationState {
+            changes,
+            count,
+            last_ratio,
+        }
+    }
+}
+
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct State {
     /// Iterations completed.
@@ -256,7 +282,7 @@ pub struct State {
     pub ranks: u32,
     /// The stopping rule's last relative change (`jacobi::Convergence`).
     pub previous_change: Option<f64>,
-    pub extrapolation: Extrapolation,
+    pub extrapolation: ExtrapolationState,
     /// In mid-iteration: how many of this rank's directions (the same count on every rank, see
     /// `jacobi`) of iteration `iteration + 1` are gathered; the file then holds every rank's
     /// partial sums. `None` at an iteration boundary.
@@ -666,13 +692,13 @@ impl Saver {
         &self,
         iteration: usize,
         previous_change: Option<f64>,
-        extrapolation: &Extrapolation,
+        extrapolation: impl Into<ExtrapolationState>,
     ) -> State {
         State {
             iteration: iteration as u64,
             ranks: self.ranks,
             previous_change,
-            extrapolation: extrapolation.clone(),
+            extrapolation: extrapolation.into(),
             within: None,
             data_groups: 0,
         }
@@ -962,7 +988,7 @@ pub fn remove_finished(out: &Path) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::distribute::SingleProcess;
+    use crate::comm::SingleProcess;
 
     #[test]
     fn a_checkpoint_of_another_run_is_refused_with_the_difference() {
@@ -975,7 +1001,7 @@ mod tests {
         let this = Identity::in_memory(&set, &directions, 3, false);
         let dir = tempfile::tempdir().unwrap();
         let mut saver = Saver::new(dir.path(), this.clone(), true, Duration::ZERO, 1, None);
-        let state = saver.state(4, Some(0.5), &Extrapolation::default());
+        let state = saver.state(4, Some(0.5), ExtrapolationState::default());
         let radiosity = vec![[[1.0f32; 3]; 2]; set.surfels.len()];
         saver.save_memory(state.clone(), &radiosity).unwrap();
         let path = path_in(dir.path());
@@ -1026,7 +1052,7 @@ mod tests {
         let acc: Vec<Gathered> = (0..n)
             .map(|i| [[i as f64 / 7.0, 1e-310, 0.0], [3.0, 2.0, 1.0]])
             .collect();
-        let state = saver.state(2, Some(0.25), &Extrapolation::default());
+        let state = saver.state(2, Some(0.25), ExtrapolationState::default());
         saver
             .save_within(&SingleProcess, state, 5, &radiosity, &acc)
             .unwrap();
@@ -1060,7 +1086,7 @@ mod tests {
             "{text}"
         );
         // A position past the iteration's end is refused.
-        let state = saver.state(2, None, &Extrapolation::default());
+        let state = saver.state(2, None, ExtrapolationState::default());
         saver
             .save_within(&SingleProcess, state, 13, &radiosity, &acc)
             .unwrap();

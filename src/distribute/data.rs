@@ -73,91 +73,7 @@ pub const RECORD_BYTES: usize = 144;
 /// Packs smaller than this are sent as they are.
 const COMPRESS_FROM: usize = 4096;
 
-/// What the data distribution did, for the report.
-#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
-pub struct DataStats {
-    /// Direction groups (1 in the data mode) and ranks per group.
-    pub groups: usize,
-    pub ranks_per_group: usize,
-    /// Mean, over the directions of every iteration, of the fraction of the surfels that
-    /// changed rank for that direction.
-    pub exchanged_fraction: f64,
-    /// The largest such fraction (the first direction of an iteration, or of an octant).
-    pub max_exchanged_fraction: f64,
-    /// The fraction for each direction, in walk order (averaged over iterations).
-    pub exchanged_by_direction: Vec<f64>,
-    /// Mean, over directions, of the largest rank's surfels over the mean (1 is perfect).
-    pub imbalance: f64,
-    pub max_imbalance: f64,
-    /// Surfel bytes sent to other ranks, before and after compression.
-    pub bytes_packed: u64,
-    pub bytes_sent: u64,
-    /// Every rank's seconds per phase, by rank.
-    pub per_rank: Vec<PhaseSeconds>,
-    /// The data mode out of core (`--memory`): every rank's work-file traffic, largest share
-    /// and peak memory, by rank.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub out_of_core: Vec<RankOutOfCore>,
-}
-
-/// What one rank of the data mode out of core moved through its disk and held.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
-pub struct RankOutOfCore {
-    /// Bytes read from and written to the input and the rank's work files.
-    pub bytes_read: u64,
-    pub bytes_written: u64,
-    /// The same per surfel of the scene and direction of every iteration.
-    pub bytes_read_per_voxel_direction: f64,
-    pub bytes_written_per_voxel_direction: f64,
-    /// The most surfel bytes (208 per surfel: static data, radiosity, light) the rank held in
-    /// its files for one direction.
-    pub largest_share_bytes: u64,
-    /// The rank's peak resident memory (`VmHWM`) over the whole run.
-    pub peak_rss_bytes: u64,
-    /// The same before the scene was read: the program and its MPI library, which the budget
-    /// does not cover.
-    pub start_rss_bytes: u64,
-}
-
-/// One rank's seconds in each phase of the data mode.
-#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
-pub struct PhaseSeconds {
-    pub balance: f64,
-    pub fill: f64,
-    pub exchange: f64,
-    pub merge: f64,
-    pub dispatch: f64,
-    pub propagate: f64,
-    pub reduce: f64,
-}
-
-impl PhaseSeconds {
-    pub(crate) const FIELDS: usize = 7;
-
-    pub(crate) fn to_array(self) -> [f64; Self::FIELDS] {
-        [
-            self.balance,
-            self.fill,
-            self.exchange,
-            self.merge,
-            self.dispatch,
-            self.propagate,
-            self.reduce,
-        ]
-    }
-
-    pub(crate) fn from_slice(v: &[f64]) -> Self {
-        PhaseSeconds {
-            balance: v[0],
-            fill: v[1],
-            exchange: v[2],
-            merge: v[3],
-            dispatch: v[4],
-            propagate: v[5],
-            reduce: v[6],
-        }
-    }
-}
+pub use crate::solve::stats::{DataStats, PhaseSeconds, RankOutOfCore};
 
 /// The surfels a rank holds. Their data sits in slots that do not move while they stay (a
 /// surfel that leaves frees its slot, one that arrives takes a free slot), and `order` lists the
@@ -542,7 +458,7 @@ impl<'a> DataSolver<'a> {
             }
             first = convergence.resume(&loaded.state, &loaded.path, &mut stats);
             iterations_done = first - 1;
-            extrapolation = loaded.state.extrapolation;
+            extrapolation = loaded.state.extrapolation.into();
             match resume_within {
                 // Every rank has the same header: all continue inside, or none.
                 Some((done, sums)) if (done as usize) < steps => {

@@ -1,5 +1,5 @@
-//! Running one solve on several processes: the communication the solver needs, behind one small
-//! trait, with a single-process implementation and (cargo feature `mpi`) the MPI one.
+//! Running one solve on several processes: the modes, the data mode's distribution, and (cargo
+//! feature `mpi`) the MPI implementation of the communication trait (`crate::comm`).
 //!
 //! Modes (`--distribute`): `directions` (paper, section 3.2): every rank holds the whole scene,
 //! takes every `size`-th direction, and the light gathered is summed across ranks once per
@@ -7,11 +7,6 @@
 //! each rank owns whole lines, found per direction by an elastic balance ([`balance`]), and the
 //! surfels travel between ranks as the directions turn. `hybrid` (section 5): groups of ranks take
 //! blocks of directions, and inside a group the data is distributed.
-//!
-//! All communication happens on the main thread, between the threaded parts of the solver.
-//! Sums are made in rank order (each rank adds one part of the values, rank 0's first, and
-//! hands the result to all), never by the MPI library's own reduction, whose order may change
-//! between runs: so the same launch gives the same bits every time.
 
 pub mod balance;
 pub mod data;
@@ -19,51 +14,7 @@ pub mod data;
 pub mod mpi_comm;
 pub mod ooc;
 
-/// What the solver needs from the processes it runs on.
-pub trait Comm {
-    /// This process's rank, `0..size`.
-    fn rank(&self) -> usize;
-    /// Number of processes.
-    fn size(&self) -> usize;
-    /// Replaces `values` on every rank by the element-wise sum over ranks, added in rank order.
-    fn sum_in_place(&self, values: &mut [f64]);
-    /// The largest of `value` over ranks.
-    fn max_u64(&self, value: u64) -> u64;
-    /// Sends `outgoing[d]` to rank `d` (one buffer per rank, this rank's own included) and
-    /// returns what every rank sent here, indexed by source rank.
-    fn exchange(&self, outgoing: Vec<Vec<u8>>) -> Vec<Vec<u8>>;
-    /// Splits the processes into groups: those passing the same `color` form one, ranked in the
-    /// order of their ranks here. Every process must call it.
-    fn split(&self, color: usize) -> Box<dyn Comm>;
-}
-
-/// One process: sums are the values themselves.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct SingleProcess;
-
-impl Comm for SingleProcess {
-    fn rank(&self) -> usize {
-        0
-    }
-
-    fn size(&self) -> usize {
-        1
-    }
-
-    fn sum_in_place(&self, _values: &mut [f64]) {}
-
-    fn max_u64(&self, value: u64) -> u64 {
-        value
-    }
-
-    fn exchange(&self, outgoing: Vec<Vec<u8>>) -> Vec<Vec<u8>> {
-        outgoing
-    }
-
-    fn split(&self, _color: usize) -> Box<dyn Comm> {
-        Box::new(SingleProcess)
-    }
-}
+pub use crate::comm::{dealt, Comm, SingleProcess};
 
 /// How a solve is spread over processes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -114,23 +65,4 @@ pub fn launcher_world_size() -> Option<usize> {
     .iter()
     .filter_map(|k| std::env::var(k).ok())
     .find_map(|v| v.trim().parse().ok())
-}
-
-/// Splits `count` items (directions) into this rank's share: every `size`-th one from `rank`.
-pub fn dealt(count: usize, rank: usize, size: usize) -> Vec<usize> {
-    (rank..count).step_by(size.max(1)).collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn every_direction_is_dealt_once() {
-        for size in 1..6 {
-            let mut all: Vec<usize> = (0..size).flat_map(|r| dealt(23, r, size)).collect();
-            all.sort_unstable();
-            assert_eq!(all, (0..23).collect::<Vec<_>>());
-        }
-    }
 }

@@ -323,7 +323,7 @@ fn run(
         send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         first_iteration = convergence.resume(&file.header.state, &file.path, &mut stats.solve);
-        extrapolation = file.header.state.extrapolation.clone();
+        extrapolation = file.header.state.extrapolation.clone().into();
         if resume_axes > 0 {
             tracing::info!(
                 iteration = first_iteration,

@@ -18,24 +18,7 @@ use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-/// One physical effect and whether this run simulated it (the user asked to "simulate only the
-/// effects a scene calls for", so the report says which were and why).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Effect {
-    pub name: String,
-    pub simulated: bool,
-    pub why: String,
-}
-
-impl Effect {
-    pub fn new(name: &str, simulated: bool, why: &str) -> Self {
-        Effect {
-            name: name.to_string(),
-            simulated,
-            why: why.to_string(),
-        }
-    }
-}
+pub use crate::solve::effects::Effect;
 
 /// Power balance of the solution, per RGB channel, in world units (radiosity times area).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -125,7 +108,7 @@ pub struct Report {
     /// Data and hybrid modes: groups, what moved between ranks, balance, and every rank's
     /// seconds per phase (balance, fill, exchange, merge, dispatch, propagate, reduce).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub data_distribution: Option<crate::distribute::data::DataStats>,
+    pub data_distribution: Option<crate::solve::stats::DataStats>,
     /// Present when the solve continued from a checkpoint (`--resume`): the iteration it held.
     /// `iterations` counts from the start; the times and rates are this run's alone.
     #[serde(default, skip_serializing_if = "Option::is_none")]

@@ -31,6 +31,8 @@
 //! previous radiosity vectors, the emission), so an in-memory and an out-of-core solver can share
 //! it: the out-of-core one streams its shards through [`extrapolate`].
 
+use crate::checkpoint::ExtrapolationState;
+
 /// Smallest relative change at which ratios are trusted: below it the change is mostly the
 /// rounding of f32 storage, and its ratios are noise.
 const NOISE_FLOOR: f64 = 1e-6;
@@ -51,6 +53,18 @@ pub struct Extrapolation {
     pub count: usize,
     /// The larger of the two ratios that allowed the last extrapolation.
     last_ratio: Option<f64>,
+}
+
+impl From<&Extrapolation> for ExtrapolationState {
+    fn from(e: &Extrapolation) -> Self {
+        ExtrapolationState::from_parts(e.changes.clone(), e.count, e.last_ratio)
+    }
+}
+
+impl From<ExtrapolationState> for Extrapolation {
+    fn from(s: ExtrapolationState) -> Self {
+        Extrapolation::from_parts(s.changes, s.count, s.last_ratio)
+    }
 }
 
 impl Extrapolation {

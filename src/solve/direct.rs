@@ -57,7 +57,7 @@
 use super::normalize::cosine;
 use super::normalize::cosine_sums;
 use super::propagate::{find_partners, for_each_link, LineScratch, PropSurfel};
-use crate::distribute::Comm;
+use crate::comm::Comm;
 use crate::geometry::directions::{Direction, DirectionSet};
 use crate::geometry::lines::LineFrame;
 use crate::voxel::SurfelSet;
@@ -191,7 +191,7 @@ pub fn gather_direct(
     // Groups of consecutive directions (neighbours on the sphere), dealt over the ranks: a
     // sender's scale is settled over a group, so it does not depend on the rank count.
     let groups = directions.len().div_ceil(GROUP);
-    let mine: Vec<usize> = crate::distribute::dealt(groups, comm.rank(), comm.size())
+    let mine: Vec<usize> = crate::comm::dealt(groups, comm.rank(), comm.size())
         .into_iter()
         .flat_map(|g| g * GROUP..((g + 1) * GROUP).min(directions.len()))
         .collect();
@@ -804,7 +804,7 @@ mod tests {
             &emission,
             &dense,
             SenderBalance::Off,
-            &crate::distribute::SingleProcess,
+            &crate::comm::SingleProcess,
             &pool,
         );
         let mut worst = 0f64;

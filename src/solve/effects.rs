@@ -19,8 +19,27 @@
 
 use super::direct::{DirectPass, Shape};
 use super::{SolveOptions, SolveStats};
-use crate::output::report::Effect;
 use crate::voxel::SurfelSet;
+use serde::{Deserialize, Serialize};
+
+/// One physical effect and whether this run simulated it (the user asked to "simulate only the
+/// effects a scene calls for", so the report says which were and why).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Effect {
+    pub name: String,
+    pub simulated: bool,
+    pub why: String,
+}
+
+impl Effect {
+    pub fn new(name: &str, simulated: bool, why: &str) -> Self {
+        Effect {
+            name: name.to_string(),
+            simulated,
+            why: why.to_string(),
+        }
+    }
+}
 
 /// What a scene calls for.
 #[derive(Clone, Debug, PartialEq)]

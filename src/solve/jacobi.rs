@@ -24,7 +24,7 @@ use super::normalize::cosine_sums;
 use super::propagate::{gather_line, prop_surfels, DirectionInput, LineScratch};
 use super::{Solution, SolveStats};
 use crate::checkpoint::{Interruption, Loaded, Saver};
-use crate::distribute::{Comm, SingleProcess};
+use crate::comm::{Comm, SingleProcess};
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
@@ -194,7 +194,7 @@ fn run(
     let orders: Vec<Vec<OrderedEntry>> =
         pool.install(|| super::dispatch::lexicographic_orders(set));
     // This rank's directions (all of them on one process).
-    let mine = crate::distribute::dealt(directions.len(), comm.rank(), comm.size());
+    let mine = crate::comm::dealt(directions.len(), comm.rank(), comm.size());
     let frames: Vec<LineFrame> = directions
         .directions
         .iter()
@@ -276,7 +276,7 @@ fn run(
             );
         }
         first = convergence.resume(&loaded.state, &loaded.path, &mut stats);
-        extrapolation = loaded.state.extrapolation;
+        extrapolation = loaded.state.extrapolation.into();
     }
 
     if checkpoints.is_some() {

@@ -237,7 +237,7 @@ impl Solver<'_> {
         let mut extrapolation = Extrapolation::default();
         if let Some(c) = checkpoints.as_mut() {
             if let Some(state) = c.state.take() {
-                extrapolation = state.extrapolation.clone();
+                extrapolation = state.extrapolation.clone().into();
                 generation += 1;
                 held = self.restore(
                     held,
