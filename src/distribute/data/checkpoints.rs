@@ -1,0 +1,141 @@
+//! The data mode's checkpoints: the radiosity gathered by id for a boundary, every rank's light
+//! of the surfels it holds for a save inside an iteration, the stop on a signal, and the rebuild
+//! of what each rank held when a solve resumes inside an iteration.
+
+use super::*;
+
+impl DataSolver<'_> {
+    /// The stop after `completed` iterations on a signal: the checkpoint of that boundary (the
+    /// held radiosity is still that iteration's: the abandoned one only gathered).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn interrupted(
+        &self,
+        signal: i32,
+        completed: usize,
+        held: &Held,
+        world: &dyn Comm,
+        checkpoints: Option<&mut Checkpoints>,
+        convergence: &Convergence,
+        extrapolation: &crate::solve::accelerate::Extrapolation,
+    ) -> SolveError {
+        let interruption = match checkpoints {
+            Some(c) => {
+                // Collective: every rank gathers, rank 0 writes.
+                let radiosity = self.gather_radiosity(held, world);
+                c.saver.interrupt(signal, completed, |saver| {
+                    let state = saver.state(completed, convergence.previous_change, extrapolation);
+                    saver.save_memory(state, &radiosity)
+                })
+            }
+            None => Interruption::without_checkpoint(signal, completed, world.rank() == 0),
+        };
+        SolveError::Interrupted(interruption)
+    }
+
+    /// A mid-iteration checkpoint `done` steps into iteration `state.iteration + 1`: the
+    /// radiosity it gathers from and every rank's light of the surfels it holds, by surfel id
+    /// (see `checkpoint::State::data_groups`). Collective: every rank calls it.
+    pub(super) fn save_within(
+        &self,
+        world: &dyn Comm,
+        saver: &mut Saver,
+        mut state: State,
+        done: usize,
+        held: &Held,
+    ) -> Result<(), CheckpointError> {
+        let t = Instant::now();
+        let radiosity = self.gather_radiosity(held, world);
+        let mut acc: Vec<Gathered> = vec![[[0.0; 3]; 2]; self.set.surfels.len()];
+        for e in &held.order {
+            let slot = e.index as usize;
+            acc[held.ids[slot] as usize] = held.acc[slot];
+        }
+        state.data_groups = self.groups as u32;
+        let result = saver.save_within(world, state, done as u64, &radiosity, &acc);
+        // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
+        saver.took(t.elapsed());
+        result
+    }
+
+    /// Rebuilds what this rank held after its group's directions `done` (the first ones of an
+    /// iteration) from a mid-iteration checkpoint: their distributions, found again as the first
+    /// iteration found them (each from the histograms, which do not depend on who holds the
+    /// surfels, and the bands of the one before), then the surfels the last one gives this rank,
+    /// with the checkpoint's `radiosity` and this rank's `sums`, in that direction's order; the
+    /// uninterrupted run held exactly these there. Returns the octant order `held` is sorted in
+    /// (`None`: still by id, when the group had no direction yet). Collective in the group.
+    pub(super) fn rebuild_within(
+        &self,
+        held: &mut Held,
+        done: &[usize],
+        remembered: &mut [Option<Distribution>],
+        group_comm: &dyn Comm,
+        radiosity: &[Radiosity],
+        sums: &[Gathered],
+    ) -> Option<usize> {
+        for (i, &k) in done.iter().enumerate() {
+            if remembered[k].is_none() {
+                let previous = i
+                    .checked_sub(1)
+                    .and_then(|p| remembered[done[p]].as_ref())
+                    .map(Distribution::bands);
+                remembered[k] = Some(self.balance(k, held, group_comm, previous));
+            }
+        }
+        let Some(&last) = done.last() else {
+            for e in &held.order {
+                let slot = e.index as usize;
+                held.acc[slot] = sums[held.ids[slot] as usize];
+            }
+            return None;
+        };
+        let d = &self.directions.directions[last];
+        let o = order::order_of(d.vector);
+        let bins = self.projection(last).lines(&self.frames[last], d.vector);
+        let distribution = remembered[last].as_ref()?;
+        let table = distribution.table();
+        let me = group_comm.rank();
+        let mut rebuilt = Held::default();
+        for (id, prop) in self.surfels.iter().enumerate() {
+            let (row, col) = bins.bin(prop.voxel);
+            if group_comm.size() == 1 || table.owner(row, col) == me {
+                let slot = rebuilt.store(id as u32, *prop, radiosity[id], sums[id]);
+                rebuilt.order.push(OrderedEntry {
+                    voxel: prop.voxel,
+                    index: slot,
+                });
+            }
+        }
+        let ids = &rebuilt.ids;
+        rebuilt.order.sort_unstable_by(|x, y| compare(o, ids, x, y));
+        *held = rebuilt;
+        Some(o)
+    }
+
+    /// The radiosity of every surfel by id, on every rank (group 0's surfels added over the
+    /// world; in a grey solve the one channel copied to all three, as the solver returns it).
+    pub(super) fn gather_radiosity(&self, held: &Held, world: &dyn Comm) -> Vec<[[f32; 3]; 2]> {
+        let n = self.set.surfels.len();
+        let mut flat = vec![0.0f64; n * 6];
+        if self.group == 0 {
+            for e in &held.order {
+                let b = &held.radiosity[e.index as usize];
+                let id = held.ids[e.index as usize] as usize;
+                for side in 0..2 {
+                    for ch in 0..3 {
+                        flat[id * 6 + side * 3 + ch] = b[side][ch] as f64;
+                    }
+                }
+            }
+        }
+        world.sum_in_place(&mut flat);
+        flat.chunks_exact(6)
+            .map(|c| {
+                [
+                    [c[0] as f32, c[1] as f32, c[2] as f32],
+                    [c[3] as f32, c[4] as f32, c[5] as f32],
+                ]
+            })
+            .collect()
+    }
+}
