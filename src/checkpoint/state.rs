@@ -1,0 +1,73 @@
+//! What a checkpoint holds beside the radiosity: where the solve stood (iterations done, the
+//! stopping rule's and the extrapolation's history, a position inside an iteration).
+
+use super::*;
+
+/// The solver's bookkeeping at an iteration boundary.
+/// The tail extrapolation's whole state (`solve::accelerate::Extrapolation`): the change norms
+/// since its last jump, its count of jumps and the ratio that allowed the last one. A resumed
+/// solve must extrapolate exactly when the uninterrupted one would. Plain data here, so that the
+/// checkpoints do not depend on the solver.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ExtrapolationState {
+    pub changes: Vec<f64>,
+    pub count: usize,
+    pub last_ratio: Option<f64>,
+}
+
+impl ExtrapolationState {
+    /// The change norms, the count and the last ratio.
+    pub fn parts(&self) -> (&[f64], usize, Option<f64>) {
+        (&self.changes, self.count, self.last_ratio)
+    }
+
+    /// The state [`ExtrapolationState::parts`] gave.
+    pub fn from_parts(changes: Vec<f64>, count: usize, last_ratio: Option<f64>) -> Self {
+        ExtrapolationState {
+            changes,
+            count,
+            last_ratio,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct State {
+    /// Iterations completed.
+    pub iteration: u64,
+    /// Ranks of the run that wrote it (a resume on another count is allowed; its sums across
+    /// ranks are added in another grouping, so the last bits may differ).
+    pub ranks: u32,
+    /// The stopping rule's last relative change (`jacobi::Convergence`).
+    pub previous_change: Option<f64>,
+    pub extrapolation: ExtrapolationState,
+    /// In mid-iteration: how many of this rank's directions (the same count on every rank, see
+    /// `jacobi`) of iteration `iteration + 1` are gathered; the file then holds every rank's
+    /// partial sums. `None` at an iteration boundary.
+    pub within: Option<u64>,
+    /// Whose partial sums a mid-iteration checkpoint holds. 0: each rank's light gathered from
+    /// its own directions, for every surfel (one process, `--distribute directions`, out of
+    /// core). `G` of 1 or more: the data mode (1) or the hybrid mode with `G` groups
+    /// (`distribute::data`), each rank's light of the surfels it held at that direction, by
+    /// surfel id (zero for the others); `within` then counts the steps of the group's
+    /// directions. Only a run of the same layout and rank count continues inside the iteration.
+    pub data_groups: u32,
+}
+
+/// Everything in a checkpoint but the radiosity.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Header {
+    pub identity: Identity,
+    pub state: State,
+}
+
+impl Header {
+    /// Ranks whose partial sums the file holds (none at an iteration boundary).
+    pub fn partial_ranks(&self) -> u32 {
+        if self.state.within.is_some() {
+            self.state.ranks
+        } else {
+            0
+        }
+    }
+}
