@@ -101,10 +101,6 @@ pub(super) fn solve_in_memory_from_scene(
     // The whole solve call (set-up, iterations, communication): what a speed-up compares.
     report.set_phase("solve", solve_seconds);
     report.effects = analysis.effects(&cmd.solve, stats, None);
-    if let Some(direct) = &stats.direct {
-        // Inside "solve": the direct-light pass, before the iterations.
-        report.set_phase("direct", direct.seconds);
-    }
     report.set_phase("read", read_seconds);
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);

@@ -227,10 +227,6 @@ pub(super) fn solve_out_of_core_to(
     report.set_phase("band_read", stats.read_seconds);
     report.set_phase("band_write", stats.write_seconds);
     report.set_phase("update", stats.update_seconds);
-    if let Some(direct) = &stats.solve.direct {
-        // Before the iterations: the direct-light pass out of core.
-        report.set_phase("direct", direct.seconds);
-    }
     report.set_phase("write", write_seconds);
     report.out_of_core = Some(OutOfCoreReport::new(
         budget,

@@ -186,6 +186,10 @@ impl Report {
         seconds.insert("normalize".to_string(), stats.normalize_seconds);
         seconds.insert("dispatch".to_string(), stats.dispatch_seconds);
         seconds.insert("propagate".to_string(), stats.propagate_seconds);
+        if let Some(direct) = &stats.direct {
+            // Before the iterations, inside the solve: the direct-light pass (every path).
+            seconds.insert("direct".to_string(), direct.seconds);
+        }
         let total = stats.normalize_seconds + stats.dispatch_seconds + stats.propagate_seconds;
         seconds.insert("total".to_string(), total);
         let iterating = stats.dispatch_seconds + stats.propagate_seconds;
