@@ -36,9 +36,9 @@ pub(super) fn run_solve_data_out_of_core(
         tracing::warn!(
             "the direct-light pass is not built for the data mode out of core yet: the small \
              emitters' light is gathered along the solve's {} directions only, where it aliases \
-             into stripes (the Cornell box at resolution 128: 5.1 % mean error against 1.8 % \
-             with the pass); one process with --memory, or --distribute data without \
-             --memory, runs it",
+             into stripes (the Cornell box at resolution 64 with the default preset: 16 % mean \
+             error against 3.0 % with the pass); one process with --memory, or --distribute \
+             data without --memory, runs it",
             DirectionSet::with_count(shaped.directions).len()
         );
     }
