@@ -165,31 +165,8 @@ fn solves_a_shard_set_16_times_its_memory_limit() {
         ..Default::default()
     };
     let reference = solve_with(&set, &directions, &options).unwrap();
-    let results = voxrad::output::results::read_results(&out.join("surfels.bin")).unwrap();
-    // The shard set is in order 0 and the set in Morton order: match surfels by identity.
-    let key = |voxel: [i32; 3], normal: [f32; 3], point: [f32; 3]| {
-        (voxel, normal.map(f32::to_bits), point.map(f32::to_bits))
-    };
-    let mut expected: Vec<_> = set
-        .surfels
-        .iter()
-        .zip(&reference.radiosity)
-        .map(|(s, b)| (key(s.voxel, s.normal, s.point), *b))
-        .collect();
-    expected.sort_by_key(|e| e.0);
-    let mut got: Vec<_> = results
-        .records
-        .iter()
-        .map(|r| (key(r.voxel, r.normal, r.point), r.radiosity))
-        .collect();
-    got.sort_by_key(|e| e.0);
-    assert_eq!(got.len(), expected.len());
-    for (a, b) in got.iter().zip(&expected) {
-        assert_eq!(a.0, b.0);
-    }
-    let got: Vec<_> = got.iter().map(|e| e.1).collect();
-    let expected: Vec<_> = expected.iter().map(|e| e.1).collect();
-    let worst = common::worst_relative_difference(&got, &expected);
+    // The shard set is in order 0 and the set in Morton order: matched by identity.
+    let worst = common::worst_against_results(&set, &reference.radiosity, &out.join("surfels.bin"));
     println!("worst relative difference to the in-memory solve: {worst:.2e}");
     assert!(worst <= 1e-5, "{worst:e}");
 }
@@ -252,29 +229,7 @@ fn the_direct_light_pass_stays_within_the_budget() {
         ..Default::default()
     };
     let reference = solve_with(&set, &DirectionSet::with_count(13), &options).unwrap();
-    let key = |voxel: [i32; 3], normal: [f32; 3], point: [f32; 3]| {
-        (voxel, normal.map(f32::to_bits), point.map(f32::to_bits))
-    };
-    let mut expected: Vec<_> = set
-        .surfels
-        .iter()
-        .zip(&reference.radiosity)
-        .map(|(s, b)| (key(s.voxel, s.normal, s.point), *b))
-        .collect();
-    expected.sort_by_key(|e| e.0);
-    let results = voxrad::output::results::read_results(&out.join("surfels.bin")).unwrap();
-    let mut got: Vec<_> = results
-        .records
-        .iter()
-        .map(|r| (key(r.voxel, r.normal, r.point), r.radiosity))
-        .collect();
-    got.sort_by_key(|e| e.0);
-    assert_eq!(got.len(), expected.len());
-    assert!(got.iter().zip(&expected).all(|(a, b)| a.0 == b.0));
-    let worst = common::worst_relative_difference(
-        &got.iter().map(|e| e.1).collect::<Vec<_>>(),
-        &expected.iter().map(|e| e.1).collect::<Vec<_>>(),
-    );
+    let worst = common::worst_against_results(&set, &reference.radiosity, &out.join("surfels.bin"));
     println!("worst relative difference to the in-memory solve: {worst:.2e}");
     assert!(worst <= 1e-5, "{worst:e}");
 }

@@ -55,3 +55,38 @@ pub fn worst_relative_difference(got: &[[[f32; 3]; 2]], reference: &[[[f32; 3]; 
     }
     worst
 }
+
+/// [`worst_relative_difference`] between the radiosity in the results file `results` and
+/// `radiosity`, that of `set`'s surfels, matched by identity (voxel, then the bits of normal and
+/// point): a solve from a shard set writes its results in the set's order, not in `set`'s.
+pub fn worst_against_results(
+    set: &SurfelSet,
+    radiosity: &[[[f32; 3]; 2]],
+    results: &std::path::Path,
+) -> f64 {
+    let key = |voxel: [i32; 3], normal: [f32; 3], point: [f32; 3]| {
+        (voxel, normal.map(f32::to_bits), point.map(f32::to_bits))
+    };
+    let mut expected: Vec<_> = set
+        .surfels
+        .iter()
+        .zip(radiosity)
+        .map(|(s, b)| (key(s.voxel, s.normal, s.point), *b))
+        .collect();
+    expected.sort_by_key(|e| e.0);
+    let records = voxrad::output::results::read_results(results)
+        .expect("read results")
+        .records;
+    let mut got: Vec<_> = records
+        .iter()
+        .map(|r| (key(r.voxel, r.normal, r.point), r.radiosity))
+        .collect();
+    got.sort_by_key(|e| e.0);
+    assert_eq!(got.len(), expected.len(), "different surfel counts");
+    for (a, b) in got.iter().zip(&expected) {
+        assert_eq!(a.0, b.0, "different surfels");
+    }
+    let got: Vec<_> = got.iter().map(|e| e.1).collect();
+    let expected: Vec<_> = expected.iter().map(|e| e.1).collect();
+    worst_relative_difference(&got, &expected)
+}
