@@ -192,6 +192,7 @@ pub fn gather_direct_out_of_core(
         .chunks(DIRECTIONS_PER_GROUP)
         .map(<[usize]>::to_vec)
         .collect();
+    let progress = crate::progress::bar(dense.len() as u64, "direct light");
     let mut parts = 0u64;
     let mut next = 0;
     // At most this many groups per part (halved when a part's surfels did not fit).
@@ -289,6 +290,7 @@ pub fn gather_direct_out_of_core(
             SenderBalance::PerDirection,
             pool,
             bitmap,
+            &progress,
             Sums {
                 light: &mut light,
                 rescaled: &mut rescaled,
@@ -307,6 +309,7 @@ pub fn gather_direct_out_of_core(
             "direct-light pass: part gathered"
         );
     }
+    progress.finish_and_clear();
     // 5. Each side's light over `S + shift`, in canonical order.
     let path = dir.join("direct.bin");
     let mut out = SeqWriter::create(&path, plan.io_bytes)?;

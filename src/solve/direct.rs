@@ -208,6 +208,8 @@ pub fn gather_direct(
         rescaled: &mut rescaled,
         stats: &mut stats,
     };
+    // The pass can take as long as several iterations: a bar of its own.
+    let progress = crate::progress::bar(mine.len() as u64, "direct light");
     gather_groups(
         set,
         surfels,
@@ -219,8 +221,10 @@ pub fn gather_direct(
         balance,
         pool,
         true,
+        &progress,
         sums,
     );
+    progress.finish_and_clear();
     if comm.size() > 1 {
         let mut flat: Vec<f64> = acc.iter().flatten().flatten().copied().collect();
         flat.extend(rescaled.iter().flatten());
@@ -282,6 +286,7 @@ pub(crate) fn gather_groups(
     balance: SenderBalance,
     pool: &rayon::ThreadPool,
     bitmap: bool,
+    progress: &indicatif::ProgressBar,
     sums: Sums,
 ) {
     let table = VoxelTable::new(set, bitmap);
@@ -303,6 +308,7 @@ pub(crate) fn gather_groups(
                 })
                 .collect()
         });
+        progress.inc(block.len() as u64);
         // The block starts a group and holds whole groups (but for the last one).
         for group in gathered.chunks(GROUP) {
             let scales = group_scales(group, balance);
