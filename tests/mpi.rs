@@ -237,6 +237,61 @@ fn data_and_hybrid_modes_match_one_process_for_1_to_4_ranks() {
     }
 }
 
+/// A room lit by many small lamps (the office's twelve luminaires, 6 cm housings over one-sided
+/// emitting undersides) with the default preset, whose direct-light pass they call for: every
+/// in-memory mode gives the one-process answer (the modes once dropped the pass on such rooms).
+#[test]
+fn many_small_lamps_give_the_one_process_answer_in_every_in_memory_mode() {
+    let tmp = tempfile::tempdir().unwrap();
+    let obj = tmp.path().join("office.obj");
+    voxrad::gen::write_obj(&voxrad::gen::office().scene, &obj).unwrap();
+    let scene = voxrad::scene::obj::load_obj(&obj).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(24)).unwrap();
+    let options = SolveOptions {
+        directions: 49,
+        max_iterations: 3,
+        tolerance: None,
+        threads: 1,
+        direct: DirectPass::Auto(Quality::Default.preset().direct),
+        ..SolveOptions::default()
+    };
+    let reference = solve_with(&set, &DirectionSet::with_count(49), &options).unwrap();
+    assert!(
+        reference.stats.direct.is_some(),
+        "the lamps call for the pass"
+    );
+    for (mode, ranks) in [("directions", 3), ("data", 2), ("hybrid", 4)] {
+        let out = tmp.path().join(format!("{mode}{ranks}"));
+        let args = [
+            "solve",
+            obj.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--resolution",
+            "24",
+            "--directions",
+            "49",
+            "--iterations",
+            "3",
+            "--threads",
+            "1",
+            "--distribute",
+            mode,
+        ];
+        let o = mpirun(ranks, &args);
+        assert!(
+            o.status.success(),
+            "{mode}, {ranks} ranks: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let results = read_results(&out.join("surfels.bin")).unwrap();
+        let got: Vec<_> = results.records.iter().map(|r| r.radiosity).collect();
+        let worst = common::worst_relative_difference(&got, &reference.radiosity);
+        println!("office, {mode}, {ranks} ranks: worst relative difference {worst:.2e}");
+        assert!(worst <= 1e-5, "{mode}, {ranks} ranks: {worst:e}");
+    }
+}
+
 #[test]
 fn large_sums_across_ranks_match_one_process() {
     // 6 values per surfel and rank above 2^20 in all: the sum goes as a reduce-scatter and an

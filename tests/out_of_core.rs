@@ -155,7 +155,17 @@ fn grey_extrapolated_furnace_out_of_core() {
 /// and the energy balance are those of the in-memory solve, whatever the number of parts.
 #[test]
 fn direct_light_pass_out_of_core_matches_the_in_memory_pass() {
-    let set = voxelize(&voxrad::gen::cornell_box(), GridSpec::Resolution(32)).expect("voxelize");
+    // The Cornell box's one lamp, and the office's twelve small luminaires.
+    for (name, scene, resolution) in [
+        ("cornell", voxrad::gen::cornell_box(), 32),
+        ("office", voxrad::gen::office().scene, 24),
+    ] {
+        direct_pass_out_of_core(name, &scene, resolution);
+    }
+}
+
+fn direct_pass_out_of_core(name: &str, scene: &Scene, resolution: u32) {
+    let set = voxelize(scene, GridSpec::Resolution(resolution)).expect("voxelize");
     let directions = DirectionSet::with_count(49);
     let options = SolveOptions {
         directions: 49,
@@ -175,14 +185,15 @@ fn direct_light_pass_out_of_core_matches_the_in_memory_pass() {
     for budget in [64u64 << 20, 1 << 20] {
         let source = InMemorySource::new(&set);
         let solution = solve_out_of_core(&source, &directions, &options, budget, work.path())
-            .unwrap_or_else(|e| panic!("budget {budget}: {e}"));
+            .unwrap_or_else(|e| panic!("{name}, budget {budget}: {e}"));
         let direct = solution.stats.solve.direct.as_ref().expect("the pass ran");
         let worst = common::worst_relative_difference(
             &solution.radiosity().expect("read radiosity"),
             &reference.radiosity,
         );
         println!(
-            "budget {budget}: the pass in {} part(s), worst relative difference {worst:.2e}",
+            "{name}, budget {budget}: the pass in {} part(s), worst relative difference \
+             {worst:.2e}",
             direct.parts
         );
         assert!(worst <= 1e-5, "budget {budget}: {worst:e}");
