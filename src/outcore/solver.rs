@@ -4,7 +4,7 @@
 //! new radiosity is sent back to the copies ([`super::scatter`]). As in memory, a grey scene
 //! gathers one channel, and the tail extrapolation (`solve::accelerate`) runs on the canonical
 //! file chunk by chunk, from the radiosity the update replaced (kept in one more work file).
-//! [`update_surfel`] is the per-surfel update the data mode out of core shares.
+//! Every surfel is updated by `solve::update`, as in every other loop.
 //!
 //! **The direct-light pass** ([`super::direct`]) runs once after the first update (`B = E`),
 //! into a direct-light file in canonical order that every update reads (`B` gains `rho` times
@@ -36,6 +36,7 @@ use crate::geometry::directions::DirectionSet;
 use crate::solve::accelerate::Extrapolation;
 use crate::solve::jacobi::Convergence;
 use crate::solve::normalize::cosine_sums;
+use crate::solve::update::{add_power, update_surfel};
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
 use std::path::Path;
@@ -635,64 +636,7 @@ struct Update {
     emitting: u64,
 }
 
-/// What an update of `B` adds up over the surfels it updates: the change and the total (for the
-/// stopping rule) and the power emitted and absorbed, by channel.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct UpdateSums {
-    pub change: f64,
-    /// Area times the decrease, where a value fell (see `solve::accelerate`).
-    pub falling: f64,
-    pub total: f64,
-    pub emitted: [f64; 3],
-    pub absorbed: [f64; 3],
-    /// The part of `absorbed` the direct light deposits, kept apart (added last, as in memory).
-    pub absorbed_direct: [f64; 3],
-}
-
-/// One surfel's new radiosity `B = E + rho H / S(n)` from its light `h` (only the first channel
-/// gathered when `channels` is 1), plus `rho` times its `direct` light where the direct pass
-/// ran, adding to `sums`. Both out-of-core solvers (one process and the data mode) update
-/// through this function, so their answers agree bit for bit.
-#[allow(clippy::too_many_arguments)]
-pub fn update_surfel(
-    materials: &[crate::scene::Material],
-    material: [u32; 2],
-    mut h: crate::outcore::files::Gathered,
-    direct: Option<&Gathered>,
-    channels: usize,
-    previous: &Radiosity,
-    norm: f64,
-    area: f64,
-    area_unit: f64,
-    sums: &mut UpdateSums,
-) -> Radiosity {
-    if channels == 1 {
-        for side in &mut h {
-            *side = [side[0]; 3];
-        }
-    }
-    let mut b_new: Radiosity = [[0.0; 3]; 2];
-    for side in 0..2 {
-        let m = &materials[material[side] as usize];
-        for ch in 0..3 {
-            let e = m.emission[ch] as f32 as f64;
-            let mut b = e + m.reflectance[ch] * h[side][ch] / norm;
-            if let Some(d) = direct {
-                b += m.reflectance[ch] * d[side][ch];
-                sums.absorbed_direct[ch] +=
-                    (1.0 - m.reflectance[ch]) * d[side][ch] * (area * area_unit);
-            }
-            let d = b - previous[side][ch] as f64;
-            sums.change += area * d.abs();
-            sums.falling += area * (-d).max(0.0);
-            sums.total += area * b;
-            b_new[side][ch] = b as f32;
-            sums.emitted[ch] += m.emission[ch] * area * area_unit;
-            sums.absorbed[ch] += (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
-        }
-    }
-    b_new
-}
+pub use crate::solve::update::UpdateSums;
 
 /// Adds the light gathered in `copy`'s order (the shared gathered file) to the canonical sum,
 /// or starts the sum with it (`first`).
@@ -829,14 +773,25 @@ fn update(
                     .any(|&e| e as f32 > 0.0)
             }) as u64;
             let d = d_slots.next().map(decode_gathered);
+            let sides = s.material.map(|m| &info.materials[m as usize]);
+            let (h, norm) = (decode_gathered(h_slot), cosine_sum[s.normal_id as usize]);
             let b_new = update_surfel(
-                &info.materials,
-                s.material,
-                decode_gathered(h_slot),
+                &sides.map(|m| m.emission.map(|e| e as f32)),
+                &sides.map(|m| m.reflectance),
+                h,
                 d.as_ref(),
                 channels,
                 &decode_radiosity(slot),
-                cosine_sum[s.normal_id as usize],
+                norm,
+                s.area as f64,
+                &mut result.sums,
+            );
+            add_power(
+                sides,
+                h,
+                d.as_ref(),
+                channels,
+                norm,
                 s.area as f64,
                 area_unit,
                 &mut result.sums,

@@ -403,26 +403,22 @@ fn run(
         if options.accelerate {
             previous.clone_from(&radiosity);
         }
-        let (mut change, mut total, mut falling) = (0.0f64, 0.0f64, 0.0f64);
+        let mut sums = super::update::UpdateSums::default();
         for k in 0..n {
             let s = &set.surfels[k];
-            let norm = cosine_sum[s.normal_id as usize];
-            let area = s.area as f64;
-            for side in 0..2 {
-                for ch in 0..channels {
-                    let mut b = emission[k][side][ch] as f64
-                        + reflectance[k][side][ch] * acc[k][side][ch] / norm;
-                    if let Some(d) = &direct {
-                        b += reflectance[k][side][ch] * d.irradiance[k][side][ch];
-                    }
-                    let d = b - radiosity[k][side][ch] as f64;
-                    change += area * d.abs();
-                    falling += area * (-d).max(0.0);
-                    total += area * b;
-                    radiosity[k][side][ch] = b as f32;
-                }
-            }
+            radiosity[k] = super::update::update_surfel(
+                &emission[k],
+                &reflectance[k],
+                acc[k],
+                super::update::direct_of(direct.as_ref(), k),
+                channels,
+                &radiosity[k],
+                cosine_sum[s.normal_id as usize],
+                s.area as f64,
+                &mut sums,
+            );
         }
+        let (change, total, falling) = (sums.change, sums.total, sums.falling);
         // Right after an extrapolation the change history starts again: until it contracts, the
         // contraction measured before the jump estimates the error (see `accelerate`).
         let stop = convergence.record(iteration, change, total, options, &mut stats, |relative| {

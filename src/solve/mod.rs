@@ -14,6 +14,7 @@ pub mod jacobi;
 pub mod normalize;
 pub mod propagate;
 pub mod stats;
+pub mod update;
 
 pub use jacobi::{solve, SolveOptions};
 

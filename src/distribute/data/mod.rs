@@ -563,28 +563,24 @@ impl<'a> DataSolver<'a> {
         } else {
             Vec::new()
         };
-        let (mut change, mut total, mut falling) = (0.0f64, 0.0f64, 0.0f64);
+        let mut sums = crate::solve::update::UpdateSums::default();
         for e in &held.order {
             let i = e.index as usize;
             let id = held.ids[i] as usize;
             let s = &self.set.surfels[id];
-            let norm = self.cosine_sum[s.normal_id as usize];
-            let area = s.area as f64;
-            for side in 0..2 {
-                for ch in 0..self.channels {
-                    let mut b = self.emission[id][side][ch] as f64
-                        + self.reflectance[id][side][ch] * held.acc[i][side][ch] / norm;
-                    if let Some(direct) = &self.direct {
-                        b += self.reflectance[id][side][ch] * direct.irradiance[id][side][ch];
-                    }
-                    let d = b - held.radiosity[i][side][ch] as f64;
-                    change += area * d.abs();
-                    falling += area * (-d).max(0.0);
-                    total += area * b;
-                    held.radiosity[i][side][ch] = b as f32;
-                }
-            }
+            held.radiosity[i] = crate::solve::update::update_surfel(
+                &self.emission[id],
+                &self.reflectance[id],
+                held.acc[i],
+                crate::solve::update::direct_of(self.direct.as_ref(), id),
+                self.channels,
+                &held.radiosity[i],
+                self.cosine_sum[s.normal_id as usize],
+                s.area as f64,
+                &mut sums,
+            );
         }
+        let (change, total, falling) = (sums.change, sums.total, sums.falling);
         let mut sums = if self.group == 0 {
             [change, total, falling]
         } else {

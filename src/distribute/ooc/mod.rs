@@ -24,7 +24,7 @@
 //! rule's sums are added in another grouping).
 //!
 //! **Iteration end**: each rank updates `B` of its held surfels (their materials, normal and
-//! area travel with them) with `outcore::solver::update_surfel`; the stopping rule's sums are
+//! area travel with them) with `solve::update`, as every loop; the stopping rule's sums are
 //! added over ranks. A grey scene gathers one channel; the tail extrapolation adds its jump in
 //! one more pass over the held files (the replaced radiosity waits in the earlier-axes slot). **Output**: the
 //! `(id, B)` pairs go to rank 0 in bounded rounds, which places them in a canonical radiosity
@@ -171,7 +171,7 @@ struct Solver<'a> {
 }
 
 /// What one update of `B` found on this rank.
-type Update = crate::outcore::solver::UpdateSums;
+type Update = crate::solve::update::UpdateSums;
 
 impl Solver<'_> {
     fn run(
@@ -555,15 +555,29 @@ impl Solver<'_> {
             }
             let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
             let (normal_id, area, material) = held::scene_data(&w);
-            // The one-process out-of-core update, term by term.
-            let b_new = crate::outcore::solver::update_surfel(
-                &info.materials,
-                material,
+            // The update of every loop (`solve::update`), term by term.
+            let sides = material.map(|m| &info.materials[m as usize]);
+            let (h, norm) = (
                 decode_gathered(&w[EARLIER_AT..]),
+                cosine_sum[normal_id as usize],
+            );
+            let b_new = crate::solve::update::update_surfel(
+                &sides.map(|m| m.emission.map(|e| e as f32)),
+                &sides.map(|m| m.reflectance),
+                h,
                 None,
                 self.channels(),
                 &previous,
-                cosine_sum[normal_id as usize],
+                norm,
+                area as f64,
+                &mut result,
+            );
+            crate::solve::update::add_power(
+                sides,
+                h,
+                None,
+                self.channels(),
+                norm,
                 area as f64,
                 area_unit,
                 &mut result,

@@ -1,0 +1,102 @@
+//! The update of one surfel's radiosity after an iteration's gather, written once for every
+//! iteration loop (in memory, the data and hybrid modes, out of core, the data mode out of
+//! core): `B = E + rho (H / S(n) + H_direct)` by side and channel, with the sums the stopping
+//! rule and the tail extrapolation read; and the power a surfel emits and absorbs, for the
+//! loops that add it up as they update.
+
+use super::direct::DirectLight;
+
+/// Light by side and channel, as gathered (f64).
+pub type Gathered = [[f64; 3]; 2];
+/// Radiosity by side and channel, as stored (f32).
+pub type Radiosity = [[f32; 3]; 2];
+
+/// What an update of `B` adds up over the surfels it updates: the change and the total (for the
+/// stopping rule) and, where a loop adds them here, the power emitted and absorbed, by channel.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct UpdateSums {
+    pub change: f64,
+    /// Area times the decrease, where a value fell (see `solve::accelerate`).
+    pub falling: f64,
+    pub total: f64,
+    pub emitted: [f64; 3],
+    pub absorbed: [f64; 3],
+    /// The part of `absorbed` the direct light deposits, kept apart (added last, as in memory).
+    pub absorbed_direct: [f64; 3],
+}
+
+/// One surfel's new radiosity `B = E + rho H / S(n)` (`norm` is `S(n)`) from the light `h` it
+/// gathered (only the first channel when `channels` is 1: a grey scene), plus `rho` times its
+/// `direct` light where the direct-light pass ran; adds its change, falling part and total
+/// (area-weighted) to `sums`. `emission` is `E` as stored (f32), `reflectance` `rho`.
+#[allow(clippy::too_many_arguments)]
+pub fn update_surfel(
+    emission: &Radiosity,
+    reflectance: &Gathered,
+    mut h: Gathered,
+    direct: Option<&Gathered>,
+    channels: usize,
+    previous: &Radiosity,
+    norm: f64,
+    area: f64,
+    sums: &mut UpdateSums,
+) -> Radiosity {
+    if channels == 1 {
+        for side in &mut h {
+            *side = [side[0]; 3];
+        }
+    }
+    let mut b_new: Radiosity = [[0.0; 3]; 2];
+    for side in 0..2 {
+        for ch in 0..3 {
+            let rho = reflectance[side][ch];
+            let mut b = emission[side][ch] as f64 + rho * h[side][ch] / norm;
+            if let Some(d) = direct {
+                b += rho * d[side][ch];
+            }
+            let d = b - previous[side][ch] as f64;
+            sums.change += area * d.abs();
+            sums.falling += area * (-d).max(0.0);
+            sums.total += area * b;
+            b_new[side][ch] = b as f32;
+        }
+    }
+    b_new
+}
+
+/// The light of surfel `k` the direct pass gathered, if it ran.
+pub fn direct_of(direct: Option<&DirectLight>, k: usize) -> Option<&Gathered> {
+    direct.map(|d| &d.irradiance[k])
+}
+
+/// Adds to `sums` the power a surfel whose sides have the materials `sides` emits and absorbs
+/// (world units: `area` in voxel units times `area_unit`), from the light `h` it gathered (the
+/// first channel only when `channels` is 1) over `norm` and its `direct` light. The loops that
+/// stream their surfels add it as they update; the in-memory ones from their last gather.
+#[allow(clippy::too_many_arguments)]
+pub fn add_power(
+    sides: [&crate::scene::Material; 2],
+    mut h: Gathered,
+    direct: Option<&Gathered>,
+    channels: usize,
+    norm: f64,
+    area: f64,
+    area_unit: f64,
+    sums: &mut UpdateSums,
+) {
+    if channels == 1 {
+        for side in &mut h {
+            *side = [side[0]; 3];
+        }
+    }
+    for (side, m) in sides.iter().enumerate() {
+        for ch in 0..3 {
+            if let Some(d) = direct {
+                sums.absorbed_direct[ch] +=
+                    (1.0 - m.reflectance[ch]) * d[side][ch] * (area * area_unit);
+            }
+            sums.emitted[ch] += m.emission[ch] * area * area_unit;
+            sums.absorbed[ch] += (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
+        }
+    }
+}
