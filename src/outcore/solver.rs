@@ -484,7 +484,7 @@ fn run(
     stats.solve.emitted_power = last.sums.emitted;
     stats.solve.absorbed_power = last.sums.absorbed;
     if let Some(d) = direct {
-        // As `solve::direct::add_absorbed`: the direct light's power after the reflected one's.
+        // As every loop: the direct light's power after the reflected one's.
         for (a, d) in stats
             .solve
             .absorbed_power

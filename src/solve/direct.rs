@@ -751,21 +751,6 @@ impl DirectPass {
     }
 }
 
-/// Adds the power the direct light `direct` deposits, `(1 - rho) H_dense(E) / S_dense` times the
-/// area, to `stats.absorbed_power` (the iterations' gather holds only the reflected part).
-pub fn add_absorbed(set: &SurfelSet, direct: &DirectLight, stats: &mut super::SolveStats) {
-    let area_unit = set.grid.voxel_size * set.grid.voxel_size;
-    for (s, light) in set.surfels.iter().zip(&direct.irradiance) {
-        let area = s.area as f64 * area_unit;
-        for (&material, side_light) in s.material.iter().zip(light) {
-            let m = &set.materials[material as usize];
-            for (ch, &h) in side_light.iter().enumerate() {
-                stats.absorbed_power[ch] += (1.0 - m.reflectance[ch]) * h * area;
-            }
-        }
-    }
-}
-
 /// What the pass gained where it was measured, for the report (docs/study.md, "Accuracy against
 /// time": the Cornell study; the time from "What a solve simulates").
 pub const MEASURED_GAIN: &str = "at resolution 32 with 193 bounce directions the mean error \

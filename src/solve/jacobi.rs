@@ -471,9 +471,8 @@ fn run(
         comm.sum_in_place(&mut table);
         stats.per_rank_seconds = table.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
     }
-    energy(set, &acc, &cosine_sum, &mut stats);
+    energy(set, &acc, &cosine_sum, direct.as_ref(), &mut stats);
     if let Some(d) = direct {
-        super::direct::add_absorbed(set, &d, &mut stats);
         stats.direct = Some(d.stats);
     }
     Ok(Solution { radiosity, stats })
@@ -633,18 +632,31 @@ impl AccPtr {
     }
 }
 
-/// Emitted and absorbed power (world units) from the final gather.
-fn energy(set: &SurfelSet, acc: &[[[f64; 3]; 2]], cosine_sum: &[f64], stats: &mut SolveStats) {
+/// Emitted and absorbed power (world units) from the final gather and the direct light, as
+/// every loop adds it up (`update::add_power`).
+fn energy(
+    set: &SurfelSet,
+    acc: &[[[f64; 3]; 2]],
+    cosine_sum: &[f64],
+    direct: Option<&super::direct::DirectLight>,
+    stats: &mut SolveStats,
+) {
     let area_unit = set.grid.voxel_size * set.grid.voxel_size;
-    for (s, gathered) in set.surfels.iter().zip(acc) {
-        let area = s.area as f64 * area_unit;
-        let norm = cosine_sum[s.normal_id as usize];
-        for (&material, side_gathered) in s.material.iter().zip(gathered) {
-            let m = &set.materials[material as usize];
-            for (ch, &h) in side_gathered.iter().enumerate() {
-                stats.emitted_power[ch] += m.emission[ch] * area;
-                stats.absorbed_power[ch] += (1.0 - m.reflectance[ch]) * h / norm * area;
-            }
-        }
+    let mut sums = super::update::UpdateSums::default();
+    for (k, s) in set.surfels.iter().enumerate() {
+        super::update::add_power(
+            s.material.map(|m| &set.materials[m as usize]),
+            acc[k],
+            super::update::direct_of(direct, k),
+            3,
+            cosine_sum[s.normal_id as usize],
+            s.area as f64,
+            area_unit,
+            &mut sums,
+        );
+    }
+    stats.emitted_power = sums.emitted;
+    for ch in 0..3 {
+        stats.absorbed_power[ch] = sums.absorbed[ch] + sums.absorbed_direct[ch];
     }
 }

@@ -674,34 +674,41 @@ impl<'a> DataSolver<'a> {
     /// energy balance from the last gather.
     fn finish(&self, held: &Held, world: &dyn Comm, stats: &mut SolveStats) -> Vec<[[f32; 3]; 2]> {
         let n = self.set.surfels.len();
-        let mut flat = vec![0.0f64; n * 6 + 6];
+        let mut flat = vec![0.0f64; n * 6 + 9];
         let area_unit = self.set.grid.voxel_size * self.set.grid.voxel_size;
+        let mut sums = crate::solve::update::UpdateSums::default();
         if self.group == 0 {
             for e in &held.order {
                 let i = e.index as usize;
                 let id = held.ids[i] as usize;
                 let s = &self.set.surfels[id];
-                let norm = self.cosine_sum[s.normal_id as usize];
-                let area = s.area as f64 * area_unit;
                 for side in 0..2 {
-                    let m = &self.set.materials[s.material[side] as usize];
                     for ch in 0..3 {
                         let c = if self.channels == 1 { 0 } else { ch };
                         flat[id * 6 + side * 3 + ch] = held.radiosity[i][side][c] as f64;
-                        flat[n * 6 + ch] += m.emission[ch] * area;
-                        flat[n * 6 + 3 + ch] +=
-                            (1.0 - m.reflectance[ch]) * held.acc[i][side][c] / norm * area;
                     }
                 }
+                // As every loop adds it up (`solve::update::add_power`).
+                crate::solve::update::add_power(
+                    s.material.map(|m| &self.set.materials[m as usize]),
+                    held.acc[i],
+                    crate::solve::update::direct_of(self.direct.as_ref(), id),
+                    self.channels,
+                    self.cosine_sum[s.normal_id as usize],
+                    s.area as f64,
+                    area_unit,
+                    &mut sums,
+                );
             }
         }
+        flat[n * 6..]
+            .copy_from_slice(&[sums.emitted, sums.absorbed, sums.absorbed_direct].concat());
         world.sum_in_place(&mut flat);
         for ch in 0..3 {
             stats.emitted_power[ch] = flat[n * 6 + ch];
-            stats.absorbed_power[ch] = flat[n * 6 + 3 + ch];
+            stats.absorbed_power[ch] = flat[n * 6 + 3 + ch] + flat[n * 6 + 6 + ch];
         }
         if let Some(direct) = &self.direct {
-            crate::solve::direct::add_absorbed(self.set, direct, stats);
             stats.direct = Some(direct.stats.clone());
         }
         flat[..n * 6]
