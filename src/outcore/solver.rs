@@ -813,12 +813,11 @@ fn update(
             what: "it holds more surfels than its stated count".to_string(),
         });
     }
-    let equal = |v: &[f64; 3]| v[0] == v[1] && v[1] == v[2];
     result.grey = info
         .materials
         .iter()
         .zip(&used)
-        .all(|(m, &u)| !u || equal(&m.reflectance) && equal(&m.emission));
+        .all(|(m, &u)| !u || m.is_grey());
     Ok(result)
 }
 

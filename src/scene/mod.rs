@@ -34,6 +34,13 @@ impl Material {
     pub fn is_emitter(&self) -> bool {
         self.emission.iter().any(|&e| e > 0.0)
     }
+
+    /// Equal channels in both reflectance and emission: a scene whose used materials are all
+    /// grey is solved in one channel (every solver decides it with this).
+    pub fn is_grey(&self) -> bool {
+        let equal = |v: &[f64; 3]| v[0] == v[1] && v[1] == v[2];
+        equal(&self.reflectance) && equal(&self.emission)
+    }
 }
 
 /// One triangle in world space. The front side is the one `(v1 - v0) x (v2 - v0)` points to.

@@ -94,13 +94,10 @@ pub fn analyse_sides(
         .filter(|(_, &u)| u)
         .map(|(m, _)| m)
         .collect();
-    let equal = |v: &[f64; 3]| v[0] == v[1] && v[1] == v[2];
     Analysis {
         emitters: emitting_surfels > 0,
         reflective: used.iter().any(|m| m.reflectance.iter().any(|&r| r > 0.0)),
-        grey: used
-            .iter()
-            .all(|m| equal(&m.reflectance) && equal(&m.emission)),
+        grey: used.iter().all(|m| m.is_grey()),
         max_reflectance: used.iter().flat_map(|m| m.reflectance).fold(0.0, f64::max),
         emitting_surfels,
         surfels,

@@ -127,8 +127,7 @@ impl Solver<'_> {
             let mut b: [[f32; 3]; 2] = [[0.0; 3]; 2];
             for (side, b_side) in b.iter_mut().enumerate() {
                 let m = &info.materials[s.material[side] as usize];
-                let equal = |v: &[f64; 3]| v[0] == v[1] && v[1] == v[2];
-                slice.coloured |= !(equal(&m.reflectance) && equal(&m.emission));
+                slice.coloured |= !m.is_grey();
                 for (ch, value) in b_side.iter_mut().enumerate() {
                     let e = m.emission[ch] as f32 as f64;
                     *value = (e + m.reflectance[ch] * 0.0 / norm) as f32;
