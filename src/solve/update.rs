@@ -5,11 +5,8 @@
 //! loops that add it up as they update.
 
 use super::direct::DirectLight;
-
-/// Light by side and channel, as gathered (f64).
-pub type Gathered = [[f64; 3]; 2];
-/// Radiosity by side and channel, as stored (f32).
-pub type Radiosity = [[f32; 3]; 2];
+/// Light by side and channel as gathered (f64), radiosity as stored (f32).
+pub use crate::checkpoint::{Gathered, Radiosity};
 
 /// What an update of `B` adds up over the surfels it updates: the change and the total (for the
 /// stopping rule) and, where a loop adds them here, the power emitted and absorbed, by channel.
