@@ -132,9 +132,9 @@ fn too_small(
     }
 }
 
-/// A voxel as one sortable number (coordinates are below 2^21).
+/// A voxel as one sortable number: the key of the in-memory pass's voxel table.
 fn voxel_key(voxel: [i32; 3]) -> u64 {
-    voxel[0] as u64 | (voxel[1] as u64) << 21 | (voxel[2] as u64) << 42
+    crate::solve::direct::VoxelTable::key(voxel)
 }
 
 /// Runs the pass over `source` along `dense` within `plan`, writing its files into `dir`.

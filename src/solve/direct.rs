@@ -576,7 +576,7 @@ pub(crate) const MAX_BITMAP_VOXELS: u64 = 1 << 28;
 /// From a voxel to the range of its surfels (which are adjacent in a surfel set). Most voxels a
 /// line crosses are empty (the air of a room): an occupancy bitmap answers those without a hash
 /// look-up, where the grid is small enough for one.
-struct VoxelTable {
+pub(crate) struct VoxelTable {
     map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>>,
     dims: [u64; 3],
     occupied: Option<Vec<u64>>,
@@ -627,7 +627,7 @@ impl VoxelTable {
     }
 
     /// Voxel coordinates are below `voxelize::MAX_GRID_EDGE` (2^20), so three fit one key.
-    fn key(voxel: [i32; 3]) -> u64 {
+    pub(crate) fn key(voxel: [i32; 3]) -> u64 {
         const _: () = assert!(crate::voxel::voxelize::MAX_GRID_EDGE <= 1 << 21);
         voxel[0] as u64 | (voxel[1] as u64) << 21 | (voxel[2] as u64) << 42
     }
