@@ -171,3 +171,46 @@ fn a_budget_too_small_is_refused_with_what_it_needs() {
     let out = voxrad(&["solve", "x.obj", "--out", "o", "--memory", "lots"]);
     assert_eq!(out.status.code(), Some(2));
 }
+
+/// A budget that holds the bands but not one group of the direct-light pass's lines is refused
+/// up front with what the pass needs and how to turn it off, exit status 2; turned off, the same
+/// budget solves.
+#[test]
+fn a_budget_too_small_for_the_direct_light_pass_is_refused_with_what_it_needs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = voxelize(&voxrad::gen::cornell_box(), GridSpec::Resolution(48)).unwrap();
+    let shards = tmp.path().join("cornell.shards");
+    common::write_shard_set(&set, &shards, 1);
+    let solve = |extra: &[&str], out: &str| {
+        let out = s(&tmp.path().join(out));
+        let mut args = vec![
+            "solve",
+            shards.to_str().unwrap(),
+            "--out",
+            &out,
+            "--directions",
+            "49",
+            "--iterations",
+            "1",
+            "--memory",
+            "512KiB",
+        ];
+        args.extend_from_slice(extra);
+        voxrad(&args)
+    };
+    let out = solve(&[], "refused");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("too small")
+            && err.contains("direct-light pass")
+            && err.contains("--direct-directions 0")
+            && err.contains("give --memory"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+    ok(
+        &solve(&["--direct-directions", "0"], "plain"),
+        "without the pass",
+    );
+}
