@@ -125,26 +125,23 @@ pub(super) fn run_solve_data_out_of_core(
     report.set_phase("solve", solve_seconds);
     report.set_phase("reduce", stats.reduce_seconds);
     report.set_phase("write", write_seconds);
-    report.out_of_core = Some(OutOfCoreReport::new(
-        budget,
-        solution.bytes_read,
-        solution.bytes_written,
-        solution.bands,
-        solution.surfels * stats.directions as u64 * stats.iterations as u64,
-    ));
     report.effects = analysis.effects(
         &cmd.solve,
         &stats,
         Some("the data mode out of core has no direct-light pass yet; its light is gathered along the solve's directions (one process with --memory, or --distribute data without --memory, runs it)"),
     );
-    report.effects.push(Effect::new(
-        "out of core",
-        true,
+    report.add_out_of_core(
+        budget,
+        solution.bytes_read,
+        solution.bytes_written,
+        solution.bands,
+        solution.surfels,
+        &stats,
         &format!(
             "every rank held its share of the surfels in files, within {} per rank",
             crate::outcore::budget::format_bytes(budget)
         ),
-    ));
+    );
     report.set_total(started.elapsed().as_secs_f64());
     // What a node must have: the largest rank.
     report.peak_rss_bytes = peaks.iter().copied().fold(0.0, f64::max) as u64;

@@ -32,7 +32,7 @@ use crate::outcore::{
     solve_out_of_core_checkpointed, OocCheckpoints, OocError, ShardSetSource, SurfelSource,
 };
 use crate::output::render::{auto_camera, render_png, Camera};
-use crate::output::report::{Effect, OutOfCoreReport, Report, RunInfo};
+use crate::output::report::{Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results, ResultsWriter};
 use crate::output::staging::Staging;
 use crate::output::{ply, probe, RENDER_FILE};

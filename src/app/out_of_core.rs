@@ -228,25 +228,19 @@ pub(super) fn solve_out_of_core_to(
     report.set_phase("band_write", stats.write_seconds);
     report.set_phase("update", stats.update_seconds);
     report.set_phase("write", write_seconds);
-    report.out_of_core = Some(OutOfCoreReport::new(
+    report.effects = analysis.effects(&cmd.solve, &stats.solve, None);
+    report.add_out_of_core(
         budget,
         stats.bytes_read,
         stats.bytes_written,
         stats.bands,
-        stats.surfels * stats.solve.directions as u64 * stats.solve.iterations as u64,
-    ));
-    if let (Some(ooc), Some(direct)) = (report.out_of_core.as_mut(), &stats.solve.direct) {
-        ooc.direct_light_parts = direct.parts;
-    }
-    report.effects = analysis.effects(&cmd.solve, &stats.solve, None);
-    report.effects.push(Effect::new(
-        "out of core",
-        true,
+        stats.surfels,
+        &stats.solve,
         &format!(
             "surfels kept in files; everything that grows with the scene held within {}",
             crate::outcore::budget::format_bytes(budget)
         ),
-    ));
+    );
     Ok((report, staged))
 }
 

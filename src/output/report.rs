@@ -159,6 +159,28 @@ impl OutOfCoreReport {
 }
 
 impl Report {
+    /// Records what an out-of-core solve of `surfels` surfels under `budget` read, wrote and
+    /// cut into bands, the direct-light pass's parts, and the effect "out of core" (`held`
+    /// says where the surfels were held, and within what). Both out-of-core paths report
+    /// through this.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_out_of_core(
+        &mut self,
+        budget: u64,
+        bytes_read: u64,
+        bytes_written: u64,
+        bands: u64,
+        surfels: u64,
+        stats: &SolveStats,
+        held: &str,
+    ) {
+        let updates = surfels * stats.directions as u64 * stats.iterations as u64;
+        let mut ooc = OutOfCoreReport::new(budget, bytes_read, bytes_written, bands, updates);
+        ooc.direct_light_parts = stats.direct.as_ref().map_or(0, |d| d.parts);
+        self.out_of_core = Some(ooc);
+        self.effects.push(Effect::new("out of core", true, held));
+    }
+
     /// A report from the solver's statistics. `seconds` starts with the solver's phases and a
     /// `total` equal to their sum; callers add their own phases (reading, voxelizing, writing)
     /// with [`Report::set_phase`] and the true wall-clock total with [`Report::set_total`].
