@@ -558,9 +558,9 @@ fn save_within(
 
 /// Puts a checkpoint's radiosity (the canonical order's, checked against its checksum before
 /// anything is solved from it) into the canonical radiosity file (the caller sends it to the
-/// axis copies), and a
-/// mid-iteration checkpoint's sum into the canonical sum; returns the axes of the iteration
-/// that sum holds (0 at a boundary). `axis_ends` are the directions done after each axis.
+/// axis copies), and a mid-iteration checkpoint's sum into the canonical sum; returns the axes
+/// of the iteration that sum holds (0 at a boundary). `axis_ends` are the directions done after
+/// each axis.
 fn restore(
     file: &CheckpointFile,
     work: &WorkSet,
