@@ -5,7 +5,7 @@
 //! merges each run of one (voxel, plane group, facing) into a surfel. Here the same pieces are
 //! made triangle by triangle, one voxel at a time (`PlaneGroups::triangle_pieces`), and fed to the
 //! external piece sort (`pieces`), whose output comes back in shard order; each run of one surfel
-//! is then merged by the very function the in-memory path uses (`voxelize::merge_run`). The
+//! is then merged by the very function the in-memory path uses (`voxelize::merge_voxel`). The
 //! pieces of a surfel arrive in the same order in both paths (the sort key ends in the
 //! triangle's index, so it is unique), hence the floating-point sums and the surfels are equal
 //! bit for bit; only the order of the surfels differs (Morton order in memory, shard order here).
@@ -18,8 +18,9 @@
 //!   normal, set while the pieces are made, and the scene's materials. The in-memory path
 //!   numbers them the same way (it used to number them in the order surfels were met, which an
 //!   out-of-core pass in another order cannot reproduce without a second pass over the data);
-//! - a surfel's own pieces are held while it is merged: as many as there are triangles of one
-//!   plane group in one voxel, a handful except for finely tessellated planes.
+//! - a voxel's pieces are held while its surfels are merged (faces pressed together are cut by
+//!   each other there): as many as there are triangles in one voxel, a handful except for
+//!   finely tessellated surfaces.
 //!
 //! Disk: the runs hold every piece once (132 bytes each, about 1.05 to 1.1 pieces per surfel, so
 //! about 1.8 times the shard set); an intermediate merge pass, needed only when the runs
@@ -29,7 +30,7 @@
 use super::pieces::{PiecePlan, PieceSorter, PieceStats};
 use super::ConvertError;
 use crate::scene::{Material, Scene};
-use crate::voxel::voxelize::{grid_for, merge_run, GridSpec, Piece, PlaneGroups, Tables};
+use crate::voxel::voxelize::{grid_for, merge_voxel, GridSpec, Piece, PlaneGroups, Tables};
 use crate::voxel::{Grid, Surfel, BACK};
 use std::path::Path;
 
@@ -93,16 +94,18 @@ pub fn stream_voxelize(
     let mut surfels: u64 = 0;
     let mut emit = |run: &mut Vec<Piece>| -> Result<(), ConvertError> {
         if !run.is_empty() {
-            sink(&merge_run(run, &tables))?;
+            for surfel in merge_voxel(run, &tables, &groups, scene) {
+                sink(&surfel)?;
+                surfels += 1;
+            }
             progress.inc(run.len() as u64);
-            surfels += 1;
             run.clear();
         }
         Ok(())
     };
     for p in sorted {
         let p = p?;
-        if run.last().is_some_and(|last| !last.same_surfel(&p)) {
+        if run.last().is_some_and(|last| last.voxel != p.voxel) {
             emit(&mut run)?;
         }
         run.push(p);

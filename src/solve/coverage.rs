@@ -18,7 +18,7 @@
 //! voxel that a plane only touches (zero area, no slice) keeps 1 too, because tunnel-freeness
 //! depends on such voxels blocking.
 
-use crate::voxel::voxelize::{clip_to_unit_cube, polygon_area_centroid};
+use crate::voxel::polygon::{clip_to_unit_cube, polygon_area_centroid};
 use crate::voxel::{Surfel, SurfelSet};
 use glam::DVec3;
 
