@@ -111,9 +111,10 @@ fn sealed_room_stays_dark() {
 ///
 /// Known defect, bounded here so it cannot grow unnoticed: where several solids meet in one voxel
 /// (a wall standing on a slab at a room's corner), coplanar faces of different solids merge into
-/// one L-shaped piece whose bounding box covers the whole voxel, and a little light (below 1 % of
-/// the lit room's brightest surface) still reaches hidden faces and the dark side of the middle
-/// wall. The simpler rooms above, each closed by its own walls, are exact.
+/// one L-shaped piece whose bounding box covers the whole voxel, and a little light still reaches
+/// hidden faces and the inner sides of the walls: at most 0.22 % of the lit room's brightest
+/// surface while faces in contact kept their covered area, 0.10 % since
+/// (`voxelize::merge_voxel`). The simpler rooms above, each closed by its own walls, are exact.
 #[test]
 fn generated_sealed_rooms_stay_dark() {
     let scene = voxrad::gen::sealed_rooms();
@@ -150,5 +151,5 @@ fn generated_sealed_rooms_stay_dark() {
     }
     println!("dark max {dark} ({worst}), {dark_count} dark sides, lit max {lit}");
     assert!(lit > 1.0 && dark_count > 1000);
-    assert!(dark < 0.01 * lit, "light reached a sealed surface: {worst}");
+    assert!(dark < 0.002 * lit, "light reached a sealed surface: {worst}");
 }
