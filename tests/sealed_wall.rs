@@ -151,5 +151,8 @@ fn generated_sealed_rooms_stay_dark() {
     }
     println!("dark max {dark} ({worst}), {dark_count} dark sides, lit max {lit}");
     assert!(lit > 1.0 && dark_count > 1000);
-    assert!(dark < 0.002 * lit, "light reached a sealed surface: {worst}");
+    assert!(
+        dark < 0.002 * lit,
+        "light reached a sealed surface: {worst}"
+    );
 }
