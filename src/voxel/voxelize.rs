@@ -18,7 +18,10 @@
 //! reflectance without emission (emission leaves the front of a triangle only). Where triangles of
 //! one plane face both ways in one voxel (two solids pressed together, a sheet modelled twice back
 //! to back), each facing gets its own surfel with its own piece: merging them would put the surface
-//! point where neither piece is, and rays would be misjudged at the seam.
+//! point where neither piece is, and rays would be misjudged at the seam. Where either facing is
+//! a solid's face, the two are in contact and each keeps only what the other does not cover; a
+//! solid standing on a plane without a face on it hides the plane's part behind its faces
+//! ([`merge_voxel`]; `solids` tells a solid's faces).
 //!
 //! Numbering: plane groups and their normals are numbered in triangle order; the flipped normals
 //! of back-facing surfels and the unlit copies of emitting materials are fixed before any surfel
