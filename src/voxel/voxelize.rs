@@ -21,7 +21,7 @@
 //! point where neither piece is, and rays would be misjudged at the seam. Where either facing is
 //! a solid's face, the two are in contact and each keeps only what the other does not cover; a
 //! solid standing on a plane without a face on it hides the plane's part behind its faces
-//! ([`merge_voxel`]; `solids` tells a solid's faces).
+//! (`merge_voxel`; `solids` tells a solid's faces).
 //!
 //! Numbering: plane groups and their normals are numbered in triangle order; the flipped normals
 //! of back-facing surfels and the unlit copies of emitting materials are fixed before any surfel
