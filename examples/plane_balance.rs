@@ -14,7 +14,9 @@
 //! - 2: as 1, the target being the side's whole projected area (light that met nothing sent on);
 //! - 3: one alternation per iteration, damped (what a solver could afford without kept links).
 //!
-//! `TRACE=1` prints each iteration's relative change. Measured figures: docs/accuracy.md.
+//! It also prints the plane sides whose light goes missing most: what each sends over all
+//! directions against what receivers took from it. `TRACE=1` prints each iteration's relative
+//! change. Measured figures: docs/accuracy.md.
 use std::collections::HashMap;
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
@@ -238,6 +240,47 @@ fn main() {
         }
     }
     println!("mode {mode}: balance {:+.3} %", 100.0 * (em - ab) / em);
+    // Where the power goes missing: by plane side, what it sends over all directions (its
+    // projected area times its radiosity, channels summed) against what receivers took from it.
+    let mut sends: HashMap<(u32, u8), f64> = HashMap::new();
+    let mut taken: HashMap<(u32, u8), f64> = HashMap::new();
+    for (d, links) in all.iter().enumerate() {
+        let dd = &dirs.directions[d];
+        let w = dd.solid_angle / std::f64::consts::PI;
+        for (i, sf) in set.surfels.iter().enumerate() {
+            let c = voxrad::solve::normalize::cosine(sf.normal, dd.unit);
+            for side in 0..2u8 {
+                let bp: f64 = b[i][side as usize].iter().sum();
+                *sends.entry((sf.group, side)).or_default() +=
+                    sf.area as f64 * c * w / norm[i] * bp;
+            }
+        }
+        for l in links {
+            let (r, p) = (l.r as usize, l.p as usize);
+            let g = set.surfels[p].group;
+            let scale = scales[d].get(&(g, l.from)).copied().unwrap_or(1.0);
+            let bp: f64 = b[p][l.from as usize].iter().sum();
+            *taken.entry((g, l.from)).or_default() +=
+                set.surfels[r].area as f64 * l.f * scale / (norm[r] + shift[r][l.to as usize]) * bp;
+        }
+    }
+    let sent_total: f64 = sends.values().sum();
+    let mut lost: Vec<((u32, u8), f64)> = sends
+        .iter()
+        .map(|(k, v)| (*k, v - taken.get(k).copied().unwrap_or(0.0)))
+        .collect();
+    lost.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+    println!("  largest losses (share of all power sent; negative: taken more than sent):");
+    for ((g, side), v) in lost.iter().take(8) {
+        let k = set.surfels.iter().position(|s| s.group == *g).unwrap();
+        let sf = &set.surfels[k];
+        println!(
+            "    group {g} side {side} ({}, normal {:?}): {:+.3} %",
+            set.materials[sf.material[*side as usize] as usize].name,
+            sf.normal.map(|x| (x * 100.0).round() / 100.0),
+            100.0 * v / sent_total
+        );
+    }
     // Mean radiosity of front sides by region (corridor scene: z in [4, 6] is the corridor).
     let mut by: std::collections::BTreeMap<String, (f64, f64)> = Default::default();
     for (k, s) in set.surfels.iter().enumerate() {
