@@ -4,8 +4,9 @@
 //! The in-memory voxelizer makes every piece (one triangle's share of one voxel), sorts them and
 //! merges each run of one (voxel, plane group, facing) into a surfel. Here the same pieces are
 //! made triangle by triangle, one voxel at a time (`PlaneGroups::triangle_pieces`), and fed to the
-//! external piece sort (`pieces`), whose output comes back in shard order; each run of one surfel
-//! is then merged by the very function the in-memory path uses (`voxelize::merge_voxel`). The
+//! external piece sort (`pieces`), whose output comes back in shard order; each voxel's pieces
+//! are then merged into its surfels by the very function the in-memory path uses
+//! (`voxelize::merge_voxel`). The
 //! pieces of a surfel arrive in the same order in both paths (the sort key ends in the
 //! triangle's index, so it is unique), hence the floating-point sums and the surfels are equal
 //! bit for bit; only the order of the surfels differs (Morton order in memory, shard order here).
