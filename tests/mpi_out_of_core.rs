@@ -88,8 +88,8 @@ fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
     let surfels = cornell_set(&set, 48, 3);
     let set = set.to_str().unwrap();
     let budget = 512u64 << 10;
-    // Plain in every run: the data mode out of core has no direct-light pass yet, which the
-    // one-process solvers would run for the Cornell box's lamp.
+    // Plain: the share must not fit the budget, which the direct-light pass's parts would need
+    // here (it is compared in `direct_light_pass_gives_the_one_process_answer`).
     let common_args = [
         "--directions",
         "49",
@@ -203,6 +203,100 @@ fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
     }
 }
 
+/// The direct-light pass (run by rank 0 on the whole source, its light sent to every rank's
+/// share): every rank count gives the one-process out-of-core radiosity bit for bit with it,
+/// the in-memory data mode's within 1e-5, and its energy balance.
+#[test]
+fn direct_light_pass_gives_the_one_process_answer() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 40, 2);
+    let set = set.to_str().unwrap();
+    let run = |out: &Path, ranks: Option<usize>, memory: bool| -> serde_json::Value {
+        let out_str = out.to_str().unwrap();
+        let mut args = vec![
+            "solve",
+            set,
+            "--out",
+            out_str,
+            "--directions",
+            "49",
+            "--iterations",
+            "3",
+            "--threads",
+            "1",
+            "--direct-directions",
+            "300",
+        ];
+        if memory {
+            args.extend(["--memory", "4MiB"]);
+        }
+        let o = match ranks {
+            Some(n) => {
+                args.extend(["--distribute", "data"]);
+                mpirun(n, &args)
+            }
+            None => Command::new(env!("CARGO_BIN_EXE_voxrad"))
+                .args(&args)
+                .env("NO_COLOR", "1")
+                .output()
+                .unwrap(),
+        };
+        ok(&o, &format!("{ranks:?} ranks, memory {memory}"));
+        let r = report(out);
+        assert!(
+            r["seconds"]["direct"].as_f64().unwrap_or(0.0) > 0.0,
+            "the direct-light pass did not run: {r}"
+        );
+        r
+    };
+    let single = tmp.path().join("single");
+    let one = run(&single, None, true);
+    let reference = radiosity(&single);
+    let memory = tmp.path().join("memory");
+    run(&memory, Some(2), false);
+    let in_memory = radiosity(&memory);
+    // Without the pass the answer moves by far more than 1e-5: the comparison can fail.
+    let plain = tmp.path().join("plain");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args([
+            "solve",
+            set,
+            "--out",
+            plain.to_str().unwrap(),
+            "--directions",
+            "49",
+            "--iterations",
+            "3",
+            "--direct-directions",
+            "0",
+        ])
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap();
+    ok(&o, "plain");
+    let apart = common::worst_relative_difference(&radiosity(&plain), &reference);
+    assert!(apart > 1e-3, "the pass changes nothing here: {apart:e}");
+    for ranks in 1..=3 {
+        let out = tmp.path().join(format!("ranks{ranks}"));
+        let r = run(&out, Some(ranks), true);
+        let got = radiosity(&out);
+        let worst = common::worst_relative_difference(&got, &in_memory);
+        println!("{ranks} ranks with the pass: against in memory {worst:.2e}");
+        assert!(got == reference, "{ranks} ranks differ from one process");
+        assert!(worst <= 1e-5, "{ranks} ranks: {worst:e}");
+        for what in ["emitted_power", "absorbed_power"] {
+            for ch in 0..3 {
+                let (a, b) = (
+                    r["energy"][what][ch].as_f64().unwrap(),
+                    one["energy"][what][ch].as_f64().unwrap(),
+                );
+                assert!((a - b).abs() <= 1e-9 * b.abs(), "{what}: {a} {b}");
+            }
+        }
+    }
+}
+
 #[test]
 fn each_rank_stays_within_the_budget_while_its_share_is_larger() {
     let tmp = tempfile::tempdir().unwrap();
@@ -227,6 +321,10 @@ fn each_rank_stays_within_the_budget_while_its_share_is_larger() {
             "4MiB",
             "--distribute",
             "data",
+            // The bands and the exchange are what this measures (the direct-light pass, run by
+            // rank 0 as one process runs it, has its test in `tests/memory_limit.rs`).
+            "--direct-directions",
+            "0",
         ],
     );
     ok(&o, "2 ranks at 4 MiB");

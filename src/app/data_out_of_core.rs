@@ -30,19 +30,7 @@ pub(super) fn run_solve_data_out_of_core(
     let read_seconds = started.elapsed().as_secs_f64();
     // Simulate only what the scene calls for, as the one-process solvers do.
     let analysis = analyse_source(&source, budget)?;
-    let mut shaped = analysis.shape(&cmd.solve);
-    if shaped.direct != crate::solve::direct::DirectPass::Off && comm.rank() == 0 {
-        // Not in this mode yet: said here and in the report, never dropped in silence.
-        tracing::warn!(
-            "the direct-light pass is not built for the data mode out of core yet: the small \
-             emitters' light is gathered along the solve's {} directions only, where it aliases \
-             into stripes (the Cornell box at resolution 64 with the default preset: 16 % mean \
-             error against 3.0 % with the pass); one process with --memory, or --distribute \
-             data without --memory, runs it",
-            DirectionSet::with_count(shaped.directions).len()
-        );
-    }
-    shaped.direct = crate::solve::direct::DirectPass::Off;
+    let shaped = analysis.shape(&cmd.solve);
     let directions = DirectionSet::with_count(shaped.directions);
     let identity = out_of_core_identity(&source, &directions, &shaped, budget)?;
     let (resume, state) = open_checkpoint_on_rank0(cmd, comm, &identity)?;
@@ -125,11 +113,7 @@ pub(super) fn run_solve_data_out_of_core(
     report.set_phase("solve", solve_seconds);
     report.set_phase("reduce", stats.reduce_seconds);
     report.set_phase("write", write_seconds);
-    report.effects = analysis.effects(
-        &cmd.solve,
-        &stats,
-        Some("the data mode out of core has no direct-light pass yet; its light is gathered along the solve's directions (one process with --memory, or --distribute data without --memory, runs it)"),
-    );
+    report.effects = analysis.effects(&cmd.solve, &stats);
     report.add_out_of_core(
         budget,
         solution.bytes_read,

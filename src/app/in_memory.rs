@@ -100,7 +100,7 @@ pub(super) fn solve_in_memory_from_scene(
     report.set_phase("reduce", stats.reduce_seconds);
     // The whole solve call (set-up, iterations, communication): what a speed-up compares.
     report.set_phase("solve", solve_seconds);
-    report.effects = analysis.effects(&cmd.solve, stats, None);
+    report.effects = analysis.effects(&cmd.solve, stats);
     report.set_phase("read", read_seconds);
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);

@@ -228,7 +228,7 @@ pub(super) fn solve_out_of_core_to(
     report.set_phase("band_write", stats.write_seconds);
     report.set_phase("update", stats.update_seconds);
     report.set_phase("write", write_seconds);
-    report.effects = analysis.effects(&cmd.solve, &stats.solve, None);
+    report.effects = analysis.effects(&cmd.solve, &stats.solve);
     report.add_out_of_core(
         budget,
         stats.bytes_read,

@@ -104,15 +104,12 @@ impl DirectLight {
         out: &mut Vec<[[f32; 3]; 2]>,
     ) {
         out.clear();
-        out.extend(radiosity.iter().zip(emission).map(|(b, e)| {
-            let mut r = [[0f32; 3]; 2];
-            for side in 0..2 {
-                for ch in 0..3 {
-                    r[side][ch] = (b[side][ch] as f64 - e[side][ch] as f64) as f32;
-                }
-            }
-            r
-        }));
+        out.extend(
+            radiosity
+                .iter()
+                .zip(emission)
+                .map(|(b, e)| super::update::reflected_part(b, e)),
+        );
     }
 }
 

@@ -134,14 +134,9 @@ impl Analysis {
     }
 
     /// The report's list of effects for a solve shaped by [`Analysis::shape`] from `requested`,
-    /// with what it did (`stats`); `direct_unavailable` says why the solve could not run the
-    /// direct pass (its mode), if so.
-    pub fn effects(
-        &self,
-        requested: &SolveOptions,
-        stats: &SolveStats,
-        direct_unavailable: Option<&str>,
-    ) -> Vec<Effect> {
+    /// with what it did (`stats`). Every solve path runs every effect, so none is ever "not
+    /// applied in this mode".
+    pub fn effects(&self, requested: &SolveOptions, stats: &SolveStats) -> Vec<Effect> {
         let mut list = Vec::new();
         list.push(Effect::new(
             "direct light",
@@ -202,7 +197,7 @@ impl Analysis {
                 "some material has unequal RGB channels: three channels solved"
             },
         ));
-        list.push(self.direct_effect(requested, stats, direct_unavailable));
+        list.push(self.direct_effect(requested, stats));
         if bounces {
             list.push(Effect::new(
                 "tail extrapolation",
@@ -235,12 +230,7 @@ impl Analysis {
     }
 
     /// The report's entry for the direct-light pass (see `direct`).
-    fn direct_effect(
-        &self,
-        requested: &SolveOptions,
-        stats: &SolveStats,
-        unavailable: Option<&str>,
-    ) -> Effect {
+    fn direct_effect(&self, requested: &SolveOptions, stats: &SolveStats) -> Effect {
         const NAME: &str = "direct-light pass";
         let affordable = super::direct::affordable_directions(
             self.emitting_surfels,
@@ -294,9 +284,7 @@ impl Analysis {
                 ),
             );
         }
-        let why = if let Some(reason) = unavailable {
-            format!("not applied: {reason}")
-        } else if matches!(
+        let why = if matches!(
             requested.direct,
             DirectPass::Off | DirectPass::On(0) | DirectPass::Auto(0)
         ) {

@@ -22,6 +22,18 @@ pub struct UpdateSums {
     pub absorbed_direct: [f64; 3],
 }
 
+/// What the lines of the iterations carry with the direct-light pass: the reflected part
+/// `B - E` (f32, as radiosity is stored), the same arithmetic in every loop.
+pub fn reflected_part(b: &Radiosity, emission: &Radiosity) -> Radiosity {
+    let mut r = [[0f32; 3]; 2];
+    for side in 0..2 {
+        for ch in 0..3 {
+            r[side][ch] = (b[side][ch] as f64 - emission[side][ch] as f64) as f32;
+        }
+    }
+    r
+}
+
 /// One surfel's new radiosity `B = E + rho H / S(n)` (`norm` is `S(n)`) from the light `h` it
 /// gathered (only the first channel when `channels` is 1: a grey scene), plus `rho` times its
 /// `direct` light where the direct-light pass ran; adds its change, falling part and total

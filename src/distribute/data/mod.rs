@@ -516,13 +516,10 @@ impl<'a> DataSolver<'a> {
             reflected.resize(radiosity.len(), [[0.0; 3]; 2]);
             for e in order.iter() {
                 let slot = e.index as usize;
-                let (b, e) = (&radiosity[slot], &self.emission[ids[slot] as usize]);
-                for side in 0..2 {
-                    for ch in 0..3 {
-                        reflected[slot][side][ch] =
-                            (b[side][ch] as f64 - e[side][ch] as f64) as f32;
-                    }
-                }
+                reflected[slot] = crate::solve::update::reflected_part(
+                    &radiosity[slot],
+                    &self.emission[ids[slot] as usize],
+                );
             }
         }
         let t1 = self.pool.install(|| {

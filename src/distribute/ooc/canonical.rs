@@ -1,13 +1,17 @@
 //! Radiosity between the ranks and canonical order (data mode out of core): rank 0 gathers
 //! every rank's `(id, B)` into a canonical file for the results and the checkpoints, sends each
-//! rank its slice of a checkpoint on resume, and a stop signal ends every rank together.
+//! rank its slice of a canonical file (a checkpoint's radiosity on resume, the direct light),
+//! and a stop signal ends every rank together.
 
 use super::held::{self, Held, HeldReader, HeldWriter};
 use super::route::{exchange_files, Router};
 use super::{DataOocCheckpoints, Solver, RESULT_PAIR_LEN};
 use crate::checkpoint::{CheckpointFile, Saver, State};
 use crate::outcore::budget::MemoryPlan;
-use crate::outcore::files::{IoCounters, RecordFile, SeqReader, RADIOSITY_LEN};
+use crate::outcore::files::{
+    decode_radiosity, encode_radiosity, IoCounters, RecordFile, SeqReader, RADIOSITY_LEN,
+};
+use crate::outcore::source::SourceInfo;
 use crate::outcore::OocError;
 use crate::solve::accelerate::Extrapolation;
 use crate::solve::jacobi::Convergence;
@@ -53,7 +57,8 @@ impl Solver<'_> {
 
     /// Puts the radiosity of a checkpoint (`file`, on rank 0) into the held files of every rank,
     /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
-    /// sends each rank its slice in bounded rounds.
+    /// sends each rank its slice in bounded rounds. The lines then carry it (less `E` with the
+    /// direct pass, which ran before).
     pub(super) fn restore(
         &self,
         held: Held,
@@ -63,6 +68,38 @@ impl Solver<'_> {
         router: &Router,
         io: &mut IoCounters,
     ) -> Result<Held, OocError> {
+        let plan = router.plan;
+        let name = file.as_ref().map(|f| f.path.display().to_string());
+        let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
+            let file = file.ok_or_else(|| OocError::BadData {
+                source_name: "the checkpoint".to_string(),
+                what: "rank 0 did not open it".to_string(),
+            })?;
+            file.read_radiosity::<OocError>(plan.io_bytes, piece)
+        };
+        let name = name.unwrap_or_else(|| "the checkpoint".to_string());
+        let mine = self.send_slices(first, RADIOSITY_LEN, &name, read, router, io)?;
+        let info = self.source.info();
+        let direct = self.direct();
+        self.place_slice::<RADIOSITY_LEN>(held, &mine, generation, router, io, |w, b| {
+            w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN].copy_from_slice(b);
+            carry(w, info, direct);
+        })
+    }
+
+    /// Rank 0 cuts the canonical records of `len` bytes that `read` hands it (in pieces of whole
+    /// records; `name` names their origin in errors) into the slices of the ranks, whose first
+    /// canonical index this rank's `first` is, and sends each rank its own in bounded rounds;
+    /// returns the file that holds this rank's slice. Collective; `read` runs on rank 0 only.
+    pub(super) fn send_slices(
+        &self,
+        first: u64,
+        len: usize,
+        name: &str,
+        read: impl FnOnce(&mut dyn FnMut(&[u8]) -> Result<(), OocError>) -> Result<(), OocError>,
+        router: &Router,
+        io: &mut IoCounters,
+    ) -> Result<PathBuf, OocError> {
         let (ranks, me) = (self.comm.size(), self.comm.rank());
         let plan = router.plan;
         let dir = router.dir;
@@ -71,38 +108,33 @@ impl Solver<'_> {
         starts[me] = first as f64;
         self.comm.sum_in_place(&mut starts);
         let starts: Vec<u64> = starts.iter().map(|&s| s as u64).collect();
-        // Rank 0 cuts the checkpoint's radiosity into one file per rank.
-        let path = |r: usize| dir.join(format!("restore-{r}.bin"));
+        let path = |r: usize| dir.join(format!("slice-{r}.bin"));
         let mut failure = None;
         if me == 0 {
             let cut = || -> Result<(), OocError> {
-                let file = file.ok_or_else(|| OocError::BadData {
-                    source_name: "the checkpoint".to_string(),
-                    what: "rank 0 did not open it".to_string(),
-                })?;
                 let buffer = plan.bucket_buffer(ranks as u64);
                 let mut outs = (0..ranks)
                     .map(|r| crate::outcore::files::SeqWriter::create(&path(r), buffer))
                     .collect::<Result<Vec<_>, _>>()?;
                 let mut index = 0u64;
-                file.read_radiosity::<OocError>(plan.io_bytes, |piece| {
-                    for b in piece.chunks_exact(RADIOSITY_LEN) {
+                read(&mut |piece: &[u8]| {
+                    for record in piece.chunks_exact(len) {
                         let owner = starts[1..].partition_point(|&s| s <= index);
-                        outs[owner].write(b)?;
+                        outs[owner].write(record)?;
                         index += 1;
                     }
                     Ok(())
                 })?;
                 if index != n {
                     return Err(OocError::BadData {
-                        source_name: file.path.display().to_string(),
+                        source_name: name.to_string(),
                         what: format!("it holds {index} surfels, the scene {n}"),
                     });
                 }
                 for out in outs {
                     io.written += out.finish()?;
                 }
-                io.read += n * RADIOSITY_LEN as u64;
+                io.read += n * len as u64;
                 Ok(())
             };
             failure = cut().err();
@@ -112,7 +144,7 @@ impl Solver<'_> {
             return Err(failure.unwrap_or_else(|| {
                 crate::checkpoint::let_rank_0_speak_first();
                 OocError::BadData {
-                    source_name: "the checkpoint".to_string(),
+                    source_name: name.to_string(),
                     what: "rank 0 could not read it (see rank 0's message)".to_string(),
                 }
             }));
@@ -132,7 +164,7 @@ impl Solver<'_> {
         exchange_files(
             self.comm,
             &outgoing,
-            RADIOSITY_LEN,
+            len,
             router.round_bytes(),
             io,
             &mut |_, bytes| match received.as_mut() {
@@ -146,18 +178,31 @@ impl Solver<'_> {
         for p in outgoing.iter().flatten() {
             std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
         }
-        // The held files with the checkpoint's radiosity.
-        let mut values = SeqReader::<RADIOSITY_LEN>::open(&mine, plan.io_bytes)?;
+        Ok(mine)
+    }
+
+    /// Rewrites the held files (in canonical order, as read) with the records of `slice` (one
+    /// of `L` bytes per held surfel, in the same order) put in by `place`; removes `slice`.
+    pub(super) fn place_slice<const L: usize>(
+        &self,
+        held: Held,
+        slice: &Path,
+        generation: u64,
+        router: &Router,
+        io: &mut IoCounters,
+        place: impl Fn(&mut held::Wire, &[u8]),
+    ) -> Result<Held, OocError> {
+        let plan = router.plan;
+        let mut values = SeqReader::<L>::open(slice, plan.io_bytes)?;
         let mut reader = HeldReader::open(&held, plan.io_bytes)?;
-        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
+        let mut writer = HeldWriter::create(router.dir, generation, plan.io_bytes, None)?;
         while let Some(mut w) = reader.next(io)? {
-            let b = values.expect_record()?;
-            w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN].copy_from_slice(&b);
+            place(&mut w, &values.expect_record()?);
             writer.write(&w)?;
         }
         drop((reader, values));
-        io.read += held.count * RADIOSITY_LEN as u64;
-        std::fs::remove_file(&mine).map_err(|e| OocError::io(&mine, "remove", e))?;
+        io.read += held.count * L as u64;
+        std::fs::remove_file(slice).map_err(|e| OocError::io(slice, "remove", e))?;
         held.remove()?;
         Ok(writer.finish(io)?.0)
     }
@@ -227,6 +272,21 @@ impl Solver<'_> {
         std::fs::remove_file(&out_path).map_err(|e| OocError::io(&out_path, "remove", e))?;
         Ok(canonical.map(|_| canonical_path))
     }
+}
+
+/// Sets what the lines carry from the radiosity `B` of held record `w`: `B` itself, or with
+/// the direct pass (`direct`) its reflected part `B - E`, as the one-process out-of-core solver
+/// sends them to its axis copies.
+pub(super) fn carry(w: &mut held::Wire, info: &SourceInfo, direct: bool) {
+    let b = decode_radiosity(&w[held::RADIOSITY_AT..]);
+    let carried = if direct {
+        let (_, _, material) = held::scene_data(w);
+        let emission = material.map(|m| info.materials[m as usize].emission.map(|e| e as f32));
+        crate::solve::update::reflected_part(&b, &emission)
+    } else {
+        b
+    };
+    encode_radiosity(&carried, &mut w[held::CARRIED_AT..]);
 }
 
 /// Writes a checkpoint whose radiosity is the canonical file `canonical` (rank 0's; the other

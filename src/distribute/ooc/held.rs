@@ -3,21 +3,28 @@
 //! them back in order.
 //!
 //! The four files are what the band machinery of `outcore::band` reads and writes (static
-//! records, radiosity, the light gathered by the directions of the current main axis), plus one
-//! file the rest of the loop needs (the light of the earlier axes of this iteration, and what
-//! the update of `B` takes from the scene's tables). Between ranks and in run files a surfel is
-//! the four records one after another:
+//! records, the radiosity the lines carry, the light gathered by the directions of the current
+//! main axis), plus one file the rest of the loop needs (the light of the earlier axes of this
+//! iteration, what the update of `B` takes from the scene's tables, the radiosity `B` itself and
+//! the direct light). Between ranks and in run files a surfel is the four records one after
+//! another:
 //!
 //! ```text
-//! wire record (208 bytes)
+//! wire record (280 bytes)
 //!   0 static       72 bytes   outcore::files layout (voxel, ..., canonical id at 68)
-//!  72 radiosity    24 bytes   f32 x 6
+//!  72 carried      24 bytes   f32 x 6, what the lines carry: B, or B - E with the direct pass
 //!  96 gathered     48 bytes   f64 x 6, this axis's directions so far
 //! 144 earlier      48 bytes   f64 x 6, the earlier axes of this iteration
 //! 192 normal id    u32
 //! 196 area         f32
 //! 200 materials    u32 x 2    front, back
+//! 208 radiosity    24 bytes   f32 x 6, B
+//! 232 direct       48 bytes   f64 x 6, the direct light H_dense / S_dense (0 without the pass)
 //! ```
+//!
+//! `B` travels beside what the lines carry, as the one-process out-of-core solver keeps its
+//! canonical radiosity beside the axis copies' `B - E`: the update reads `B` and writes both,
+//! and the answer stays that solver's bit for bit.
 
 use crate::outcore::files::{
     IoCounters, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
@@ -27,17 +34,23 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::path::{Path, PathBuf};
 
-/// Bytes of the fourth file's record: earlier axes' light and the update's scene data.
-pub const REST_LEN: usize = GATHER_LEN + 16;
+/// Bytes of the fourth file's record: earlier axes' light, the update's scene data, `B` and
+/// the direct light.
+pub const REST_LEN: usize = GATHER_LEN + 16 + RADIOSITY_LEN + GATHER_LEN;
 pub const WIRE_LEN: usize = STATIC_LEN + RADIOSITY_LEN + GATHER_LEN + REST_LEN;
 pub type Wire = [u8; WIRE_LEN];
 
-pub const RADIOSITY_AT: usize = STATIC_LEN;
-pub const GATHERED_AT: usize = RADIOSITY_AT + RADIOSITY_LEN;
+/// What the lines carry (the file the bands read).
+pub const CARRIED_AT: usize = STATIC_LEN;
+pub const GATHERED_AT: usize = CARRIED_AT + RADIOSITY_LEN;
 pub const EARLIER_AT: usize = GATHERED_AT + GATHER_LEN;
 pub const SCENE_AT: usize = EARLIER_AT + GATHER_LEN;
+/// The radiosity `B`.
+pub const RADIOSITY_AT: usize = SCENE_AT + 16;
+pub const DIRECT_AT: usize = RADIOSITY_AT + RADIOSITY_LEN;
+const _: () = assert!(DIRECT_AT + GATHER_LEN == WIRE_LEN);
 const LENGTHS: [usize; 4] = [STATIC_LEN, RADIOSITY_LEN, GATHER_LEN, REST_LEN];
-const OFFSETS: [usize; 4] = [0, RADIOSITY_AT, GATHERED_AT, EARLIER_AT];
+const OFFSETS: [usize; 4] = [0, CARRIED_AT, GATHERED_AT, EARLIER_AT];
 
 fn word(w: &[u8], at: usize) -> [u8; 4] {
     [w[at], w[at + 1], w[at + 2], w[at + 3]]
@@ -117,7 +130,8 @@ impl Held {
         &self.paths[0]
     }
 
-    pub fn radiosity(&self) -> &Path {
+    /// What the lines carry (`B`, or `B - E` with the direct pass).
+    pub fn carried(&self) -> &Path {
         &self.paths[1]
     }
 

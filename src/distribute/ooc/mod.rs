@@ -39,6 +39,7 @@
 //! fixed I/O buffers), plus per direction its remembered cuts (`P + 1` numbers).
 
 mod canonical;
+mod direct;
 pub mod held;
 pub mod route;
 mod slice;
@@ -155,6 +156,7 @@ pub fn solve_data_out_of_core(
         threads,
         pool: &pool,
         channels: std::cell::Cell::new(3),
+        direct: std::cell::Cell::new(false),
     };
     solver.run(budget, work_parent, checkpoints)
 }
@@ -168,6 +170,8 @@ struct Solver<'a> {
     pool: &'a rayon::ThreadPool,
     /// Channels gathered, decided once the slices are read (see [`Solver::channels`]).
     channels: std::cell::Cell<usize>,
+    /// The direct-light pass ran: the held records carry its light and the lines `B - E`.
+    direct: std::cell::Cell<bool>,
 }
 
 /// What one update of `B` found on this rank.
@@ -235,6 +239,24 @@ impl Solver<'_> {
         };
         let mut first_iteration = 1;
         let mut extrapolation = Extrapolation::default();
+        // The direct light, once, before a checkpoint's radiosity is put in (the lines then
+        // carry `B - E`), as the one-process out-of-core solver does it (`direct`).
+        let mut emitting = [slice.emitting as f64];
+        self.comm.sum_in_place(&mut emitting);
+        let shape = crate::solve::direct::Shape {
+            emitting: emitting[0] as usize,
+            surfels: surfels as usize,
+            longest_axis: dims.into_iter().max().unwrap_or(0),
+            directions: self.directions.len(),
+        };
+        if let Some(count) = self.options.direct.resolve(shape).filter(|_| any_light) {
+            generation += 1;
+            let (next, direct) =
+                self.attach_direct(held, slice.first, count, generation, &router, &mut io)?;
+            held = next;
+            stats.direct = Some(direct);
+            self.direct.set(true);
+        }
         if let Some(c) = checkpoints.as_mut() {
             if let Some(state) = c.state.take() {
                 extrapolation = state.extrapolation.clone().into();
@@ -418,10 +440,13 @@ impl Solver<'_> {
         if self.options.tolerance.is_none() {
             stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
         }
-        let mut energy = [last.emitted, last.absorbed].concat();
+        let mut energy = [last.emitted, last.absorbed, last.absorbed_direct].concat();
         self.comm.sum_in_place(&mut energy);
         stats.emitted_power.copy_from_slice(&energy[..3]);
-        stats.absorbed_power.copy_from_slice(&energy[3..]);
+        for ch in 0..3 {
+            // As every loop: the direct light's power after the reflected one's.
+            stats.absorbed_power[ch] = energy[3 + ch] + energy[6 + ch];
+        }
         // A band's reading counts with its dispatch, writing its light with its propagation.
         seconds.dispatch = times.dispatch + times.read;
         seconds.propagate = times.propagate + times.write;
@@ -507,7 +532,7 @@ impl Solver<'_> {
             layers: key.layers(),
             rows,
             statics: held.statics().to_path_buf(),
-            radiosity: held.radiosity().to_path_buf(),
+            radiosity: held.carried().to_path_buf(),
             ids: PathBuf::new(),
             positions: PathBuf::new(),
             histogram: PathBuf::new(),
@@ -561,11 +586,14 @@ impl Solver<'_> {
                 decode_gathered(&w[EARLIER_AT..]),
                 cosine_sum[normal_id as usize],
             );
+            let direct = self
+                .direct()
+                .then(|| decode_gathered(&w[held::DIRECT_AT..]));
             let b_new = crate::solve::update::update_surfel(
                 &sides.map(|m| m.emission.map(|e| e as f32)),
                 &sides.map(|m| m.reflectance),
                 h,
-                None,
+                direct.as_ref(),
                 self.channels(),
                 &previous,
                 norm,
@@ -575,7 +603,7 @@ impl Solver<'_> {
             crate::solve::update::add_power(
                 sides,
                 h,
-                None,
+                direct.as_ref(),
                 self.channels(),
                 norm,
                 area as f64,
@@ -583,6 +611,7 @@ impl Solver<'_> {
                 &mut result,
             );
             encode_radiosity(&b_new, &mut w[held::RADIOSITY_AT..]);
+            canonical::carry(&mut w, info, self.direct());
             w[GATHERED_AT..held::SCENE_AT].fill(0);
             if self.options.accelerate {
                 // Kept for the tail extrapolation; the next iteration's first axis overwrites it.
@@ -600,6 +629,11 @@ impl Solver<'_> {
     /// materials the surfels use when the slices are read), else 3.
     fn channels(&self) -> usize {
         self.channels.get()
+    }
+
+    /// Whether the direct-light pass ran (see [`Solver::attach_direct`]).
+    fn direct(&self) -> bool {
+        self.direct.get()
     }
 
     /// Adds the geometric tail `factor * (B - B_previous)` to the held surfels' radiosity with
@@ -625,6 +659,7 @@ impl Solver<'_> {
                 [material.map(|m| info.materials[m as usize].emission.map(|e| e as f32))];
             crate::solve::accelerate::extrapolate(&mut b, &previous, &emission, factor);
             encode_radiosity(&b[0], &mut w[held::RADIOSITY_AT..]);
+            canonical::carry(&mut w, info, self.direct());
             w[EARLIER_AT..held::SCENE_AT].fill(0);
             writer.write(&w)?;
         }

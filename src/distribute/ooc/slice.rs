@@ -1,6 +1,6 @@
 //! A rank's slice of the input (data mode out of core): about `n / P` surfels of the canonical
 //! stream, both ends moved to the next voxel boundary so that voxel-mates (for the coverage)
-//! stay together, written as held files with `B = E`.
+//! stay together, written as held files with `B = E` (carried by the lines as it is).
 
 use super::held::{self, Held, HeldWriter, WIRE_LEN};
 use super::Solver;
@@ -21,6 +21,8 @@ pub(super) struct Slice {
     pub first: u64,
     pub voxels: u64,
     pub any_light: bool,
+    /// Surfels with an emitting side (what the direct pass's decision reads).
+    pub emitting: u64,
     /// Some material a surfel side of the slice uses has unequal channels (`solve::effects`).
     pub coloured: bool,
 }
@@ -57,6 +59,7 @@ impl Solver<'_> {
             },
             voxels: 0,
             any_light: false,
+            emitting: 0,
             coloured: false,
         };
         for s in stream {
@@ -134,7 +137,15 @@ impl Solver<'_> {
                     slice.any_light |= m.emission[ch] > 0.0;
                 }
             }
+            slice.emitting += s.material.iter().any(|&m| {
+                info.materials[m as usize]
+                    .emission
+                    .iter()
+                    .any(|&e| e as f32 > 0.0)
+            }) as u64;
+            // The lines carry `B` until the direct pass, if it runs, makes it `B - E`.
             encode_radiosity(&b, &mut w[held::RADIOSITY_AT..]);
+            encode_radiosity(&b, &mut w[held::CARRIED_AT..]);
             held::encode_scene_data(s.normal_id, s.area, s.material, &mut w);
             writer.write(&w)?;
         }

@@ -1,0 +1,90 @@
+//! The direct-light pass in the data mode out of core: the one-process out-of-core pass
+//! (`outcore::direct`) run by rank 0 on the whole source, its light sent to every rank's slice
+//! and put in the held records, where it travels with the surfel (`held`, the direct slot).
+//!
+//! Rank 0 reads the whole source anyway (it writes the results from it), and the pass holds
+//! only the emitters' lines within the budget: run there, it gives the one-process light bit
+//! for bit, so the data mode out of core stays the one-process out-of-core solve's answer. The
+//! other ranks wait meanwhile; the pass is one-off, and spreading its direction groups over the
+//! ranks would need each rank's partial sums of the whole scene added across ranks.
+
+use super::canonical::carry;
+use super::held::{self, Held};
+use super::route::Router;
+use super::Solver;
+use crate::geometry::directions::DirectionSet;
+use crate::outcore::files::{IoCounters, SeqReader, GATHER_LEN};
+use crate::outcore::OocError;
+use crate::solve::direct::DirectStats;
+
+impl Solver<'_> {
+    /// Runs the pass with `count` dense directions on rank 0 and puts every surfel's direct
+    /// light into the held files (canonical order, from `first`), the lines carrying `B - E`
+    /// from here on. Collective; returns the pass's statistics (the same on every rank).
+    pub(super) fn attach_direct(
+        &self,
+        held: Held,
+        first: u64,
+        count: usize,
+        generation: u64,
+        router: &Router,
+        io: &mut IoCounters,
+    ) -> Result<(Held, DirectStats), OocError> {
+        let plan = router.plan;
+        let mut stats = DirectStats::default();
+        let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
+            let file = crate::outcore::direct::gather_direct_out_of_core(
+                self.source,
+                &DirectionSet::with_count(count),
+                plan,
+                self.pool,
+                router.dir,
+                io,
+            )?;
+            stats = file.stats.clone();
+            let mut reader = SeqReader::<GATHER_LEN>::open(&file.path, plan.io_bytes)?;
+            while let Some(record) = reader.next_record()? {
+                piece(&record)?;
+            }
+            drop(reader);
+            std::fs::remove_file(&file.path).map_err(|e| OocError::io(&file.path, "remove", e))
+        };
+        let mut sent = IoCounters::default();
+        let mine = self.send_slices(
+            first,
+            GATHER_LEN,
+            "the direct light's work file",
+            read,
+            router,
+            &mut sent,
+        )?;
+        io.read += sent.read;
+        io.written += sent.written;
+        let info = self.source.info();
+        let held =
+            self.place_slice::<GATHER_LEN>(held, &mine, generation, router, io, |w, d| {
+                w[held::DIRECT_AT..held::DIRECT_AT + GATHER_LEN].copy_from_slice(d);
+                carry(w, info, true);
+            })?;
+        // Rank 0's figures for every rank.
+        let mut figures = [
+            stats.directions as f64,
+            stats.emitting_surfels as f64,
+            stats.lines as f64,
+            stats.line_surfels as f64,
+            stats.seconds,
+            stats.parts as f64,
+        ];
+        self.comm.sum_in_place(&mut figures);
+        let [directions, emitting_surfels, lines, line_surfels, seconds, parts] = figures;
+        let stats = DirectStats {
+            directions: directions as usize,
+            emitting_surfels: emitting_surfels as usize,
+            lines: lines as u64,
+            line_surfels: line_surfels as u64,
+            seconds,
+            parts: parts as u64,
+        };
+        Ok((held, stats))
+    }
+}
