@@ -20,10 +20,12 @@
 //! iteration in progress. Either way none waits for a rank that has stopped.
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
+use super::iterate::{iterate, Start, Sweep};
 use super::normalize::cosine_sums;
-use super::propagate::{gather_line, prop_surfels, DirectionInput, LineScratch};
+use super::propagate::{gather_line, prop_surfels, DirectionInput, LineScratch, PropSurfel};
+use super::update::{Gathered, Radiosity};
 use super::{Solution, SolveStats};
-use crate::checkpoint::{Interruption, Loaded, Saver};
+use crate::checkpoint::{CheckpointError, Interruption, Loaded, Saver, State};
 use crate::comm::{Comm, SingleProcess};
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
@@ -74,6 +76,12 @@ pub enum SolveError {
     Groups { groups: usize, ranks: usize },
     #[error("{0}")]
     Interrupted(Interruption),
+}
+
+impl From<Interruption> for SolveError {
+    fn from(i: Interruption) -> Self {
+        SolveError::Interrupted(i)
+    }
 }
 
 /// The checkpoints of one solve: where they go, and the one it starts from.
@@ -190,17 +198,6 @@ fn run(
     let normalize_seconds = started.elapsed().as_secs_f64();
 
     let surfels = prop_surfels(set);
-    // The four lexicographic orders, sorted once.
-    let orders: Vec<Vec<OrderedEntry>> =
-        pool.install(|| super::dispatch::lexicographic_orders(set));
-    // This rank's directions (all of them on one process).
-    let mine = crate::comm::dealt(directions.len(), comm.rank(), comm.size());
-    let frames: Vec<LineFrame> = directions
-        .directions
-        .iter()
-        .map(|d| LineFrame::new(d.vector, set.grid.dims))
-        .collect();
-
     let (emission, reflectance) = material_tables(set);
     // The direct light, once (see `direct`); the iterations then gather only `B - E`.
     let direct = options
@@ -217,15 +214,11 @@ fn run(
                 pool,
             )
         });
-    let mut reflected = Vec::new();
-
     let channels = if options.grey && super::effects::is_grey(set) {
         1
     } else {
         3
     };
-    let mut extrapolation = super::accelerate::Extrapolation::default();
-    let mut previous = Vec::new();
     let mut stats = SolveStats {
         channels,
         directions: directions.len(),
@@ -233,39 +226,49 @@ fn run(
         normalize_seconds,
         ..Default::default()
     };
-    let mut radiosity = emission.clone();
-    let mut acc = vec![[[0f64; 3]; 2]; n];
-    let mut lines = Lines::default();
     let any_light = emission
         .iter()
         .any(|e| e.iter().flatten().any(|&v| v > 0.0));
-    // One bar per iteration over its directions: on a large scene a single iteration is long.
-    let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
-    let mut convergence = Convergence::new();
-    let mut first = 1;
-    // Steps of an iteration: one direction per rank each, the same count on every rank (a rank
-    // dealt one direction fewer idles in the last step), so that the ranks can agree between
-    // two steps on stopping or saving.
-    let steps = directions.len().div_ceil(comm.size());
-    let within = checkpoints.as_ref().is_some_and(|c| c.saver.saves_within());
-    // A mid-iteration checkpoint resumed from: the steps done and this rank's sums.
-    let mut resume_within = None;
+    let mut sweep = InMemory {
+        set,
+        directions,
+        threads,
+        pool,
+        comm,
+        // This rank's directions (all of them on one process).
+        mine: crate::comm::dealt(directions.len(), comm.rank(), comm.size()),
+        frames: directions
+            .directions
+            .iter()
+            .map(|d| LineFrame::new(d.vector, set.grid.dims))
+            .collect(),
+        // The four lexicographic orders, sorted once.
+        orders: pool.install(|| super::dispatch::lexicographic_orders(set)),
+        surfels,
+        radiosity: emission.clone(),
+        emission,
+        reflectance,
+        cosine_sum,
+        direct,
+        channels,
+        accelerate: options.accelerate,
+        acc: vec![[[0f64; 3]; 2]; n],
+        reflected: Vec::new(),
+        previous: Vec::new(),
+        lines: Lines::default(),
+        seconds: [0.0; 3],
+    };
+    let mut start = Start::fresh();
     if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
-        resume_within = loaded.take_within(0, comm.size());
-        if let Some((done, _)) = &resume_within {
-            tracing::info!(
-                iteration = loaded.state.iteration + 1,
-                within = done,
-                "continuing inside an iteration from the checkpoint's partial sums"
-            );
-        }
+        // A mid-iteration checkpoint resumed from: the steps done and this rank's sums.
+        let within = loaded.take_within(0, comm.size());
         // The boundary the checkpoint holds, exactly as the interrupted run had it.
-        radiosity = loaded.radiosity;
         assert_eq!(
-            radiosity.len(),
+            loaded.radiosity.len(),
             n,
             "a checkpoint is checked against the scene"
         );
+        sweep.radiosity = std::mem::take(&mut loaded.radiosity);
         if loaded.state.ranks as usize != comm.size() {
             // Valid, but the sums across ranks are grouped differently from here on.
             tracing::info!(
@@ -275,178 +278,38 @@ fn run(
                 comm.size()
             );
         }
-        first = convergence.resume(&loaded.state, &loaded.path, &mut stats);
-        extrapolation = loaded.state.extrapolation.into();
-    }
-
-    if checkpoints.is_some() {
-        crate::interrupt::start_iterating();
-    }
-    for iteration in first..=options.max_iterations {
-        if !any_light {
-            stats.converged = true;
-            break;
-        }
-        let start = match resume_within.take() {
+        let done = match within {
             Some((done, sums)) => {
                 assert_eq!(sums.len(), n, "a checkpoint is checked against the scene");
-                acc = sums;
+                tracing::info!(
+                    iteration = loaded.state.iteration + 1,
+                    within = done,
+                    "continuing inside an iteration from the checkpoint's partial sums"
+                );
+                sweep.acc = sums;
                 done as usize
             }
-            None => {
-                acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
-                0
-            }
+            None => 0,
         };
-        if let Some(d) = &direct {
-            d.reflected(&radiosity, &emission, &mut reflected);
-        }
-        progress.reset();
-        progress.set_position(start as u64);
-        progress.set_message(format!("iteration {iteration}"));
-        let mut signal = 0;
-        let mut stopped_at = 0;
-        for step in start..steps {
-            if let Some(c) = checkpoints.as_mut().filter(|_| within) {
-                // Between two steps every rank agrees on stopping and on saving.
-                let asked = crate::interrupt::requested().unwrap_or(0);
-                let (agreed, save) = c.saver.agree_within(comm, asked);
-                if agreed != 0 {
-                    (signal, stopped_at) = (agreed, step);
-                    break;
-                }
-                // Not at the iteration's start (its boundary was saved, or is the one resumed
-                // from) nor where this run resumed.
-                if save && step > start {
-                    let state =
-                        c.saver
-                            .state(iteration - 1, convergence.previous_change, &extrapolation);
-                    let result = c
-                        .saver
-                        .save_within(comm, state, step as u64, &radiosity, &acc);
-                    c.saver.warn_on_failure(result);
-                }
-            } else if let Some(s) = crate::interrupt::requested() {
-                // Abandon the iteration; `radiosity` still holds the last completed one.
-                signal = s;
-                break;
-            }
-            let Some(&k) = mine.get(step) else {
-                continue;
-            };
-            let (d, frame) = (&directions.directions[k], &frames[k]);
-            let t0 = Instant::now();
-            let t1 = pool.install(|| {
-                dispatch(
-                    &orders[order::order_of(d.vector)],
-                    frame,
-                    threads,
-                    &mut lines,
-                );
-                let t1 = Instant::now();
-                let input = DirectionInput {
-                    unit: d.unit,
-                    weight: d.solid_angle / std::f64::consts::PI,
-                    surfels: &surfels,
-                    radiosity: if direct.is_some() {
-                        &reflected
-                    } else {
-                        &radiosity
-                    },
-                    channels,
-                };
-                gather_all_lines(&lines, &input, &mut acc, threads);
-                t1
-            });
-            stats.dispatch_seconds += (t1 - t0).as_secs_f64();
-            stats.propagate_seconds += t1.elapsed().as_secs_f64();
-            progress.inc(1);
-        }
-        // Every rank takes part, signalled or not, before anyone sums: all stop or none. (With
-        // mid-iteration checkpoints they agreed between the steps already.)
-        if !within {
-            signal = comm.max_u64(signal as u64) as i32;
-        }
-        if signal != 0 {
-            progress.finish_and_clear();
-            let completed = iteration - 1;
-            let interruption = match checkpoints.as_mut() {
-                Some(c) if stopped_at > 0 => {
-                    let done = stopped_at as u64;
-                    c.saver
-                        .interrupt_at(signal, completed, Some(done), |saver| {
-                            let state =
-                                saver.state(completed, convergence.previous_change, &extrapolation);
-                            saver.save_within(comm, state, done, &radiosity, &acc)
-                        })
-                }
-                Some(c) => c.saver.interrupt(signal, completed, |saver| {
-                    let state = saver.state(completed, convergence.previous_change, &extrapolation);
-                    saver.save_memory(state, &radiosity)
-                }),
-                None => Interruption::without_checkpoint(signal, completed, comm.rank() == 0),
-            };
-            return Err(SolveError::Interrupted(interruption));
-        }
-        if comm.size() > 1 {
-            let t = Instant::now();
-            let mut flat: Vec<f64> = acc.iter().flatten().flatten().copied().collect();
-            comm.sum_in_place(&mut flat);
-            for (a, v) in acc.iter_mut().flatten().flatten().zip(&flat) {
-                *a = *v;
-            }
-            stats.reduce_seconds += t.elapsed().as_secs_f64();
-        }
-        stats.updates += (n * directions.len()) as u64;
-
-        // B = E + rho H / S, and the change it makes.
-        if options.accelerate {
-            previous.clone_from(&radiosity);
-        }
-        let mut sums = super::update::UpdateSums::default();
-        for k in 0..n {
-            let s = &set.surfels[k];
-            radiosity[k] = super::update::update_surfel(
-                &emission[k],
-                &reflectance[k],
-                acc[k],
-                super::update::direct_of(direct.as_ref(), k),
-                channels,
-                &radiosity[k],
-                cosine_sum[s.normal_id as usize],
-                s.area as f64,
-                &mut sums,
-            );
-        }
-        let (change, total, falling) = (sums.change, sums.total, sums.falling);
-        // Right after an extrapolation the change history starts again: until it contracts, the
-        // contraction measured before the jump estimates the error (see `accelerate`).
-        let stop = convergence.record(iteration, change, total, options, &mut stats, |relative| {
-            extrapolation.error_estimate(relative)
-        });
-        let relative = stats.last_change;
-        if stop {
-            break;
-        }
-        if options.accelerate {
-            if let Some(factor) = extrapolation.observe(change, relative, falling) {
-                super::accelerate::extrapolate(&mut radiosity, &previous, &emission, factor);
-                // The jump is not an iteration's change: the stopping rule starts again.
-                convergence.restart();
-            }
-        }
-        // A boundary the solve goes on from (never the last: a resumed solve must gather at
-        // least once, for its energy balance).
-        if iteration < options.max_iterations {
-            if let Some(c) = checkpoints.as_mut() {
-                c.saver.save_if_due(
-                    |saver| saver.state(iteration, convergence.previous_change, &extrapolation),
-                    |saver, state| saver.save_memory(state, &radiosity),
-                );
-            }
-        }
+        start = Start::resumed(&loaded.state, &loaded.path, done, &mut stats);
     }
-    stats.extrapolations = extrapolation.count;
+    let updates = (n * directions.len()) as u64;
+    let saver = checkpoints.map(|c| c.saver);
+    iterate(
+        &mut sweep, options, comm, saver, start, any_light, updates, &mut stats,
+    )?;
+    [
+        stats.dispatch_seconds,
+        stats.propagate_seconds,
+        stats.reduce_seconds,
+    ] = sweep.seconds;
+    let InMemory {
+        mut radiosity,
+        mut acc,
+        cosine_sum,
+        direct,
+        ..
+    } = sweep;
     if channels == 1 {
         for (b, a) in radiosity.iter_mut().zip(acc.iter_mut()) {
             for side in 0..2 {
@@ -454,11 +317,6 @@ fn run(
                 a[side] = [a[side][0]; 3];
             }
         }
-    }
-    progress.finish_and_clear();
-    if options.tolerance.is_none() {
-        // A fixed count of iterations: report whether it reached the default tolerance.
-        stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
     }
     if comm.size() > 1 {
         // Each rank fills its own slot; the sum hands every rank the whole table.
@@ -478,110 +336,141 @@ fn run(
     Ok(Solution { radiosity, stats })
 }
 
-/// The stopping rule's bookkeeping, shared by the in-memory and the out-of-core loops.
-pub(crate) struct Convergence {
-    /// The last relative change (kept in checkpoints).
-    pub(crate) previous_change: Option<f64>,
-    started: Instant,
+/// The in-memory store (every surfel and its light in RAM, by id) with one process or the
+/// directions dealt over the ranks: a step is one direction per rank, and the end of an
+/// iteration sums the ranks' light before every rank updates every surfel.
+struct InMemory<'a> {
+    set: &'a SurfelSet,
+    directions: &'a DirectionSet,
+    threads: usize,
+    pool: &'a rayon::ThreadPool,
+    comm: &'a dyn Comm,
+    mine: Vec<usize>,
+    frames: Vec<LineFrame>,
+    orders: Vec<Vec<OrderedEntry>>,
+    surfels: Vec<PropSurfel>,
+    emission: Vec<Radiosity>,
+    reflectance: Vec<Gathered>,
+    cosine_sum: Vec<f64>,
+    direct: Option<super::direct::DirectLight>,
+    channels: usize,
+    accelerate: bool,
+    radiosity: Vec<Radiosity>,
+    /// The light gathered this iteration, by surfel.
+    acc: Vec<Gathered>,
+    /// What the lines carry with the direct pass: `B - E`.
+    reflected: Vec<Radiosity>,
+    /// The radiosity the last update replaced (for the tail extrapolation).
+    previous: Vec<Radiosity>,
+    lines: Lines,
+    /// Dispatch, propagation and reduction seconds.
+    seconds: [f64; 3],
 }
 
-impl Convergence {
-    pub(crate) fn new() -> Self {
-        Convergence {
-            previous_change: None,
-            started: Instant::now(),
-        }
+impl Sweep for InMemory<'_> {
+    type Error = SolveError;
+
+    fn steps(&self) -> usize {
+        // One direction per rank each, the same count on every rank (a rank dealt one
+        // direction fewer idles in the last step).
+        self.directions.len().div_ceil(self.comm.size())
     }
 
-    /// Records iteration `iteration`, whose area-weighted change and total of `B` are `change`
-    /// and `total`, in `stats`; logs it; tells whether the solve should stop. `fallback` gives
-    /// an estimate from the relative change while the history cannot (after a restart).
-    pub(crate) fn record(
-        &mut self,
-        iteration: usize,
-        change: f64,
-        total: f64,
-        options: &SolveOptions,
-        stats: &mut SolveStats,
-        fallback: impl FnOnce(f64) -> Option<f64>,
-    ) -> bool {
-        let relative = if total > 0.0 { change / total } else { 0.0 };
-        let estimate = match error_estimate(relative, self.previous_change) {
-            e if e.is_finite() => e,
-            e => fallback(relative).unwrap_or(e),
+    fn begin(&mut self, from: usize) -> Result<(), SolveError> {
+        if from == 0 {
+            self.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+        }
+        if let Some(d) = &self.direct {
+            d.reflected(&self.radiosity, &self.emission, &mut self.reflected);
+        }
+        Ok(())
+    }
+
+    fn step(&mut self, step: usize) -> Result<(), SolveError> {
+        let Some(&k) = self.mine.get(step) else {
+            return Ok(());
         };
-        stats.iterations = iteration;
-        stats.last_change = relative;
-        stats.residual = estimate;
-        tracing::info!(
-            iteration,
-            change = format!("{relative:.3e}"),
-            estimated_error = format!("{estimate:.3e}"),
-            seconds = format!("{:.1}", self.started.elapsed().as_secs_f64()),
-            "iteration done"
-        );
-        let stalled = self
-            .previous_change
-            .is_some_and(|prev| relative > 0.0 && relative >= prev && relative < STALL_LEVEL);
-        self.previous_change = Some(relative);
-        let stop = options.tolerance.is_some_and(|tol| estimate <= tol);
-        if stop {
-            stats.converged = true;
-        } else if stalled && options.tolerance.is_some() {
-            // Iterating on cannot get closer: report it and stop, not converged.
-            stats.stalled = true;
-            tracing::warn!(
-                iteration,
-                change = format!("{relative:.3e}"),
-                "the changes stopped shrinking at the rounding of the f32 radiosity: the \
-                 tolerance is below what this scene can show (its reflectance is close to 1); \
-                 stopping here"
-            );
-            return true;
-        }
-        stop
+        let (d, frame) = (&self.directions.directions[k], &self.frames[k]);
+        let (orders, lines, acc, threads) =
+            (&self.orders, &mut self.lines, &mut self.acc, self.threads);
+        let input = DirectionInput {
+            unit: d.unit,
+            weight: d.solid_angle / std::f64::consts::PI,
+            surfels: &self.surfels,
+            radiosity: if self.direct.is_some() {
+                &self.reflected
+            } else {
+                &self.radiosity
+            },
+            channels: self.channels,
+        };
+        let t0 = Instant::now();
+        let t1 = self.pool.install(|| {
+            dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
+            let t1 = Instant::now();
+            gather_all_lines(lines, &input, acc, threads);
+            t1
+        });
+        self.seconds[0] += (t1 - t0).as_secs_f64();
+        self.seconds[1] += t1.elapsed().as_secs_f64();
+        Ok(())
     }
 
-    /// Continues from a checkpoint's `state` (read from `path`): takes its change history,
-    /// records the iterations it holds in `stats`, logs it; returns the first iteration to run.
-    pub(crate) fn resume(
+    fn can_save_within(&self, _done: usize) -> bool {
+        true
+    }
+
+    fn save_within(
         &mut self,
-        state: &crate::checkpoint::State,
-        path: &std::path::Path,
-        stats: &mut SolveStats,
-    ) -> usize {
-        self.previous_change = state.previous_change;
-        let done = state.iteration as usize;
-        stats.iterations = done;
-        stats.resumed_from_iteration = Some(done);
-        tracing::info!(iteration = done, path = %path.display(), "resumed from a checkpoint");
-        done + 1
+        saver: &mut Saver,
+        state: State,
+        done: usize,
+    ) -> Result<(), CheckpointError> {
+        saver.save_within(self.comm, state, done as u64, &self.radiosity, &self.acc)
     }
 
-    /// Forgets the change history (after a jump that was not an iteration).
-    pub(crate) fn restart(&mut self) {
-        self.previous_change = None;
+    fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
+        saver.save_memory(state, &self.radiosity)
     }
-}
 
-/// A relative change below this that no longer shrinks is the rounding of the f32 radiosity
-/// (two units in the last place): iterating on only shuffles the last bits. The error left then
-/// is about that rounding times `rho / (1 - rho)` (6e-5 at `rho = 0.999`), which no tolerance
-/// below it can reach.
-const STALL_LEVEL: f64 = 2.0 * f32::EPSILON as f64;
-
-/// The relative error left after an iteration whose relative change is `relative`, given the
-/// previous iteration's change (see the module header); infinite until the changes contract.
-fn error_estimate(relative: f64, previous_change: Option<f64>) -> f64 {
-    match previous_change {
-        _ if relative == 0.0 => 0.0,
-        Some(prev) if prev > 0.0 && relative < prev => {
-            let q = relative / prev;
-            relative * q / (1.0 - q)
+    fn end(&mut self) -> Result<[f64; 3], SolveError> {
+        if self.comm.size() > 1 {
+            let t = Instant::now();
+            let mut flat: Vec<f64> = self.acc.iter().flatten().flatten().copied().collect();
+            self.comm.sum_in_place(&mut flat);
+            for (a, v) in self.acc.iter_mut().flatten().flatten().zip(&flat) {
+                *a = *v;
+            }
+            self.seconds[2] += t.elapsed().as_secs_f64();
         }
-        _ => f64::INFINITY,
+        // B = E + rho H / S, and the change it makes.
+        if self.accelerate {
+            self.previous.clone_from(&self.radiosity);
+        }
+        let mut sums = super::update::UpdateSums::default();
+        for (k, s) in self.set.surfels.iter().enumerate() {
+            self.radiosity[k] = super::update::update_surfel(
+                &self.emission[k],
+                &self.reflectance[k],
+                self.acc[k],
+                super::update::direct_of(self.direct.as_ref(), k),
+                self.channels,
+                &self.radiosity[k],
+                self.cosine_sum[s.normal_id as usize],
+                s.area as f64,
+                &mut sums,
+            );
+        }
+        Ok([sums.change, sums.total, sums.falling])
+    }
+
+    fn extrapolate(&mut self, factor: f64) -> Result<(), SolveError> {
+        super::accelerate::extrapolate(&mut self.radiosity, &self.previous, &self.emission, factor);
+        Ok(())
     }
 }
+
+pub(crate) use super::iterate::Convergence;
 
 /// Runs `gather_line` over all lines, spread over `threads` in contiguous line ranges of about
 /// equal surfel counts.

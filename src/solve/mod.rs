@@ -10,6 +10,7 @@ pub mod coverage;
 pub mod direct;
 pub mod dispatch;
 pub mod effects;
+pub mod iterate;
 pub mod jacobi;
 pub mod normalize;
 pub mod propagate;
