@@ -40,6 +40,9 @@ pub(crate) trait Sweep {
     /// Steps of one iteration, the same on every rank.
     fn steps(&self) -> usize;
 
+    /// Surfel-direction updates of one iteration (the report's rate).
+    fn updates(&self) -> u64;
+
     /// Starts an iteration at step `from`: 0 clears the light gathered; more continues from
     /// the light a checkpoint put back.
     fn begin(&mut self, from: usize) -> Result<(), Self::Error>;
@@ -111,8 +114,7 @@ impl Start {
 
 /// Runs iterations of `sweep` from `start` until the stopping rule (or `options.max_iterations`)
 /// says so, saving checkpoints with `saver`; records them in `stats`. `any_light`: something
-/// emits (else `B = E` is the answer and nothing runs). `updates` are the surfel-direction
-/// updates of one iteration. A stop signal ends it with the sweep's error for an
+/// emits (else `B = E` is the answer and nothing runs). A stop signal ends it with the sweep's error for an
 /// [`Interruption`].
 pub(crate) fn iterate<S: Sweep>(
     sweep: &mut S,
@@ -121,7 +123,6 @@ pub(crate) fn iterate<S: Sweep>(
     mut saver: Option<&mut Saver>,
     start: Start,
     any_light: bool,
-    updates: u64,
     stats: &mut SolveStats,
 ) -> Result<(), S::Error> {
     let Start {
@@ -188,7 +189,7 @@ pub(crate) fn iterate<S: Sweep>(
             sweep.step(step)?;
             progress.inc(1);
         }
-        stats.updates += updates;
+        stats.updates += sweep.updates();
         let [change, total, falling] = sweep.end()?;
         // Right after an extrapolation the change history starts again: until it contracts,
         // the contraction measured before the jump estimates the error (see `accelerate`).

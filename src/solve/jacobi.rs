@@ -293,10 +293,9 @@ fn run(
         };
         start = Start::resumed(&loaded.state, &loaded.path, done, &mut stats);
     }
-    let updates = (n * directions.len()) as u64;
     let saver = checkpoints.map(|c| c.saver);
     iterate(
-        &mut sweep, options, comm, saver, start, any_light, updates, &mut stats,
+        &mut sweep, options, comm, saver, start, any_light, &mut stats,
     )?;
     [
         stats.dispatch_seconds,
@@ -374,6 +373,10 @@ impl Sweep for InMemory<'_> {
         // One direction per rank each, the same count on every rank (a rank dealt one
         // direction fewer idles in the last step).
         self.directions.len().div_ceil(self.comm.size())
+    }
+
+    fn updates(&self) -> u64 {
+        (self.set.surfels.len() * self.directions.len()) as u64
     }
 
     fn begin(&mut self, from: usize) -> Result<(), SolveError> {
