@@ -1,37 +1,10 @@
 //! The data mode's checkpoints: the radiosity gathered by id for a boundary, every rank's light
-//! of the surfels it holds for a save inside an iteration, the stop on a signal, and the rebuild
-//! of what each rank held when a solve resumes inside an iteration.
+//! of the surfels it holds for a save inside an iteration, and the rebuild of what each rank
+//! held when a solve resumes inside an iteration.
 
 use super::*;
 
 impl DataSolver<'_> {
-    /// The stop after `completed` iterations on a signal: the checkpoint of that boundary (the
-    /// held radiosity is still that iteration's: the abandoned one only gathered).
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn interrupted(
-        &self,
-        signal: i32,
-        completed: usize,
-        held: &Held,
-        world: &dyn Comm,
-        checkpoints: Option<&mut Checkpoints>,
-        convergence: &Convergence,
-        extrapolation: &crate::solve::accelerate::Extrapolation,
-    ) -> SolveError {
-        let interruption = match checkpoints {
-            Some(c) => {
-                // Collective: every rank gathers, rank 0 writes.
-                let radiosity = self.gather_radiosity(held, world);
-                c.saver.interrupt(signal, completed, |saver| {
-                    let state = saver.state(completed, convergence.previous_change, extrapolation);
-                    saver.save_memory(state, &radiosity)
-                })
-            }
-            None => Interruption::without_checkpoint(signal, completed, world.rank() == 0),
-        };
-        SolveError::Interrupted(interruption)
-    }
-
     /// A mid-iteration checkpoint `done` steps into iteration `state.iteration + 1`: the
     /// radiosity it gathers from and every rank's light of the surfels it holds, by surfel id
     /// (see `checkpoint::State::data_groups`). Collective: every rank calls it.

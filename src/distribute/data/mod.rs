@@ -51,7 +51,7 @@ mod exchange;
 mod held;
 mod wire;
 
-use crate::checkpoint::{CheckpointError, Gathered, Interruption, Radiosity, Saver, State};
+use crate::checkpoint::{CheckpointError, Gathered, Radiosity, Saver, State};
 use crate::comm::Comm;
 use crate::distribute::balance::{self, Distribution, Projection};
 use crate::geometry::directions::DirectionSet;
@@ -59,9 +59,9 @@ use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
 use crate::solve::direct::{gather_direct, DirectLight, SenderBalance};
 use crate::solve::dispatch::{dispatch, Lines, OrderedEntry};
+use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::jacobi::{
-    gather_all_lines, material_tables, worker_pool, Checkpoints, Convergence, SolveError,
-    SolveOptions,
+    gather_all_lines, material_tables, worker_pool, Checkpoints, SolveError, SolveOptions,
 };
 use crate::solve::normalize::cosine_sums;
 use crate::solve::propagate::{prop_surfels, DirectionInput, PropSurfel};
@@ -232,77 +232,74 @@ impl<'a> DataSolver<'a> {
         let n = self.set.surfels.len();
         let d_count = self.directions.len();
         let (ranks, me) = (group_comm.size(), group_comm.rank());
-        let mine: Vec<usize> = (d_count * self.group / self.groups
-            ..d_count * (self.group + 1) / self.groups)
-            .collect();
-        let mut held = Held::default();
+        let mut sweep = DataSweep {
+            solver: self,
+            world,
+            group_comm,
+            peers,
+            mine: (d_count * self.group / self.groups..d_count * (self.group + 1) / self.groups)
+                .collect(),
+            held: Held::default(),
+            held_order: None,
+            remembered: vec![None; d_count],
+            tally: Tally {
+                moved: vec![0.0; d_count],
+                ..Default::default()
+            },
+            lines: Lines::default(),
+            reflected: Vec::new(),
+            previous: Vec::new(),
+        };
         for id in self.block(me, ranks) {
             let prop = self.surfels[id];
-            let slot = held.store(id as u32, prop, self.emission[id], [[0.0; 3]; 2]);
-            held.order.push(OrderedEntry {
+            let slot = sweep
+                .held
+                .store(id as u32, prop, self.emission[id], [[0.0; 3]; 2]);
+            sweep.held.order.push(OrderedEntry {
                 voxel: prop.voxel,
                 index: slot,
             });
         }
-        // The octant order `held` is sorted in (None: by id).
-        let mut held_order: Option<usize> = None;
-        let mut remembered: Vec<Option<Distribution>> = vec![None; d_count];
-        let mut tally = Tally {
-            moved: vec![0.0; d_count],
-            ..Default::default()
-        };
-        let mut lines = Lines::default();
-        let mut reflected = Vec::new();
         let mut stats = SolveStats {
             channels: self.channels,
             directions: d_count,
             threads: self.threads,
             ..Default::default()
         };
-        let mut convergence = Convergence::new();
-        let mut extrapolation = crate::solve::accelerate::Extrapolation::default();
         let any_light = self
             .emission
             .iter()
             .any(|e| e.iter().flatten().any(|&v| v > 0.0));
-        let progress = crate::progress::bar(mine.len() as u64, "iteration 1");
-        let mut iterations_done = 0;
-        let mut first = 1;
-        // Steps of an iteration: one direction of every group each (a group with one direction
-        // fewer idles in the last), so that the whole world can agree between two steps.
-        let steps = d_count.div_ceil(self.groups);
-        let within = checkpoints.as_ref().is_some_and(|c| c.saver.saves_within());
-        // Where the first iteration starts (a mid-iteration checkpoint's position).
-        let mut start = 0;
+        let steps = sweep.steps();
+        let mut start = Start::fresh();
         if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
             // The boundary the checkpoint holds (every rank has the whole of it).
             let resume_within = loaded.take_within(self.groups as u32, world.size());
+            let held = &mut sweep.held;
             for e in &held.order {
                 let slot = e.index as usize;
                 held.radiosity[slot] = loaded.radiosity[held.ids[slot] as usize];
             }
-            first = convergence.resume(&loaded.state, &loaded.path, &mut stats);
-            iterations_done = first - 1;
-            extrapolation = loaded.state.extrapolation.into();
+            let mut within = 0;
             match resume_within {
                 // Every rank has the same header: all continue inside, or none.
                 Some((done, sums)) if (done as usize) < steps => {
                     assert_eq!(sums.len(), n, "a checkpoint is checked against the scene");
                     tracing::info!(
-                        iteration = first,
+                        iteration = loaded.state.iteration + 1,
                         within = done,
                         "continuing inside an iteration from the checkpoint's partial sums"
                     );
-                    let done_here = (done as usize).min(mine.len());
-                    held_order = self.rebuild_within(
-                        &mut held,
-                        &mine[..done_here],
-                        &mut remembered,
+                    let done_here = (done as usize).min(sweep.mine.len());
+                    sweep.held_order = self.rebuild_within(
+                        &mut sweep.held,
+                        &sweep.mine[..done_here],
+                        &mut sweep.remembered,
                         group_comm,
                         &loaded.radiosity,
                         &sums,
                     );
-                    start = done as usize;
+                    within = done as usize;
                 }
                 Some((done, _)) => tracing::warn!(
                     "the checkpoint's position ({done} steps into an iteration of {steps}) does \
@@ -310,182 +307,28 @@ impl<'a> DataSolver<'a> {
                 ),
                 None => {}
             }
+            start = Start::resumed(&loaded.state, &loaded.path, within, &mut stats);
         }
-        if checkpoints.is_some() {
-            crate::interrupt::start_iterating();
-        }
-
-        for iteration in first..=self.options.max_iterations {
-            if !any_light {
-                stats.converged = true;
-                break;
-            }
-            let begin = std::mem::take(&mut start);
-            if begin == 0 {
-                held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
-            }
-            progress.reset();
-            progress.set_position(begin.min(mine.len()) as u64);
-            progress.set_message(format!("iteration {iteration}"));
-            let mut signal = 0u64;
-            let mut stopped_at = 0;
-            for step in begin..steps {
-                if let Some(c) = checkpoints.as_mut().filter(|_| within) {
-                    // Between two steps the whole world agrees on stopping and on saving.
-                    let asked = crate::interrupt::requested().unwrap_or(0);
-                    let (agreed, save) = c.saver.agree_within(world, asked);
-                    if agreed != 0 {
-                        (signal, stopped_at) = (agreed as u64, step);
-                        break;
-                    }
-                    // Not at the iteration's start (its boundary was saved, or is the one
-                    // resumed from) nor where this run resumed.
-                    if save && step > begin {
-                        let state = c.saver.state(
-                            iteration - 1,
-                            convergence.previous_change,
-                            &extrapolation,
-                        );
-                        let result = self.save_within(world, c.saver, state, step, &held);
-                        c.saver.warn_on_failure(result);
-                    }
-                } else {
-                    // The ranks of a group exchange surfels for every direction: they stop
-                    // together, then (after the loop) with the other groups.
-                    signal = group_comm.max_u64(crate::interrupt::requested().unwrap_or(0) as u64);
-                    if signal != 0 {
-                        break;
-                    }
-                }
-                let Some(&k) = mine.get(step) else {
-                    continue;
-                };
-                let d = &self.directions.directions[k];
-                let o = order::order_of(d.vector);
-                let t = Instant::now();
-                if remembered[k].is_none() {
-                    let previous = mine
-                        .iter()
-                        .rev()
-                        .skip_while(|&&j| j != k)
-                        .nth(1)
-                        .and_then(|&j| remembered[j].as_ref())
-                        .map(Distribution::bands);
-                    remembered[k] = Some(self.balance(k, &held, group_comm, previous));
-                }
-                let distribution = remembered[k].as_ref().expect("just filled");
-                tally.seconds.balance += t.elapsed().as_secs_f64();
-                let bins = self.projection(k).lines(&self.frames[k], d.vector);
-                let table = distribution.table();
-                let owner = |voxel: [i32; 3], _id: &dyn Fn() -> u32| {
-                    let (row, col) = bins.bin(voxel);
-                    table.owner(row, col)
-                };
-                self.redistribute(&mut held, held_order, o, group_comm, &mut tally, k, owner);
-                held_order = Some(o);
-                self.propagate(k, &mut held, &mut lines, &mut reflected, &mut tally);
-                progress.inc(1);
-            }
-            // (With mid-iteration checkpoints the world agreed between the steps already.)
-            let signal = if within {
-                signal
-            } else {
-                world.max_u64(signal)
-            };
-            if signal != 0 && stopped_at > 0 {
-                progress.finish_and_clear();
-                let completed = iteration - 1;
-                let c = checkpoints.as_mut().expect("mid-iteration stops save");
-                // Every rank decides alike whether to save: `interrupt_at` skips only a
-                // position already saved, and a save at a step is never followed by a stop
-                // at that same step.
-                let interruption =
-                    c.saver
-                        .interrupt_at(signal as i32, completed, Some(stopped_at as u64), |s| {
-                            let state =
-                                s.state(completed, convergence.previous_change, &extrapolation);
-                            self.save_within(world, s, state, stopped_at, &held)
-                        });
-                return Err(SolveError::Interrupted(interruption));
-            }
-            if signal != 0 {
-                progress.finish_and_clear();
-                return Err(self.interrupted(
-                    signal as i32,
-                    iteration - 1,
-                    &held,
-                    world,
-                    checkpoints.as_mut(),
-                    &convergence,
-                    &extrapolation,
-                ));
-            }
-            let t = Instant::now();
-            if self.groups > 1 {
-                // One canonical distribution, then the peers' light added in group order.
-                let block_owner = |_: [i32; 3], id: &dyn Fn() -> u32| self.owner_of_id(id(), ranks);
-                self.redistribute(
-                    &mut held,
-                    None,
-                    0,
-                    group_comm,
-                    &mut tally,
-                    usize::MAX,
-                    block_owner,
-                );
-                held_order = None;
-                let mut flat: Vec<f64> = held
-                    .order
-                    .iter()
-                    .flat_map(|e| held.acc[e.index as usize].into_iter().flatten())
-                    .collect();
-                peers.sum_in_place(&mut flat);
-                for (e, v) in held.order.iter().zip(flat.chunks_exact(6)) {
-                    let a = &mut held.acc[e.index as usize];
-                    a[0].copy_from_slice(&v[..3]);
-                    a[1].copy_from_slice(&v[3..]);
-                }
-            }
-            stats.updates += (n * d_count) as u64;
-            let stop = self.update(
-                &mut held,
-                world,
-                iteration,
-                &mut convergence,
-                &mut extrapolation,
-                &mut stats,
-            );
-            tally.seconds.reduce += t.elapsed().as_secs_f64();
-            iterations_done = iteration;
-            if stop {
-                break;
-            }
-            // A boundary the solve goes on from; rank 0's clock decides for all (the radiosity
-            // is gathered from every rank).
-            if iteration < self.options.max_iterations {
-                if let Some(c) = checkpoints.as_mut() {
-                    let due = world.max_u64((world.rank() == 0 && c.saver.due()) as u64) == 1;
-                    if due {
-                        let radiosity = self.gather_radiosity(&held, world);
-                        c.saver.save_if_due(
-                            |saver| {
-                                saver.state(iteration, convergence.previous_change, &extrapolation)
-                            },
-                            |saver, state| saver.save_memory(state, &radiosity),
-                        );
-                    }
-                }
-            }
-        }
-        progress.finish_and_clear();
-        stats.extrapolations = extrapolation.count;
-        if self.options.tolerance.is_none() {
-            stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
-        }
+        let saver = checkpoints.map(|c| c.saver);
+        iterate(
+            &mut sweep,
+            self.options,
+            world,
+            saver,
+            start,
+            any_light,
+            &mut stats,
+        )?;
+        let DataSweep {
+            held,
+            remembered,
+            tally,
+            ..
+        } = sweep;
         stats.dispatch_seconds = tally.seconds.dispatch;
         stats.propagate_seconds = tally.seconds.propagate;
         stats.reduce_seconds = tally.seconds.reduce;
-        stats.data = Some(self.summary(world, &tally, &remembered, iterations_done));
+        stats.data = Some(self.summary(world, &tally, &remembered, stats.iterations));
         let radiosity = self.finish(&held, world, &mut stats);
         Ok(Solution { radiosity, stats })
     }
@@ -543,23 +386,9 @@ impl<'a> DataSolver<'a> {
         tally.seconds.propagate += t1.elapsed().as_secs_f64();
     }
 
-    /// `B = E + rho H / S` on the held surfels, the change it makes added over the world (group
-    /// 0 speaks for every surfel once), the stopping rule and the extrapolation. Returns whether
-    /// to stop.
-    fn update(
-        &self,
-        held: &mut Held,
-        world: &dyn Comm,
-        iteration: usize,
-        convergence: &mut Convergence,
-        extrapolation: &mut crate::solve::accelerate::Extrapolation,
-        stats: &mut SolveStats,
-    ) -> bool {
-        let previous = if self.options.accelerate {
-            held.radiosity.clone()
-        } else {
-            Vec::new()
-        };
+    /// `B = E + rho H / S` on the held surfels; returns the change it makes `[change, total,
+    /// falling]` added over the world (group 0 speaks for every surfel once).
+    fn update(&self, held: &mut Held, world: &dyn Comm) -> [f64; 3] {
         let mut sums = crate::solve::update::UpdateSums::default();
         for e in &held.order {
             let i = e.index as usize;
@@ -577,38 +406,13 @@ impl<'a> DataSolver<'a> {
                 &mut sums,
             );
         }
-        let (change, total, falling) = (sums.change, sums.total, sums.falling);
         let mut sums = if self.group == 0 {
-            [change, total, falling]
+            [sums.change, sums.total, sums.falling]
         } else {
             [0.0, 0.0, 0.0]
         };
         world.sum_in_place(&mut sums);
-        let [change, total, falling] = sums;
-        let stop = convergence.record(iteration, change, total, self.options, stats, |r| {
-            extrapolation.error_estimate(r)
-        });
-        if stop {
-            return true;
-        }
-        if self.options.accelerate {
-            let relative = stats.last_change;
-            if let Some(factor) = extrapolation.observe(change, relative, falling) {
-                let emission: Vec<[[f32; 3]; 2]> = held
-                    .ids
-                    .iter()
-                    .map(|&id| self.emission[id as usize])
-                    .collect();
-                crate::solve::accelerate::extrapolate(
-                    &mut held.radiosity,
-                    &previous,
-                    &emission,
-                    factor,
-                );
-                convergence.restart();
-            }
-        }
-        false
+        sums
     }
 
     /// Exchanged fraction, imbalance, bytes and every rank's phase seconds.
@@ -717,6 +521,175 @@ impl<'a> DataSolver<'a> {
                 ]
             })
             .collect()
+    }
+}
+
+/// The data and hybrid modes as the iteration loop drives them: the held surfels of this rank
+/// (a store in RAM, by slot), lines dealt over the ranks of a group, groups over directions.
+struct DataSweep<'s, 'a> {
+    solver: &'s DataSolver<'a>,
+    world: &'s dyn Comm,
+    group_comm: &'s dyn Comm,
+    /// The ranks of the same place in every group (hybrid: their light is added).
+    peers: &'s dyn Comm,
+    /// This group's directions.
+    mine: Vec<usize>,
+    held: Held,
+    /// The octant order `held` is sorted in (None: by id).
+    held_order: Option<usize>,
+    /// Each direction's distribution, found in the first iteration.
+    remembered: Vec<Option<Distribution>>,
+    tally: Tally,
+    lines: Lines,
+    reflected: Vec<Radiosity>,
+    /// The held radiosity the last update replaced, by slot (for the tail extrapolation).
+    previous: Vec<Radiosity>,
+}
+
+impl Sweep for DataSweep<'_, '_> {
+    type Error = SolveError;
+
+    fn steps(&self) -> usize {
+        // One direction of every group each (a group with one direction fewer idles in the
+        // last), so that the whole world can agree between two steps.
+        self.solver.directions.len().div_ceil(self.solver.groups)
+    }
+
+    fn updates(&self) -> u64 {
+        (self.solver.set.surfels.len() * self.solver.directions.len()) as u64
+    }
+
+    fn begin(&mut self, from: usize) -> Result<(), SolveError> {
+        if from == 0 {
+            self.held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+        }
+        Ok(())
+    }
+
+    fn step(&mut self, step: usize) -> Result<(), SolveError> {
+        let Some(&k) = self.mine.get(step) else {
+            return Ok(());
+        };
+        let solver = self.solver;
+        let d = &solver.directions.directions[k];
+        let o = order::order_of(d.vector);
+        let t = Instant::now();
+        if self.remembered[k].is_none() {
+            let previous = self
+                .mine
+                .iter()
+                .rev()
+                .skip_while(|&&j| j != k)
+                .nth(1)
+                .and_then(|&j| self.remembered[j].as_ref())
+                .map(Distribution::bands);
+            self.remembered[k] = Some(solver.balance(k, &self.held, self.group_comm, previous));
+        }
+        let distribution = self.remembered[k].as_ref().expect("just filled");
+        self.tally.seconds.balance += t.elapsed().as_secs_f64();
+        let bins = solver.projection(k).lines(&solver.frames[k], d.vector);
+        let table = distribution.table();
+        let owner = |voxel: [i32; 3], _id: &dyn Fn() -> u32| {
+            let (row, col) = bins.bin(voxel);
+            table.owner(row, col)
+        };
+        solver.redistribute(
+            &mut self.held,
+            self.held_order,
+            o,
+            self.group_comm,
+            &mut self.tally,
+            k,
+            owner,
+        );
+        self.held_order = Some(o);
+        solver.propagate(
+            k,
+            &mut self.held,
+            &mut self.lines,
+            &mut self.reflected,
+            &mut self.tally,
+        );
+        Ok(())
+    }
+
+    fn can_save_within(&self, done: usize) -> bool {
+        // A resume rebuilds the held surfels of the directions done; after the last step the
+        // iteration's boundary is next.
+        done < self.steps()
+    }
+
+    fn save_within(
+        &mut self,
+        saver: &mut Saver,
+        state: State,
+        done: usize,
+    ) -> Result<(), CheckpointError> {
+        self.solver
+            .save_within(self.world, saver, state, done, &self.held)
+    }
+
+    fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
+        // Collective: every rank gathers, rank 0 writes.
+        let radiosity = self.solver.gather_radiosity(&self.held, self.world);
+        saver.save_memory(state, &radiosity)
+    }
+
+    fn end(&mut self) -> Result<[f64; 3], SolveError> {
+        let t = Instant::now();
+        let solver = self.solver;
+        if solver.groups > 1 {
+            // One canonical distribution, then the peers' light added in group order.
+            let ranks = self.group_comm.size();
+            let block_owner = |_: [i32; 3], id: &dyn Fn() -> u32| solver.owner_of_id(id(), ranks);
+            solver.redistribute(
+                &mut self.held,
+                None,
+                0,
+                self.group_comm,
+                &mut self.tally,
+                usize::MAX,
+                block_owner,
+            );
+            self.held_order = None;
+            let held = &mut self.held;
+            let mut flat: Vec<f64> = held
+                .order
+                .iter()
+                .flat_map(|e| held.acc[e.index as usize].into_iter().flatten())
+                .collect();
+            self.peers.sum_in_place(&mut flat);
+            for (e, v) in held.order.iter().zip(flat.chunks_exact(6)) {
+                let a = &mut held.acc[e.index as usize];
+                a[0].copy_from_slice(&v[..3]);
+                a[1].copy_from_slice(&v[3..]);
+            }
+        }
+        if solver.options.accelerate {
+            self.previous.clone_from(&self.held.radiosity);
+        }
+        let sums = solver.update(&mut self.held, self.world);
+        self.tally.seconds.reduce += t.elapsed().as_secs_f64();
+        Ok(sums)
+    }
+
+    fn extrapolate(&mut self, factor: f64) -> Result<(), SolveError> {
+        let t = Instant::now();
+        let solver = self.solver;
+        let emission: Vec<Radiosity> = self
+            .held
+            .ids
+            .iter()
+            .map(|&id| solver.emission[id as usize])
+            .collect();
+        crate::solve::accelerate::extrapolate(
+            &mut self.held.radiosity,
+            &self.previous,
+            &emission,
+            factor,
+        );
+        self.tally.seconds.reduce += t.elapsed().as_secs_f64();
+        Ok(())
     }
 }
 
