@@ -92,6 +92,12 @@ pub enum OocError {
     Interrupted(crate::checkpoint::Interruption),
 }
 
+impl From<crate::checkpoint::Interruption> for OocError {
+    fn from(i: crate::checkpoint::Interruption) -> Self {
+        OocError::Interrupted(i)
+    }
+}
+
 impl OocError {
     pub(crate) fn io(path: &Path, action: &'static str, source: std::io::Error) -> Self {
         OocError::Io {

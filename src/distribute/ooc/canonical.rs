@@ -1,11 +1,11 @@
 //! Radiosity between the ranks and canonical order (data mode out of core): rank 0 gathers
 //! every rank's `(id, B)` into a canonical file for the results and the checkpoints, sends each
 //! rank its slice of a canonical file (a checkpoint's radiosity on resume, the direct light),
-//! and a stop signal ends every rank together.
+//! and writes a checkpoint of the canonical radiosity.
 
 use super::held::{self, Held, HeldReader, HeldWriter};
 use super::route::{exchange_files, Router};
-use super::{DataOocCheckpoints, Solver, RESULT_PAIR_LEN};
+use super::{Solver, RESULT_PAIR_LEN};
 use crate::checkpoint::{CheckpointFile, Saver, State};
 use crate::outcore::budget::MemoryPlan;
 use crate::outcore::files::{
@@ -13,48 +13,9 @@ use crate::outcore::files::{
 };
 use crate::outcore::source::SourceInfo;
 use crate::outcore::OocError;
-use crate::solve::accelerate::Extrapolation;
-use crate::solve::jacobi::Convergence;
 use std::path::{Path, PathBuf};
 
 impl Solver<'_> {
-    /// Ends the solve if any rank was asked to stop: the checkpoint of the last completed
-    /// iteration (`completed`; the held radiosity is still its own) is written by rank 0.
-    #[allow(clippy::too_many_arguments)]
-    pub(super) fn stop_if_asked(
-        &self,
-        completed: usize,
-        held: &Held,
-        plan: &MemoryPlan,
-        dir: &Path,
-        convergence: &Convergence,
-        extrapolation: &Extrapolation,
-        checkpoints: &mut Option<DataOocCheckpoints>,
-    ) -> Result<(), OocError> {
-        let signal = self
-            .comm
-            .max_u64(crate::interrupt::requested().unwrap_or(0) as u64) as i32;
-        if signal == 0 {
-            return Ok(());
-        }
-        let writer = self.comm.rank() == 0;
-        let interruption = match checkpoints.as_mut() {
-            Some(c) => {
-                // Collective: every rank sends its radiosity, rank 0 writes.
-                let surfels = self.source.info().count;
-                let mut io = IoCounters::default();
-                let canonical = self.gather_results(held, surfels, dir, plan, &mut io)?;
-                let previous = convergence.previous_change;
-                c.saver.interrupt(signal, completed, |saver| {
-                    let state = saver.state(completed, previous, extrapolation);
-                    save(saver, state, canonical.as_deref(), plan)
-                })
-            }
-            None => crate::checkpoint::Interruption::without_checkpoint(signal, completed, writer),
-        };
-        Err(OocError::Interrupted(interruption))
-    }
-
     /// Puts the radiosity of a checkpoint (`file`, on rank 0) into the held files of every rank,
     /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
     /// sends each rank its slice in bounded rounds. The lines then carry it (less `E` with the

@@ -59,8 +59,7 @@ use crate::outcore::files::{
 use crate::outcore::source::SurfelSource;
 use crate::outcore::workset::AxisCopy;
 use crate::outcore::OocError;
-use crate::solve::accelerate::Extrapolation;
-use crate::solve::jacobi::Convergence;
+use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::normalize::cosine_sums;
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
@@ -208,7 +207,6 @@ impl Solver<'_> {
             dir,
         };
         let mut io = IoCounters::default();
-        let mut seconds = PhaseSeconds::default();
         let started = Instant::now();
         let t = Instant::now();
         let cosine_sum = self
@@ -227,9 +225,7 @@ impl Solver<'_> {
             .set(if self.options.grey && !coloured { 1 } else { 3 });
         let setup_seconds = started.elapsed().as_secs_f64();
         let mut held = slice.held;
-        let mut largest_share = held.count;
         let mut generation = 0u64;
-        let mut convergence = Convergence::new();
         let mut stats = SolveStats {
             directions: self.directions.len(),
             threads: self.threads,
@@ -237,8 +233,6 @@ impl Solver<'_> {
             normalize_seconds,
             ..Default::default()
         };
-        let mut first_iteration = 1;
-        let mut extrapolation = Extrapolation::default();
         // The direct light, once, before a checkpoint's radiosity is put in (the lines then
         // carry `B - E`), as the one-process out-of-core solver does it (`direct`).
         let mut emitting = [slice.emitting as f64];
@@ -257,9 +251,9 @@ impl Solver<'_> {
             stats.direct = Some(direct);
             self.direct.set(true);
         }
+        let mut start = Start::fresh();
         if let Some(c) = checkpoints.as_mut() {
             if let Some(state) = c.state.take() {
-                extrapolation = state.extrapolation.clone().into();
                 generation += 1;
                 held = self.restore(
                     held,
@@ -269,177 +263,69 @@ impl Solver<'_> {
                     &router,
                     &mut io,
                 )?;
-                first_iteration = convergence.resume(&state, c.saver.path(), &mut stats);
+                start = Start::resumed(&state, c.saver.path(), 0, &mut stats);
             }
-            crate::interrupt::start_iterating();
         }
 
         let d_count = self.directions.len();
         // The single-process out-of-core solver's order (the same answer bit for bit).
-        let by_axis = crate::outcore::solver::walk_by_axis(self.directions);
-        let mut remembered: Vec<Option<Vec<u64>>> = vec![None; d_count];
-        let mut imbalance = vec![0.0f64; d_count];
-        let mut moved = vec![0.0f64; d_count];
-        let mut histogram: Vec<u32> = Vec::new();
-        let mut times = BandTimes::default();
-        let mut last = Update::default();
-        let mut iterations_done = first_iteration - 1;
-        let progress = crate::progress::bar(d_count as u64, "iteration 1");
-        for iteration in first_iteration..=self.options.max_iterations {
-            if !any_light {
-                stats.converged = true;
-                break;
-            }
-            progress.reset();
-            progress.set_message(format!("iteration {iteration}"));
-            // `earlier` holds the light of the axes done this iteration; `gathered` that of the
-            // axis in progress, added to `earlier` when the next axis starts (or at the update).
-            let mut earlier_any = false;
-            let mut pending = false;
-            for (m, axis) in by_axis.iter().enumerate() {
-                if axis.is_empty() {
-                    continue;
-                }
-                let key = AxisKey::new(m, dims);
-                for (k, &d) in axis.iter().enumerate() {
-                    // The ranks exchange surfels for every direction: they stop together.
-                    self.stop_if_asked(
-                        iteration - 1,
-                        &held,
-                        &plan,
-                        dir,
-                        &convergence,
-                        &extrapolation,
-                        &mut checkpoints,
-                    )?;
-                    let direction = &self.directions.directions[d];
-                    let frame = LineFrame::new(direction.vector, dims);
-                    let t = Instant::now();
-                    if remembered[d].is_none() {
-                        let load = self.column_load(&held, &frame, &plan, &mut io)?;
-                        let cuts = cut_columns(&load, ranks);
-                        imbalance[d] = imbalance_of(&load, &cuts);
-                        remembered[d] = Some(cuts);
-                    }
-                    seconds.balance += t.elapsed().as_secs_f64();
-                    let cuts = remembered[d].as_deref().expect("just cut");
-                    let owner = |w: &Wire| {
-                        let v = held::voxel(w);
-                        let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
-                        cuts[1..ranks].partition_point(|&c| c <= j)
-                    };
-                    let fold = k == 0 && pending;
-                    let first_fold = !earlier_any;
-                    let mut transform = |w: &mut Wire| {
-                        if fold {
-                            fold_axis(w, first_fold);
-                        }
-                    };
-                    generation += 1;
-                    let (next, rows, sent) = router.redistribute(
-                        held,
-                        generation,
-                        key,
-                        k > 0,
-                        histogram,
-                        &owner,
-                        &mut transform,
-                        &mut io,
-                        &mut seconds,
-                    )?;
-                    if fold {
-                        earlier_any = true;
-                        pending = false;
-                    }
-                    held = next;
-                    histogram = rows;
-                    moved[d] += sent as f64;
-                    largest_share = largest_share.max(held.count);
-                    self.solve_direction(
-                        &held,
-                        &histogram,
-                        key,
-                        d,
-                        k == 0,
-                        &plan,
-                        &mut io,
-                        &mut times,
-                    )?;
-                    progress.inc(1);
-                }
-                pending = true;
-            }
-            // A pass stopped early by a signal leaves this iteration's light incomplete.
-            self.stop_if_asked(
-                iteration - 1,
-                &held,
-                &plan,
-                dir,
-                &convergence,
-                &extrapolation,
-                &mut checkpoints,
-            )?;
-            let t = Instant::now();
-            generation += 1;
-            let (next, result) = self.update(
-                held,
-                generation,
-                dir,
-                &plan,
-                &cosine_sum,
-                pending.then_some(!earlier_any),
-                &mut io,
-            )?;
-            held = next;
-            stats.updates += surfels * d_count as u64;
-            let mut sums = [result.change, result.total, result.falling];
-            self.comm.sum_in_place(&mut sums);
-            seconds.reduce += t.elapsed().as_secs_f64();
-            let stop = convergence.record(
-                iteration,
-                sums[0],
-                sums[1],
-                self.options,
-                &mut stats,
-                |relative| extrapolation.error_estimate(relative),
-            );
-            last = result;
-            iterations_done = iteration;
-            if stop {
-                break;
-            }
-            if self.options.accelerate {
-                if let Some(factor) = extrapolation.observe(sums[0], stats.last_change, sums[2]) {
-                    let t = Instant::now();
-                    generation += 1;
-                    held = self.extrapolate(held, generation, dir, &plan, factor, &mut io)?;
-                    seconds.reduce += t.elapsed().as_secs_f64();
-                    // The jump is not an iteration's change: the stopping rule starts again.
-                    convergence.restart();
-                }
-            }
-            // A boundary the solve goes on from; rank 0's clock decides for all (the radiosity
-            // is gathered from every rank).
-            if iteration < self.options.max_iterations {
-                if let Some(c) = checkpoints.as_mut() {
-                    let due = self.comm.max_u64((me == 0 && c.saver.due()) as u64) == 1;
-                    if due {
-                        let canonical = self.gather_results(&held, surfels, dir, &plan, &mut io)?;
-                        let previous = convergence.previous_change;
-                        c.saver.save_if_due(
-                            |saver| saver.state(iteration, previous, &extrapolation),
-                            |saver, state| {
-                                canonical::save(saver, state, canonical.as_deref(), &plan)
-                            },
-                        );
-                    }
-                }
-            }
-        }
-        progress.finish_and_clear();
-        if self.options.tolerance.is_none() {
-            stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
-        }
+        let walk = crate::outcore::solver::walk_by_axis(self.directions)
+            .into_iter()
+            .enumerate()
+            .flat_map(|(m, axis)| {
+                let last = axis.len().saturating_sub(1);
+                axis.into_iter().enumerate().map(move |(k, d)| WalkStep {
+                    main: m,
+                    first: k == 0,
+                    last: k == last,
+                    direction: d,
+                })
+            })
+            .collect();
+        let mut sweep = DataOocSweep {
+            solver: self,
+            router: &router,
+            dir,
+            plan: &plan,
+            cosine_sum: &cosine_sum,
+            largest_share: held.count,
+            held: Some(held),
+            generation,
+            walk,
+            remembered: vec![None; d_count],
+            imbalance: vec![0.0; d_count],
+            moved: vec![0.0; d_count],
+            histogram: Vec::new(),
+            times: BandTimes::default(),
+            seconds: PhaseSeconds::default(),
+            io,
+            last: Update::default(),
+            earlier_any: false,
+            pending: false,
+            surfels,
+        };
+        let saver = checkpoints.map(|c| c.saver);
+        iterate(
+            &mut sweep,
+            self.options,
+            self.comm,
+            saver,
+            start,
+            any_light,
+            &mut stats,
+        )?;
+        let DataOocSweep {
+            held,
+            moved,
+            imbalance,
+            times,
+            mut seconds,
+            mut io,
+            last,
+            largest_share,
+            ..
+        } = sweep;
+        let held = held.expect("held files between steps");
         let mut energy = [last.emitted, last.absorbed, last.absorbed_direct].concat();
         self.comm.sum_in_place(&mut energy);
         stats.emitted_power.copy_from_slice(&energy[..3]);
@@ -467,9 +353,8 @@ impl Solver<'_> {
             largest_share,
             bands: times.bands,
         };
-        let totals = self.summarize(&tally, surfels, iterations_done);
+        let totals = self.summarize(&tally, surfels, stats.iterations);
         stats.data = Some(totals.data);
-        stats.extrapolations = extrapolation.count;
         Ok(DataOocSolution {
             stats,
             voxels,
@@ -667,6 +552,221 @@ impl Solver<'_> {
         held.remove()?;
         let (held, _) = writer.finish(io)?;
         Ok(held)
+    }
+}
+
+/// One step of the walk: a direction, its main axis, and whether it starts or ends the axis.
+struct WalkStep {
+    main: usize,
+    first: bool,
+    last: bool,
+    direction: usize,
+}
+
+/// The data mode out of core as the iteration loop drives it: this rank's held files (a store
+/// on disk), line columns dealt over the ranks per direction.
+struct DataOocSweep<'s, 'a> {
+    solver: &'s Solver<'a>,
+    router: &'s Router<'s>,
+    dir: &'s Path,
+    plan: &'s MemoryPlan,
+    cosine_sum: &'s [f64],
+    /// The held files (taken while a step or the update rewrites them).
+    held: Option<Held>,
+    /// Numbers the held files' generations.
+    generation: u64,
+    walk: Vec<WalkStep>,
+    /// Each direction's column cuts, found in the first iteration.
+    remembered: Vec<Option<Vec<u64>>>,
+    imbalance: Vec<f64>,
+    moved: Vec<f64>,
+    /// The row histogram of the held files' order.
+    histogram: Vec<u32>,
+    times: BandTimes,
+    seconds: PhaseSeconds,
+    io: IoCounters,
+    /// The last update's sums on this rank (its energy).
+    last: Update,
+    largest_share: u64,
+    /// `earlier` holds the light of an axis done this iteration.
+    earlier_any: bool,
+    /// `gathered` holds the light of an axis done, not yet added to `earlier` (that happens
+    /// when the next axis starts, or at the update).
+    pending: bool,
+    surfels: u64,
+}
+
+impl DataOocSweep<'_, '_> {
+    fn held(&self) -> &Held {
+        self.held.as_ref().expect("held files between steps")
+    }
+
+    fn take_held(&mut self) -> Held {
+        self.held.take().expect("held files between steps")
+    }
+}
+
+impl Sweep for DataOocSweep<'_, '_> {
+    type Error = OocError;
+
+    fn steps(&self) -> usize {
+        self.walk.len()
+    }
+
+    fn updates(&self) -> u64 {
+        self.surfels * self.walk.len() as u64
+    }
+
+    fn begin(&mut self, _from: usize) -> Result<(), OocError> {
+        self.earlier_any = false;
+        self.pending = false;
+        Ok(())
+    }
+
+    fn step(&mut self, step: usize) -> Result<(), OocError> {
+        let solver = self.solver;
+        let ranks = solver.comm.size();
+        let dims = solver.source.info().grid.dims;
+        let &WalkStep {
+            main,
+            first,
+            last,
+            direction: d,
+        } = &self.walk[step];
+        let key = AxisKey::new(main, dims);
+        let direction = &solver.directions.directions[d];
+        let frame = LineFrame::new(direction.vector, dims);
+        let t = Instant::now();
+        if self.remembered[d].is_none() {
+            let held = self.held.as_ref().expect("held files between steps");
+            let load = solver.column_load(held, &frame, self.plan, &mut self.io)?;
+            let cuts = cut_columns(&load, ranks);
+            self.imbalance[d] = imbalance_of(&load, &cuts);
+            self.remembered[d] = Some(cuts);
+        }
+        self.seconds.balance += t.elapsed().as_secs_f64();
+        let cuts = self.remembered[d].as_deref().expect("just cut");
+        let owner = |w: &Wire| {
+            let v = held::voxel(w);
+            let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
+            cuts[1..ranks].partition_point(|&c| c <= j)
+        };
+        let fold = first && self.pending;
+        let first_fold = !self.earlier_any;
+        let mut transform = |w: &mut Wire| {
+            if fold {
+                fold_axis(w, first_fold);
+            }
+        };
+        self.generation += 1;
+        let held = self.held.take().expect("held files between steps");
+        let (next, rows, sent) = self.router.redistribute(
+            held,
+            self.generation,
+            key,
+            !first,
+            std::mem::take(&mut self.histogram),
+            &owner,
+            &mut transform,
+            &mut self.io,
+            &mut self.seconds,
+        )?;
+        if fold {
+            self.earlier_any = true;
+            self.pending = false;
+        }
+        self.largest_share = self.largest_share.max(next.count);
+        self.held = Some(next);
+        self.histogram = rows;
+        self.moved[d] += sent as f64;
+        solver.solve_direction(
+            self.held.as_ref().expect("held files between steps"),
+            &self.histogram,
+            key,
+            d,
+            first,
+            self.plan,
+            &mut self.io,
+            &mut self.times,
+        )?;
+        if last {
+            self.pending = true;
+        }
+        Ok(())
+    }
+
+    fn can_save_within(&self, _done: usize) -> bool {
+        // The light gathered so far is spread over every rank's held files in the order of
+        // the current axis: a stop abandons the iteration.
+        false
+    }
+
+    fn save_within(
+        &mut self,
+        _saver: &mut Saver,
+        _state: State,
+        _done: usize,
+    ) -> Result<(), crate::checkpoint::CheckpointError> {
+        unreachable!("the data mode out of core saves at iteration boundaries only")
+    }
+
+    fn save_boundary(
+        &mut self,
+        saver: &mut Saver,
+        state: State,
+    ) -> Result<(), crate::checkpoint::CheckpointError> {
+        // Collective: every rank sends its radiosity, rank 0 writes.
+        let mut io = IoCounters::default();
+        let canonical = self
+            .solver
+            .gather_results(self.held(), self.surfels, self.dir, self.plan, &mut io)
+            .map_err(|e| crate::checkpoint::CheckpointError::Io {
+                path: saver.path().to_path_buf(),
+                action: "gather the radiosity of every rank for",
+                source: std::io::Error::other(e.to_string()),
+            })?;
+        self.io.read += io.read;
+        self.io.written += io.written;
+        canonical::save(saver, state, canonical.as_deref(), self.plan)
+    }
+
+    fn end(&mut self) -> Result<[f64; 3], OocError> {
+        let t = Instant::now();
+        self.generation += 1;
+        let fold = self.pending.then_some(!self.earlier_any);
+        let held = self.take_held();
+        let (next, result) = self.solver.update(
+            held,
+            self.generation,
+            self.dir,
+            self.plan,
+            self.cosine_sum,
+            fold,
+            &mut self.io,
+        )?;
+        self.held = Some(next);
+        let mut sums = [result.change, result.total, result.falling];
+        self.solver.comm.sum_in_place(&mut sums);
+        self.last = result;
+        self.seconds.reduce += t.elapsed().as_secs_f64();
+        Ok(sums)
+    }
+
+    fn extrapolate(&mut self, factor: f64) -> Result<(), OocError> {
+        let t = Instant::now();
+        self.generation += 1;
+        let held = self.take_held();
+        let next = self.solver.extrapolate(
+            held,
+            self.generation,
+            self.dir,
+            self.plan,
+            factor,
+            &mut self.io,
+        )?;
+        self.held = Some(next);
+        self.seconds.reduce += t.elapsed().as_secs_f64();
+        Ok(())
     }
 }
 
