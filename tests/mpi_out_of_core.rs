@@ -203,16 +203,17 @@ fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
     }
 }
 
-/// The direct-light pass (run by rank 0 on the whole source, its light sent to every rank's
-/// share): every rank count gives the one-process out-of-core radiosity bit for bit with it,
-/// the in-memory data mode's within 1e-5, and its energy balance.
+/// With the direct-light pass (run by rank 0 on the whole source, its light sent to every
+/// rank's share): the data mode out of core gives the one-process out-of-core radiosity bit for
+/// bit at every rank count, the in-memory data mode's within 1e-5, and its energy balance; the
+/// hybrid mode out of core both within 1e-5.
 #[test]
 fn direct_light_pass_gives_the_one_process_answer() {
     let tmp = tempfile::tempdir().unwrap();
     let set = tmp.path().join("set");
     cornell_set(&set, 40, 2);
     let set = set.to_str().unwrap();
-    let run = |out: &Path, ranks: Option<usize>, memory: bool| -> serde_json::Value {
+    let run = |out: &Path, ranks: Option<(usize, &str)>, memory: bool| -> serde_json::Value {
         let out_str = out.to_str().unwrap();
         let mut args = vec![
             "solve",
@@ -232,8 +233,11 @@ fn direct_light_pass_gives_the_one_process_answer() {
             args.extend(["--memory", "4MiB"]);
         }
         let o = match ranks {
-            Some(n) => {
-                args.extend(["--distribute", "data"]);
+            Some((n, mode)) => {
+                args.extend(["--distribute", mode]);
+                if mode == "hybrid" {
+                    args.extend(["--groups", "2"]);
+                }
                 mpirun(n, &args)
             }
             None => Command::new(env!("CARGO_BIN_EXE_voxrad"))
@@ -254,7 +258,7 @@ fn direct_light_pass_gives_the_one_process_answer() {
     let one = run(&single, None, true);
     let reference = radiosity(&single);
     let memory = tmp.path().join("memory");
-    run(&memory, Some(2), false);
+    run(&memory, Some((2, "data")), false);
     let in_memory = radiosity(&memory);
     // Without the pass the answer moves by far more than 1e-5: the comparison can fail.
     let plain = tmp.path().join("plain");
@@ -279,20 +283,46 @@ fn direct_light_pass_gives_the_one_process_answer() {
     assert!(apart > 1e-3, "the pass changes nothing here: {apart:e}");
     for ranks in 1..=3 {
         let out = tmp.path().join(format!("ranks{ranks}"));
-        let r = run(&out, Some(ranks), true);
+        let r = run(&out, Some((ranks, "data")), true);
         let got = radiosity(&out);
         let worst = common::worst_relative_difference(&got, &in_memory);
         println!("{ranks} ranks with the pass: against in memory {worst:.2e}");
         assert!(got == reference, "{ranks} ranks differ from one process");
         assert!(worst <= 1e-5, "{ranks} ranks: {worst:e}");
-        for what in ["emitted_power", "absorbed_power"] {
-            for ch in 0..3 {
-                let (a, b) = (
-                    r["energy"][what][ch].as_f64().unwrap(),
-                    one["energy"][what][ch].as_f64().unwrap(),
-                );
-                assert!((a - b).abs() <= 1e-9 * b.abs(), "{what}: {a} {b}");
-            }
+        same_energy(&r, &one, 1e-9);
+    }
+    // The hybrid mode out of core: 2 groups of 1 rank, and of 2 ranks. The groups' light is
+    // added across them, another grouping of the same terms: equal to rounding.
+    let hybrid = tmp.path().join("hybrid-memory");
+    run(&hybrid, Some((2, "hybrid")), false);
+    let hybrid_in_memory = radiosity(&hybrid);
+    for ranks in [2, 4] {
+        let out = tmp.path().join(format!("hybrid{ranks}"));
+        let r = run(&out, Some((ranks, "hybrid")), true);
+        let got = radiosity(&out);
+        let against_one = common::worst_relative_difference(&got, &reference);
+        let against_memory = common::worst_relative_difference(&got, &hybrid_in_memory);
+        println!(
+            "hybrid out of core on {ranks} ranks: against one process out of core \
+             {against_one:.2e}, against hybrid in memory {against_memory:.2e}"
+        );
+        assert_eq!(r["mode"], "hybrid");
+        assert_eq!(r["data_distribution"]["groups"], 2, "{r}");
+        assert!(against_one <= 1e-5, "{ranks} ranks: {against_one:e}");
+        assert!(against_memory <= 1e-5, "{ranks} ranks: {against_memory:e}");
+        same_energy(&r, &one, 1e-6);
+    }
+}
+
+/// The emitted and absorbed power of two reports agree within `tolerance` (relative).
+fn same_energy(r: &serde_json::Value, one: &serde_json::Value, tolerance: f64) {
+    for what in ["emitted_power", "absorbed_power"] {
+        for ch in 0..3 {
+            let (a, b) = (
+                r["energy"][what][ch].as_f64().unwrap(),
+                one["energy"][what][ch].as_f64().unwrap(),
+            );
+            assert!((a - b).abs() <= tolerance * b.abs(), "{what}: {a} {b}");
         }
     }
 }
@@ -356,8 +386,8 @@ fn what_cannot_work_out_of_core_is_refused_clearly() {
             &["too small", "--memory"],
         ),
         (
-            &["--memory", "8MiB", "--distribute", "hybrid"],
-            &["hybrid", "--distribute data"],
+            &["--memory", "8MiB", "--distribute", "directions"],
+            &["directions", "--distribute data or hybrid"],
         ),
     ];
     for (extra, words) in cases {

@@ -243,6 +243,7 @@ fn data_mode_out_of_core_solves_a_coloured_scene_in_three_channels() {
         &directions,
         &options,
         &voxrad::distribute::SingleProcess,
+        1,
         16 << 20,
         work.path(),
         None,

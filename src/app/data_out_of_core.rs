@@ -1,16 +1,18 @@
-//! `mpirun ... voxrad solve --distribute data --memory SIZE`: every rank holds its share of the
-//! scene in work files (`crate::distribute::ooc`); rank 0 writes the outputs and checkpoints.
+//! `mpirun ... voxrad solve --distribute data|hybrid --memory SIZE`: every rank holds its share
+//! of the scene in work files (`crate::distribute::ooc`); rank 0 writes the outputs and
+//! checkpoints.
 
 use super::*;
 
-/// `mpirun -n P voxrad solve SCENE --distribute data --memory SIZE`: every rank holds its share
-/// of the scene in work files under the out directory, within `budget` (see
-/// `distribute::ooc`); rank 0 writes the outputs and the checkpoints (those of the one-process
+/// `mpirun -n P voxrad solve SCENE --distribute data --memory SIZE` (`groups` 1; the hybrid
+/// mode with more): every rank holds its share of the scene (of its group's copy of it) in
+/// work files under the out directory, within `budget` (see `distribute::ooc`); rank 0 writes the outputs and the checkpoints (those of the one-process
 /// out-of-core solve, so either resumes the other's). An OBJ scene is first converted to a
 /// shard set by every rank, each in its own work directory, within the budget.
 pub(super) fn run_solve_data_out_of_core(
     cmd: &SolveCommand,
     comm: &dyn Comm,
+    groups: usize,
     budget: u64,
     started: Instant,
 ) -> Result<Report, AppError> {
@@ -56,6 +58,7 @@ pub(super) fn run_solve_data_out_of_core(
         &directions,
         &shaped,
         comm,
+        groups,
         budget,
         &cmd.out,
         Some(checkpoints),
@@ -98,7 +101,7 @@ pub(super) fn run_solve_data_out_of_core(
         }
     }
     let mut report = Report::from_counts(
-        run_info(cmd, comm, info),
+        run_info(cmd, comm, groups, info),
         solution.voxels,
         solution.surfels,
         info.grid.voxel_size,
@@ -216,11 +219,19 @@ pub(super) fn open_checkpoint_on_rank0(
 pub(super) fn run_info(
     cmd: &SolveCommand,
     comm: &dyn Comm,
+    groups: usize,
     info: &crate::outcore::source::SourceInfo,
 ) -> RunInfo {
+    let mode = match groups {
+        1 => Mode::Data { compress: false },
+        _ => Mode::Hybrid {
+            groups,
+            compress: false,
+        },
+    };
     RunInfo {
         scene: cmd.scene.display().to_string(),
-        mode: Mode::Data { compress: false }.name().to_string(),
+        mode: mode.name().to_string(),
         ranks: comm.size(),
         resolution: info.grid.dims.iter().copied().max().unwrap_or(0),
         tolerance: cmd.solve.tolerance.unwrap_or(0.0),

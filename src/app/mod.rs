@@ -124,20 +124,6 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
             )));
         }
     }
-    if let (Mode::Data { .. }, Some(budget)) = (mode, cmd.memory) {
-        return run_solve_data_out_of_core(cmd, comm, budget, started);
-    }
-    if mode != Mode::Single && cmd.memory.is_some() {
-        return Err(AppError::BadInput(format!(
-            "{}: --distribute {} does not work out of core (--memory); only --distribute data \
-             does: use it, or leave --memory out",
-            cmd.scene.display(),
-            mode.name()
-        )));
-    }
-    if comm.rank() == 0 {
-        checkpoint::remove_leftovers(&cmd.out);
-    }
     let mode = match mode {
         Mode::Hybrid {
             groups: 0,
@@ -155,6 +141,26 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
         }
         other => other,
     };
+    match (mode, cmd.memory) {
+        (Mode::Data { .. }, Some(budget)) => {
+            return run_solve_data_out_of_core(cmd, comm, 1, budget, started)
+        }
+        (Mode::Hybrid { groups, .. }, Some(budget)) => {
+            return run_solve_data_out_of_core(cmd, comm, groups, budget, started)
+        }
+        (Mode::Directions, Some(_)) => {
+            return Err(AppError::BadInput(format!(
+                "{}: --distribute directions does not work out of core (--memory): every rank \
+                 would hold the whole scene; --distribute data or hybrid does: use one, or \
+                 leave --memory out",
+                cmd.scene.display(),
+            )))
+        }
+        _ => {}
+    }
+    if comm.rank() == 0 {
+        checkpoint::remove_leftovers(&cmd.out);
+    }
     if cmd.scene.is_dir() && mode == Mode::Single {
         return run_solve_shard_set(cmd, started);
     }

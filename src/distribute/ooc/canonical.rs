@@ -61,20 +61,20 @@ impl Solver<'_> {
         router: &Router,
         io: &mut IoCounters,
     ) -> Result<PathBuf, OocError> {
-        let (ranks, me) = (self.comm.size(), self.comm.rank());
+        let me = self.comm.rank();
         let plan = router.plan;
         let dir = router.dir;
         let n = self.source.info().count;
-        let mut starts = vec![0.0f64; ranks];
-        starts[me] = first as f64;
-        self.comm.sum_in_place(&mut starts);
-        let starts: Vec<u64> = starts.iter().map(|&s| s as u64).collect();
+        // Every group holds the scene in the same slices: rank 0 cuts one file per slice and
+        // sends it to the rank at that place in every group.
+        let starts = self.slice_starts(first);
+        let slices = starts.len();
         let path = |r: usize| dir.join(format!("slice-{r}.bin"));
         let mut failure = None;
         if me == 0 {
             let cut = || -> Result<(), OocError> {
-                let buffer = plan.bucket_buffer(ranks as u64);
-                let mut outs = (0..ranks)
+                let buffer = plan.bucket_buffer(slices as u64);
+                let mut outs = (0..slices)
                     .map(|r| crate::outcore::files::SeqWriter::create(&path(r), buffer))
                     .collect::<Result<Vec<_>, _>>()?;
                 let mut index = 0u64;
@@ -110,10 +110,10 @@ impl Solver<'_> {
                 }
             }));
         }
-        let outgoing: Vec<Option<PathBuf>> = (0..ranks)
-            .map(|r| (me == 0 && r != 0).then(|| path(r)))
+        let outgoing: Vec<Option<PathBuf>> = (0..self.comm.size())
+            .map(|r| (me == 0 && r != 0).then(|| path(r % slices)))
             .collect();
-        let mine = path(me);
+        let mine = if me == 0 { path(0) } else { path(me) };
         let mut received = if me == 0 {
             None
         } else {
@@ -136,10 +136,22 @@ impl Solver<'_> {
         if let Some(out) = received {
             io.written += out.finish()?;
         }
-        for p in outgoing.iter().flatten() {
-            std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+        if me == 0 {
+            for r in 1..slices {
+                let p = path(r);
+                std::fs::remove_file(&p).map_err(|e| OocError::io(&p, "remove", e))?;
+            }
         }
         Ok(mine)
+    }
+
+    /// The first canonical index of every slice of the group, from this rank's `first`
+    /// (collective in the group).
+    pub(super) fn slice_starts(&self, first: u64) -> Vec<u64> {
+        let mut starts = vec![0.0f64; self.group.size()];
+        starts[self.group.rank()] = first as f64;
+        self.group.sum_in_place(&mut starts);
+        starts.iter().map(|&s| s as u64).collect()
     }
 
     /// Rewrites the held files (in canonical order, as read) with the records of `slice` (one
@@ -190,7 +202,9 @@ impl Solver<'_> {
         let out_path = dir.join("results-out.bin");
         let mut out = crate::outcore::files::SeqWriter::create(&out_path, plan.io_bytes)?;
         let mut reader = HeldReader::open(held, plan.io_bytes)?;
-        while let Some(w) = reader.next(io)? {
+        // Group 0 holds every surfel once (the hybrid mode's other groups hold copies).
+        let sends = self.group_index == 0;
+        while let Some(w) = reader.next(io)?.filter(|_| sends) {
             let id = held::id(&w) as u64;
             let b = &w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN];
             match canonical.as_ref() {
@@ -204,7 +218,7 @@ impl Solver<'_> {
         drop(reader);
         io.written += out.finish()?;
         let mut outgoing: Vec<Option<PathBuf>> = vec![None; self.comm.size()];
-        if me != 0 {
+        if me != 0 && sends {
             outgoing[0] = Some(out_path.clone());
         }
         // The closure's own counter: `io` is lent to the exchange.

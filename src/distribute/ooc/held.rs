@@ -85,6 +85,8 @@ pub struct AxisKey {
     pub u: usize,
     pub v: usize,
     dims: [u64; 3],
+    /// The canonical order instead (by id alone; one row).
+    canonical: bool,
 }
 
 impl AxisKey {
@@ -94,6 +96,18 @@ impl AxisKey {
             u: (main + 1) % 3,
             v: (main + 2) % 3,
             dims: dims.map(u64::from),
+            canonical: false,
+        }
+    }
+
+    /// The canonical order: by id (the hybrid mode's order at the end of an iteration).
+    pub fn canonical() -> Self {
+        AxisKey {
+            main: 0,
+            u: 1,
+            v: 2,
+            dims: [1; 3],
+            canonical: true,
         }
     }
 
@@ -108,11 +122,17 @@ impl AxisKey {
     /// Index of the record's row `(x_m, x_v)` in a layer-major histogram.
     #[inline]
     pub fn row(&self, v: [i32; 3]) -> usize {
+        if self.canonical {
+            return 0;
+        }
         (v[self.main] as u64 * self.dims[self.v] + v[self.v] as u64) as usize
     }
 
     #[inline]
     pub fn key(&self, w: &[u8]) -> (u64, u32) {
+        if self.canonical {
+            return (0, id(w));
+        }
         let v = voxel(w);
         let row = self.row(v) as u64;
         (row * self.dims[self.u] + v[self.u] as u64, id(w))

@@ -54,7 +54,7 @@ use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use crate::outcore::budget::MemoryPlan;
 use crate::outcore::files::{
     decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, IoCounters, SeqReader,
-    RADIOSITY_LEN, STATIC_LEN,
+    GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use crate::outcore::source::SurfelSource;
 use crate::outcore::workset::AxisCopy;
@@ -123,12 +123,16 @@ pub struct DataOocCheckpoints<'a> {
 }
 
 /// Solves `source` over the ranks of `comm`, each within `budget` bytes, with its work files
-/// in a new directory under `work_parent`.
+/// in a new directory under `work_parent`: in the data mode (`groups` 1) or the hybrid mode
+/// (`groups` groups of equal size, each taking a block of the directions with the whole scene
+/// spread over its ranks).
+#[allow(clippy::too_many_arguments)]
 pub fn solve_data_out_of_core(
     source: &dyn SurfelSource,
     directions: &DirectionSet,
     options: &SolveOptions,
     comm: &dyn Comm,
+    groups: usize,
     budget: u64,
     work_parent: &Path,
     checkpoints: Option<DataOocCheckpoints>,
@@ -146,12 +150,30 @@ pub fn solve_data_out_of_core(
             threads,
             message: e.to_string(),
         })?;
+    let size = comm.size();
+    if groups == 0 || size % groups != 0 {
+        return Err(OocError::BadData {
+            source_name: source.describe(),
+            what: format!(
+                "{size} ranks cannot form {groups} equal groups: give a --groups that divides \
+                 the rank count"
+            ),
+        });
+    }
+    let group_index = comm.rank() / (size / groups);
+    // Both splits are collective: every rank makes them, in this order.
+    let group = comm.split(group_index);
+    let peers = comm.split(group.rank());
     // The pool runs the threaded parts; every call of `comm` stays on this thread.
     let solver = Solver {
         source,
         directions,
         options,
         comm,
+        group: group.as_ref(),
+        peers: peers.as_ref(),
+        groups,
+        group_index,
         threads,
         pool: &pool,
         channels: std::cell::Cell::new(3),
@@ -164,7 +186,17 @@ struct Solver<'a> {
     source: &'a dyn SurfelSource,
     directions: &'a DirectionSet,
     options: &'a SolveOptions,
+    /// Every rank.
     comm: &'a dyn Comm,
+    /// This rank's group, which holds the whole scene over its ranks (the world in the data
+    /// mode).
+    group: &'a dyn Comm,
+    /// The ranks at this rank's place in every group: they hold the same surfels at the end of
+    /// an iteration and add their light.
+    peers: &'a dyn Comm,
+    groups: usize,
+    /// This rank's group.
+    group_index: usize,
     threads: usize,
     pool: &'a rayon::ThreadPool,
     /// Channels gathered, decided once the slices are read (see [`Solver::channels`]).
@@ -185,7 +217,7 @@ impl Solver<'_> {
     ) -> Result<DataOocSolution, OocError> {
         let info = self.source.info();
         let dims = info.grid.dims;
-        let (ranks, me) = (self.comm.size(), self.comm.rank());
+        let (ranks, me) = (self.group.size(), self.comm.rank());
         let plan = MemoryPlan::new(budget, dims, self.threads)?;
         // At a merge a rank holds its old and new held files and the received runs, about three
         // times its share; rank 0 also the canonical radiosity.
@@ -202,7 +234,7 @@ impl Solver<'_> {
             .map_err(|e| OocError::io(work_parent, "create a work directory in", e))?;
         let dir = work.path();
         let router = Router {
-            comm: self.comm,
+            comm: self.group,
             plan: &plan,
             dir,
         };
@@ -214,8 +246,9 @@ impl Solver<'_> {
             .install(|| cosine_sums(&info.normals, self.directions));
         let normalize_seconds = t.elapsed().as_secs_f64();
         let slice = self.read_slice(&plan, dir, &cosine_sum, &mut io)?;
+        // Every group holds the whole scene.
         let mut counts = [slice.voxels as f64, slice.held.count as f64];
-        self.comm.sum_in_place(&mut counts);
+        self.group.sum_in_place(&mut counts);
         let [voxels, surfels] = counts.map(|c| c as u64);
         let any_light = self.comm.max_u64(slice.any_light as u64) == 1;
         // Grey decided on the materials the surfels use, as the one-process solvers decide it:
@@ -236,7 +269,7 @@ impl Solver<'_> {
         // The direct light, once, before a checkpoint's radiosity is put in (the lines then
         // carry `B - E`), as the one-process out-of-core solver does it (`direct`).
         let mut emitting = [slice.emitting as f64];
-        self.comm.sum_in_place(&mut emitting);
+        self.group.sum_in_place(&mut emitting);
         let shape = crate::solve::direct::Shape {
             emitting: emitting[0] as usize,
             surfels: surfels as usize,
@@ -268,20 +301,26 @@ impl Solver<'_> {
         }
 
         let d_count = self.directions.len();
-        // The single-process out-of-core solver's order (the same answer bit for bit).
-        let walk = crate::outcore::solver::walk_by_axis(self.directions)
+        // The single-process out-of-core solver's order (the same answer bit for bit), of
+        // which a group takes its contiguous block (all of it in the data mode).
+        let walk: Vec<(usize, usize)> = crate::outcore::solver::walk_by_axis(self.directions)
             .into_iter()
             .enumerate()
-            .flat_map(|(m, axis)| {
-                let last = axis.len().saturating_sub(1);
-                axis.into_iter().enumerate().map(move |(k, d)| WalkStep {
-                    main: m,
-                    first: k == 0,
-                    last: k == last,
-                    direction: d,
-                })
+            .flat_map(|(m, axis)| axis.into_iter().map(move |d| (m, d)))
+            .collect();
+        let block = &walk[d_count * self.group_index / self.groups
+            ..d_count * (self.group_index + 1) / self.groups];
+        let walk = block
+            .iter()
+            .enumerate()
+            .map(|(k, &(main, direction))| WalkStep {
+                main,
+                first: k == 0 || block[k - 1].0 != main,
+                last: block.get(k + 1).is_none_or(|next| next.0 != main),
+                direction,
             })
             .collect();
+        let starts = self.slice_starts(slice.first);
         let mut sweep = DataOocSweep {
             solver: self,
             router: &router,
@@ -292,6 +331,8 @@ impl Solver<'_> {
             held: Some(held),
             generation,
             walk,
+            steps: d_count.div_ceil(self.groups),
+            starts,
             remembered: vec![None; d_count],
             imbalance: vec![0.0; d_count],
             moved: vec![0.0; d_count],
@@ -326,7 +367,11 @@ impl Solver<'_> {
             ..
         } = sweep;
         let held = held.expect("held files between steps");
+        // Group 0 speaks for every surfel once.
         let mut energy = [last.emitted, last.absorbed, last.absorbed_direct].concat();
+        if self.group_index != 0 {
+            energy.fill(0.0);
+        }
         self.comm.sum_in_place(&mut energy);
         stats.emitted_power.copy_from_slice(&energy[..3]);
         for ch in 0..3 {
@@ -385,7 +430,7 @@ impl Solver<'_> {
             load[j as usize] += 1.0;
         }
         io.read += held.count * STATIC_LEN as u64;
-        self.comm.sum_in_place(&mut load);
+        self.group.sum_in_place(&mut load);
         Ok(load)
     }
 
@@ -459,50 +504,85 @@ impl Solver<'_> {
         let mut reader = HeldReader::open(&held, plan.io_bytes)?;
         let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
         let mut result = Update::default();
-        while let Some(mut w) = reader.next(io)? {
-            if let Some(first) = fold {
-                fold_axis(&mut w, first);
+        // Records in memory at once: a quarter of the working memory, with their light.
+        let chunk = (plan.working / 4 / (held::WIRE_LEN + GATHER_LEN) as u64).max(1) as usize;
+        let mut records: Vec<Wire> = Vec::with_capacity(chunk.min(held.count as usize));
+        let mut light: Vec<f64> = Vec::new();
+        loop {
+            records.clear();
+            while records.len() < chunk {
+                let Some(mut w) = reader.next(io)? else {
+                    break;
+                };
+                if let Some(first) = fold {
+                    fold_axis(&mut w, first);
+                }
+                records.push(w);
             }
-            let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
-            let (normal_id, area, material) = held::scene_data(&w);
-            // The update of every loop (`solve::update`), term by term.
-            let sides = material.map(|m| &info.materials[m as usize]);
-            let (h, norm) = (
-                decode_gathered(&w[EARLIER_AT..]),
-                cosine_sum[normal_id as usize],
-            );
-            let direct = self
-                .direct()
-                .then(|| decode_gathered(&w[held::DIRECT_AT..]));
-            let b_new = crate::solve::update::update_surfel(
-                &sides.map(|m| m.emission.map(|e| e as f32)),
-                &sides.map(|m| m.reflectance),
-                h,
-                direct.as_ref(),
-                self.channels(),
-                &previous,
-                norm,
-                area as f64,
-                &mut result,
-            );
-            crate::solve::update::add_power(
-                sides,
-                h,
-                direct.as_ref(),
-                self.channels(),
-                norm,
-                area as f64,
-                area_unit,
-                &mut result,
-            );
-            encode_radiosity(&b_new, &mut w[held::RADIOSITY_AT..]);
-            canonical::carry(&mut w, info, self.direct());
-            w[GATHERED_AT..held::SCENE_AT].fill(0);
-            if self.options.accelerate {
-                // Kept for the tail extrapolation; the next iteration's first axis overwrites it.
-                encode_radiosity(&previous, &mut w[EARLIER_AT..]);
+            if records.is_empty() {
+                break;
             }
-            writer.write(&w)?;
+            if self.peers.size() > 1 {
+                // The hybrid mode: every group's rank at this place holds the same surfels in
+                // the same order now (`DataOocSweep::end`), each with the light of its group's
+                // directions; they are added in group order.
+                light.clear();
+                light.extend(
+                    records
+                        .iter()
+                        .flat_map(|w| decode_gathered(&w[EARLIER_AT..]).into_iter().flatten()),
+                );
+                self.peers.sum_in_place(&mut light);
+                for (w, h) in records.iter_mut().zip(light.chunks_exact(6)) {
+                    encode_gathered(
+                        &[[h[0], h[1], h[2]], [h[3], h[4], h[5]]],
+                        &mut w[EARLIER_AT..],
+                    );
+                }
+            }
+            for w in records.iter_mut() {
+                let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
+                let (normal_id, area, material) = held::scene_data(w);
+                // The update of every loop (`solve::update`), term by term.
+                let sides = material.map(|m| &info.materials[m as usize]);
+                let (h, norm) = (
+                    decode_gathered(&w[EARLIER_AT..]),
+                    cosine_sum[normal_id as usize],
+                );
+                let direct = self
+                    .direct()
+                    .then(|| decode_gathered(&w[held::DIRECT_AT..]));
+                let b_new = crate::solve::update::update_surfel(
+                    &sides.map(|m| m.emission.map(|e| e as f32)),
+                    &sides.map(|m| m.reflectance),
+                    h,
+                    direct.as_ref(),
+                    self.channels(),
+                    &previous,
+                    norm,
+                    area as f64,
+                    &mut result,
+                );
+                crate::solve::update::add_power(
+                    sides,
+                    h,
+                    direct.as_ref(),
+                    self.channels(),
+                    norm,
+                    area as f64,
+                    area_unit,
+                    &mut result,
+                );
+                encode_radiosity(&b_new, &mut w[held::RADIOSITY_AT..]);
+                canonical::carry(w, info, self.direct());
+                w[GATHERED_AT..held::SCENE_AT].fill(0);
+                if self.options.accelerate {
+                    // Kept for the tail extrapolation; the next iteration's first axis
+                    // overwrites it.
+                    encode_radiosity(&previous, &mut w[EARLIER_AT..]);
+                }
+                writer.write(w)?;
+            }
         }
         drop(reader);
         held.remove()?;
@@ -575,7 +655,13 @@ struct DataOocSweep<'s, 'a> {
     held: Option<Held>,
     /// Numbers the held files' generations.
     generation: u64,
+    /// This group's directions.
     walk: Vec<WalkStep>,
+    /// Steps of an iteration: one direction of every group each (a group with one direction
+    /// fewer idles in the last).
+    steps: usize,
+    /// The first canonical index of every rank's slice in the group.
+    starts: Vec<u64>,
     /// Each direction's column cuts, found in the first iteration.
     remembered: Vec<Option<Vec<u64>>>,
     imbalance: Vec<f64>,
@@ -610,11 +696,11 @@ impl Sweep for DataOocSweep<'_, '_> {
     type Error = OocError;
 
     fn steps(&self) -> usize {
-        self.walk.len()
+        self.steps
     }
 
     fn updates(&self) -> u64 {
-        self.surfels * self.walk.len() as u64
+        self.surfels * self.solver.directions.len() as u64
     }
 
     fn begin(&mut self, _from: usize) -> Result<(), OocError> {
@@ -625,14 +711,17 @@ impl Sweep for DataOocSweep<'_, '_> {
 
     fn step(&mut self, step: usize) -> Result<(), OocError> {
         let solver = self.solver;
-        let ranks = solver.comm.size();
+        let ranks = solver.group.size();
         let dims = solver.source.info().grid.dims;
-        let &WalkStep {
+        let Some(&WalkStep {
             main,
             first,
             last,
             direction: d,
-        } = &self.walk[step];
+        }) = self.walk.get(step)
+        else {
+            return Ok(());
+        };
         let key = AxisKey::new(main, dims);
         let direction = &solver.directions.directions[d];
         let frame = LineFrame::new(direction.vector, dims);
@@ -732,6 +821,26 @@ impl Sweep for DataOocSweep<'_, '_> {
 
     fn end(&mut self) -> Result<[f64; 3], OocError> {
         let t = Instant::now();
+        if self.solver.groups > 1 {
+            // The hybrid mode: every group brings its surfels to the canonical slices, sorted
+            // by id, so that the update can add the groups' light surfel by surfel.
+            let starts = &self.starts;
+            let owner = |w: &Wire| starts[1..].partition_point(|&s| s <= held::id(w) as u64);
+            self.generation += 1;
+            let held = self.held.take().expect("held files between steps");
+            let (next, _, _) = self.router.redistribute(
+                held,
+                self.generation,
+                AxisKey::canonical(),
+                false,
+                Vec::new(),
+                &owner,
+                &mut |_| {},
+                &mut self.io,
+                &mut self.seconds,
+            )?;
+            self.held = Some(next);
+        }
         self.generation += 1;
         let fold = self.pending.then_some(!self.earlier_any);
         let held = self.take_held();
@@ -745,7 +854,11 @@ impl Sweep for DataOocSweep<'_, '_> {
             &mut self.io,
         )?;
         self.held = Some(next);
+        // Group 0 speaks for every surfel once.
         let mut sums = [result.change, result.total, result.falling];
+        if self.solver.group_index != 0 {
+            sums.fill(0.0);
+        }
         self.solver.comm.sum_in_place(&mut sums);
         self.last = result;
         self.seconds.reduce += t.elapsed().as_secs_f64();

@@ -38,7 +38,8 @@ impl Solver<'_> {
     ) -> Result<Slice, OocError> {
         let info = self.source.info();
         let n = info.count;
-        let (ranks, me) = (self.comm.size() as u64, self.comm.rank() as u64);
+        // Every group holds the whole scene, sliced over its ranks.
+        let (ranks, me) = (self.group.size() as u64, self.group.rank() as u64);
         // A slice starts at the first voxel boundary at or after its nominal start, and ends
         // where the next one starts: the voxel of the record before the nominal start decides.
         let lo = n * me / ranks;

@@ -78,8 +78,8 @@ impl Solver<'_> {
         let bytes_moved = (table[..d_count].iter().sum::<f64>() as u64) * WIRE_LEN as u64;
         Totals {
             data: DataStats {
-                groups: 1,
-                ranks_per_group: ranks,
+                groups: self.groups,
+                ranks_per_group: self.group.size(),
                 exchanged_fraction: mean(&fractions),
                 max_exchanged_fraction: max(&fractions),
                 exchanged_by_direction: fractions,
