@@ -1,23 +1,12 @@
-//! The iteration loop: Jacobi sweeps over all line directions, the stopping rule, energy.
+//! The in-memory solver: every surfel and its light in RAM, Jacobi sweeps over all line
+//! directions on one process or with the directions dealt over the ranks (`InMemory`, a sweep
+//! of the one iteration loop, `iterate`), and the energy balance of the last gather.
 //!
 //! One iteration gathers, for every surfel side, `H = sum over s of B_prev(partner) cos W(s) / pi`
 //! over all directions (accumulated in f64, in direction order), then sets
 //! `B = E + rho * H / S(n)` (see `normalize`). Radiosity is stored in f32 between iterations.
-//!
-//! **Stopping.** The relative change of an iteration is `delta_k = sum A |B_k - B_{k-1}| / sum A B_k`
-//! over sides and channels (A the surfel area). Jacobi converges geometrically, so the error left
-//! after iteration k is about `delta_k * q / (1 - q)` with `q = delta_k / delta_{k-1}` the observed
-//! contraction (about the scene's reflectance). That estimate is the reported `residual`, and the
-//! solve stops when it is below the tolerance: so a scene with reflectance 0.999 runs long enough,
-//! where a bare `delta_k < tolerance` would stop about `rho / (1 - rho)` times too early.
-//!
-//! **Checkpoints and signals** ([`solve_checkpointed`]): at iteration boundaries the radiosity
-//! and the bookkeeping above are saved (see `crate::checkpoint`), and a solve can start from
-//! them; between directions the loop asks whether SIGTERM or SIGINT came (`crate::interrupt`).
-//! With mid-iteration checkpoints on (`Saver::within`), the ranks agree between every two
-//! directions (one `max_u64`) on stopping and on saving, and a stop keeps the directions already
-//! gathered; without, they agree once per iteration before they sum and a stop abandons the
-//! iteration in progress. Either way none waits for a rank that has stopped.
+//! The stopping rule, stop signals and checkpoints are the loop's (`iterate`); here a
+//! checkpoint inside an iteration holds each rank's sums by surfel id.
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};

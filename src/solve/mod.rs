@@ -2,8 +2,8 @@
 //!
 //! Pipeline of one solve: per-normal energy normalisation (`normalize`), then iterations; each
 //! iteration walks the directions, and per direction dispatches surfels into their discrete lines
-//! (`dispatch`) and gathers light along each line (`propagate`). `jacobi` owns the iteration loop,
-//! the stopping rule and the result.
+//! (`dispatch`) and gathers light along each line (`propagate`). `iterate` owns the one
+//! iteration loop of every solve path and the stopping rule; `jacobi` is its in-memory sweep.
 
 pub mod accelerate;
 pub mod coverage;

@@ -1,5 +1,6 @@
-//! The data mode out of core (`--distribute data --memory SIZE`): every rank holds only its
-//! share of the scene, in work files on its own disk, and its memory stays within the budget.
+//! The data and hybrid modes out of core (`--distribute data|hybrid --memory SIZE`): every rank
+//! holds only its share of the scene, in work files on its own disk, and its memory stays within
+//! the budget.
 //!
 //! **Input.** Rank `r` reads its slice of the canonical stream: about `n r / P .. n (r + 1) / P`,
 //! both ends moved to the next voxel boundary so that voxel-mates (for the coverage) stay
@@ -26,14 +27,26 @@
 //! **Iteration end**: each rank updates `B` of its held surfels (their materials, normal and
 //! area travel with them) with `solve::update`, as every loop; the stopping rule's sums are
 //! added over ranks. A grey scene gathers one channel; the tail extrapolation adds its jump in
-//! one more pass over the held files (the replaced radiosity waits in the earlier-axes slot). **Output**: the
-//! `(id, B)` pairs go to rank 0 in bounded rounds, which places them in a canonical radiosity
-//! file and streams the results from the source as the single-process path does.
+//! one more pass over the held files (the replaced radiosity waits in the earlier-axes slot).
+//! **Output**: the `(id, B)` pairs go to rank 0 in bounded rounds, which places them in a
+//! canonical radiosity file and streams the results from the source as the single-process path
+//! does.
+//!
+//! **The direct-light pass** ([`direct`]): rank 0 runs the one-process out-of-core pass and
+//! sends every rank its slice of the light, which then travels in the held records.
+//!
+//! **The loop** is the one of every path (`solve::iterate`, through [`DataOocSweep`]): a step
+//! is one direction of every group.
 //!
 //! **Checkpoints** ([`DataOocCheckpoints`]) are those of the single-process out-of-core solver:
 //! at a due iteration boundary the radiosity is gathered to rank 0, which writes it; on resume
 //! rank 0 reads it and sends every rank its slice. A stop signal is agreed on between
 //! directions (`max_u64`), and the checkpoint of the last completed iteration written.
+//!
+//! **Hybrid** (`groups` > 1): every group holds the whole scene over its ranks and walks its
+//! contiguous block of the directions; at the end of an iteration the groups route their
+//! surfels to the canonical slices (by id), and the update adds the groups' light peer by peer
+//! before it updates `B` in every group (group 0 speaks for the sums and the results).
 //!
 //! **Memory**: as in `outcore` (one band, one sort piece, or one exchange round at a time, and
 //! fixed I/O buffers), plus per direction its remembered cuts (`P + 1` numbers).
