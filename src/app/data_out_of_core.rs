@@ -21,6 +21,9 @@ pub(super) fn run_solve_data_out_of_core(
     if comm.rank() == 0 {
         checkpoint::remove_leftovers(&cmd.out);
     }
+    // No rank makes its work directories before rank 0 has removed a killed run's (it would
+    // take a new one for a leftover).
+    comm.max_u64(0);
     let (_converted, shards) = if cmd.scene.is_dir() {
         (None, cmd.scene.clone())
     } else {
