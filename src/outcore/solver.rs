@@ -14,12 +14,21 @@
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
 //! copies from the source, their radiosity from the canonical file). Inside an iteration
-//! (`Saver::within`) a checkpoint can be written between two main axes, when one is due or on
-//! a stop signal: it adds the canonical sum of the light gathered by the axes done (the same
-//! bytes the sum file holds), and a resume continues with the next axis. Not inside an axis:
-//! its light is spread over the shared gathered file in that axis's order, and folding it early
-//! would change the order of the sums. Stop signals are heard between directions, as in
-//! `solve::jacobi`.
+//! (`Saver::within`) a checkpoint can be written between any two directions, when one is due
+//! or on a stop signal ([`Position`]: the axes folded and the directions done of the next).
+//! Between two main axes it adds the canonical sum of the light gathered by the axes done (the
+//! same bytes the sum file holds). Inside an axis it also holds that axis's light so far,
+//! brought to canonical order into an array of its own (`State::axis_in_progress`): folded into
+//! the sum early, it would be added in another order than the uninterrupted run adds it. A
+//! resume puts the sum back, scatters the axis's light back into its copy's order and goes on
+//! with the next direction, adding to it; f64 values kept exactly give the same bits.
+//!
+//! That light is whole on disk between any two directions because the two shared gathered files
+//! are used in turn (`WorkSet::gathered`): a direction reads the light of the ones before it from
+//! one and writes it, with its own, to the other. Stop signals are heard between directions, as
+//! in `solve::jacobi`, and between bands inside a direction (on a large scene one direction can
+//! take minutes); a direction stopped so is abandoned, and the file it read from still holds the
+//! directions before it.
 
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
@@ -1204,4 +1213,33 @@ fn send_to_copies(
         io.read += reader.read;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn positions_inside_and_at_the_end_of_main_axes() {
+        // Axes of 3, 0 and 4 directions.
+        let axes = AxisSpans::new(&[vec![7, 8, 9], vec![], vec![1, 2, 3, 4]]);
+        let at = |axes, directions| Position { axes, directions };
+        assert_eq!(axes.position(2, true), Some(at(0, 2)));
+        assert_eq!(axes.position(5, true), Some(at(2, 2)));
+        // The end of an axis is no place inside one, and the inside no axis's end.
+        assert_eq!(axes.position(3, true), None);
+        assert_eq!(axes.position(0, true), None);
+        assert_eq!(axes.position(2, false), None);
+        assert_eq!(axes.position(3, false), Some(at(1, 0)));
+        for done in 1..7 {
+            for inside in [true, false] {
+                if let Some(p) = axes.position(done, inside) {
+                    assert_eq!(axes.done(p), done);
+                }
+            }
+        }
+        // The empty axis's end is the first's: resumed there, the third axis comes next.
+        assert_eq!(axes.done(at(2, 0)), 3);
+        assert_eq!(axes.done(at(3, 0)), 7);
+    }
 }
