@@ -403,6 +403,9 @@ fn run(
                     .as_mut()
                     .filter(|c| within && c.saver.due_within())
                 {
+                    // The save's permutation takes the memory a band holds: let the band's
+                    // arrays go (the next direction makes them again).
+                    buffers = BandBuffers::default();
                     let state =
                         c.saver
                             .state(iteration - 1, convergence.previous_change, &extrapolation);
@@ -419,6 +422,8 @@ fn run(
                 }
             }
             drop(histogram);
+            // What comes next (the fold, a checkpoint, the update) takes the memory a band holds.
+            drop(std::mem::take(&mut buffers));
             if signal.is_some() {
                 continue;
             }
