@@ -111,7 +111,7 @@ enum Command {
         #[arg(long)]
         resume: bool,
         /// Least seconds between two checkpoints, written after an iteration or, inside one,
-        /// between directions (out of core: between main axes). 0: after every iteration,
+        /// between directions. 0: after every iteration,
         /// and inside iterations as often as their writing time allows (at most a fifth of the
         /// time). A stop signal always saves what is done.
         #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]

@@ -268,7 +268,9 @@ fn many_small_lamps_give_the_one_process_answer_in_every_mode() {
         ("data", 3, Some("8MiB")),
         ("hybrid", 4, Some("8MiB")),
     ] {
-        let out = tmp.path().join(format!("{mode}{ranks}{}", memory.unwrap_or("")));
+        let out = tmp
+            .path()
+            .join(format!("{mode}{ranks}{}", memory.unwrap_or("")));
         let mut args = vec![
             "solve",
             obj.to_str().unwrap(),
@@ -304,7 +306,10 @@ fn many_small_lamps_give_the_one_process_answer_in_every_mode() {
             "office, {mode}, {ranks} ranks, memory {memory:?}: worst relative difference \
              {worst:.2e}"
         );
-        assert!(worst <= 1e-5, "{mode}, {ranks} ranks, {memory:?}: {worst:e}");
+        assert!(
+            worst <= 1e-5,
+            "{mode}, {ranks} ranks, {memory:?}: {worst:e}"
+        );
     }
 }
 

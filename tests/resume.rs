@@ -358,39 +358,120 @@ fn sigterm_inside_an_iteration_saves_its_partial_sums_and_resumes_to_the_same_by
     assert_clean(&out);
 }
 
+/// Out of core with main axes long enough to stop inside: 300 directions (about 100 per axis),
+/// every array in files; `extra` adds the checkpoint options.
+fn long_axes<'a>(extra: &[&'a str]) -> Vec<&'a str> {
+    [&["--memory", "1MiB", "--directions", "300"][..], extra].concat()
+}
+
+/// The directions done in an iteration at the end of each main axis of the checkpoint's run (in
+/// the order the out-of-core solver walks them): where the checkpoints before in-axis ones
+/// could only be.
+fn axis_ends(saved: &CheckpointFile) -> Vec<u64> {
+    // (The identity's direction checksum also covers the direct-light pass's directions.)
+    let directions = DirectionSet::with_count(300);
+    assert_eq!(directions.len() as u32, saved.header.identity.directions);
+    voxrad::outcore::solver::walk_by_axis(&directions)
+        .iter()
+        .scan(0, |done, axis| {
+            *done += axis.len() as u64;
+            Some(*done)
+        })
+        .collect()
+}
+
+/// Whether the checkpoint in `out` is inside a main axis (some of its directions done, not all),
+/// with the light of that axis; returns its position.
+fn inside_a_main_axis(out: &Path) -> Option<u64> {
+    let saved = CheckpointFile::open(&checkpoint::path_in(out)).ok()?;
+    let done = saved.header.state.within?;
+    let ends = axis_ends(&saved);
+    println!(
+        "checkpoint {done} directions into iteration {} (axes end at {ends:?})",
+        saved.header.state.iteration + 1
+    );
+    (!ends.contains(&done) && saved.header.state.axis_in_progress).then_some(done)
+}
+
+/// Resumes the solve in `out` (options `options`) and checks that it continued at position
+/// `done` and gave `reference`'s bytes.
+fn resumed_inside_to_the_same_bytes(out: &Path, options: &[&str], done: u64, reference: &Path) {
+    let (text, _) = run_to_end(
+        solve_command(out, &[options, &["--resume"]].concat()),
+        &out.with_extension("resume.log"),
+    );
+    assert!(
+        text.contains(CONTINUED_INSIDE)
+            && text.contains(&format!("within={done}"))
+            && text.contains("axis_directions="),
+        "{text}"
+    );
+    assert!(results(out) == results(reference));
+    assert_eq!(report(out)["energy"], report(reference)["energy"]);
+    assert_clean(out);
+}
+
 #[test]
-fn out_of_core_stopped_between_two_main_axes_resumes_to_the_same_bytes() {
+fn out_of_core_stopped_inside_a_main_axis_resumes_to_the_same_bytes() {
     let tmp = tempfile::tempdir().unwrap();
-    let options = [
-        "--memory",
-        "1MiB",
-        "--directions",
-        "300",
-        "--checkpoint-every",
-        "0",
-    ];
+    // (`stopped_inside_an_iteration` adds the options under which only the signal saves.)
+    let options = long_axes(&[]);
     let reference = tmp.path().join("reference");
     run_to_end(
         solve_command(&reference, &options),
         &tmp.path().join("ref.log"),
     );
-    // Once a checkpoint between two axes is written, SIGTERM: the next axis is abandoned, the
-    // checkpoint keeps the axes done.
-    let (out, done) = stopped_inside_when(tmp.path(), "ooc", &options, |log| {
-        log.lines()
-            .any(|l| l.contains("checkpoint written") && !l.contains("within=0 "))
-    });
-    let (text, _) = run_to_end(
-        solve_command(&out, &[&options[..], &["--resume"]].concat()),
-        &tmp.path().join("resume.log"),
+    // SIGTERM inside the second iteration, at some direction of an axis: the light of the
+    // directions done is kept (before, only the axes done were, so the position was an axis's
+    // end). Again if it came at an axis's first direction or between two iterations.
+    for attempt in 1..=4 {
+        let name = format!("term{attempt}");
+        let (out, done) = stopped_inside_an_iteration(tmp.path(), &name, &options);
+        if inside_a_main_axis(&out) == Some(done) {
+            resumed_inside_to_the_same_bytes(&out, &options, done, &reference);
+            return;
+        }
+        println!("attempt {attempt}: stopped at the end of a main axis, again");
+    }
+    panic!("four SIGTERMs, none inside a main axis");
+}
+
+#[test]
+fn out_of_core_due_checkpoint_inside_a_main_axis_resumes_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    // A checkpoint due at every direction (spaced by its writing time, see `Saver::due_within`).
+    let options = long_axes(&["--checkpoint-every", "0"]);
+    let reference = tmp.path().join("reference");
+    run_to_end(
+        solve_command(&reference, &options),
+        &tmp.path().join("ref.log"),
     );
-    assert!(
-        text.contains(CONTINUED_INSIDE) && text.contains(&format!("within={done}")),
-        "{text}"
-    );
-    assert!(results(&out) == results(&reference));
-    assert_eq!(report(&out)["energy"], report(&reference)["energy"]);
-    assert_clean(&out);
+    for attempt in 1..=4 {
+        let out = tmp.path().join(format!("due{attempt}"));
+        let log = tmp.path().join(format!("due{attempt}.log"));
+        let mut child = Child::spawn(solve_command(&out, &options), &log);
+        // Once the second iteration has written a checkpoint inside it, SIGKILL: nothing is
+        // saved on the way out, the file on disk is what a due save wrote.
+        let written_inside = |text: &str| {
+            text.lines().any(|l| {
+                l.contains("checkpoint written")
+                    && l.contains("iteration=1 ")
+                    && !l.contains("within=0 ")
+            })
+        };
+        child.wait_for(HANG_LIMIT, || written_inside(&child_log(&log)));
+        let ended = child.run_or_kill_after(Duration::ZERO);
+        let text = child.log();
+        assert!(!text.contains("panicked"), "{text}");
+        if matches!(ended, Ended::Killed) {
+            if let Some(done) = inside_a_main_axis(&out) {
+                resumed_inside_to_the_same_bytes(&out, &options, done, &reference);
+                return;
+            }
+        }
+        println!("attempt {attempt}: no checkpoint inside a main axis on disk, again");
+    }
+    panic!("four kills, none after a checkpoint inside a main axis");
 }
 
 #[test]
@@ -450,8 +531,12 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
     let mut mid_flipped = mid.clone();
     let at = mid.len() - 100;
     mid_flipped[at] ^= 0x40;
-    let mut version_4 = mid.clone();
-    version_4[8] = 4;
+    // A format version after this build's.
+    let unknown = checkpoint::file::FORMAT_VERSION + 1;
+    let mut version_next = mid.clone();
+    version_next[8..12].copy_from_slice(&unknown.to_le_bytes());
+    let unknown = format!("version {unknown}");
+    let unknown_needles = [unknown.as_str()];
     // A finished result in the directory the bad checkpoints go into: it must survive.
     let out = tmp.path().join("out");
     run_to_end(solve_command(&out, &[]), &tmp.path().join("out.log"));
@@ -512,9 +597,9 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
         ),
         (
             "a format version this voxrad does not know",
-            version_4,
+            version_next,
             &[],
-            &["version 4"],
+            &unknown_needles,
         ),
         (
             "other directions",
@@ -737,4 +822,73 @@ fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
         );
     }
     println!("out of core: resumed from each of {} boundaries", total - 1);
+}
+
+/// A mid-iteration checkpoint of the out-of-core solver whose position does not match what it
+/// holds (the light of an axis in progress at an axis's end, or an axis's middle without it) is
+/// refused naming the file, before anything is solved from it.
+#[test]
+fn out_of_core_checkpoint_with_a_position_that_does_not_match_its_sums_is_refused() {
+    let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
+    let set = voxelize(&scene, GridSpec::Resolution(8)).unwrap();
+    let source = InMemorySource::new(&set);
+    let directions = DirectionSet::with_count(49);
+    let n = set.surfels.len() as u64;
+    let identity = Identity {
+        solver: checkpoint::Solver::OutOfCore,
+        surfels: n,
+        dims: set.grid.dims,
+        voxel_size: set.grid.voxel_size,
+        directions: directions.len() as u32,
+        directions_checksum: checkpoint::directions_checksum(&directions),
+        channels: 3,
+        accelerate: false,
+        scene_checksum: 1,
+    };
+    let first_axis = voxrad::outcore::solver::walk_by_axis(&directions)[0].len() as u64;
+    assert!(first_axis >= 2);
+    let tmp = tempfile::tempdir().unwrap();
+    for (done, axis_in_progress, words) in [
+        (first_axis, true, "not inside a main axis"),
+        (first_axis - 1, false, "not at the end of a main axis"),
+    ] {
+        let mut saver = Saver::new(tmp.path(), identity.clone(), true, Duration::ZERO, 1, None);
+        let mut state = saver.state(1, None, &Default::default());
+        state.within = Some(done);
+        state.axis_in_progress = axis_in_progress;
+        let arrays = 1 + axis_in_progress as u64;
+        saver
+            .save(state, 1 << 16, |w| {
+                w.write_all(&vec![0u8; (n * (24 + 48 * arrays)) as usize])
+            })
+            .unwrap();
+        let path = checkpoint::path_in(tmp.path());
+        let c = OocCheckpoints {
+            saver: &mut saver,
+            resume: Some(CheckpointFile::open(&path).unwrap()),
+        };
+        let options = SolveOptions {
+            directions: 49,
+            threads: 1,
+            ..SolveOptions::default()
+        };
+        let err = match solve_out_of_core_checkpointed(
+            &source,
+            &directions,
+            &options,
+            256 << 10,
+            tmp.path(),
+            c,
+        ) {
+            Ok(_) => panic!("{done} directions, axis {axis_in_progress}: accepted"),
+            Err(e) => e,
+        };
+        let text = err.to_string();
+        assert!(err.is_bad_input(), "{text}");
+        assert!(
+            text.contains(&path.display().to_string()) && text.contains(words),
+            "{text}"
+        );
+        println!("{text}");
+    }
 }

@@ -202,7 +202,7 @@ pub(super) fn open_checkpoint_on_rank0(
     comm.sum_in_place(&mut words);
     changes.resize(words[6] as usize, 0.0);
     comm.sum_in_place(&mut changes);
-    // A checkpoint from inside an iteration (the one-process solver's, between two main axes)
+    // A checkpoint from inside an iteration (the one-process solver's, between two directions)
     // is continued from that iteration's start: the same radiosity, so the same answer.
     let state = checkpoint::State {
         iteration: words[0] as u64,
@@ -215,6 +215,7 @@ pub(super) fn open_checkpoint_on_rank0(
         ),
         within: None,
         data_groups: 0,
+        axis_in_progress: false,
     };
     Ok((file, Some(state)))
 }

@@ -74,7 +74,7 @@ pub(super) fn solve_out_of_core_in(
         1,
         resume.as_ref().map(|f| f.header.state.iteration),
     )
-    // Between two main axes too (see `outcore::solver`).
+    // Between two directions too (see `outcore::solver`).
     .within(true);
     let checkpoints = OocCheckpoints {
         saver: &mut saver,

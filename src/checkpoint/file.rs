@@ -2,16 +2,19 @@
 //!
 //! ```text
 //!  0  magic         8 bytes  "VXRDCKPT"
-//!  8  version       u32      FORMAT_VERSION (3; versions 1 and 2 are still read)
+//!  8  version       u32      FORMAT_VERSION (4; versions 1 to 3 are still read)
 //! 12  header_len    u32      bytes of the header body that follows
 //! 16  header body            Identity then State (see `encode_header`), little-endian;
 //!                            version 2 ends it with the mid-iteration position, version 3
-//!                            then with the layout of the partial sums (`State::data_groups`)
+//!                            then with the layout of the partial sums (`State::data_groups`),
+//!                            version 4 then with `State::axis_in_progress`
 //!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
 //!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
 //!                            back RGB), in the solver's surfel order
 //!  .  partial sums           only in mid-iteration: ranks x surfels x 48 bytes, the light each
-//!                            rank had gathered (f64 x 6 per surfel, side-major), rank 0 first
+//!                            rank had gathered (f64 x 6 per surfel, side-major), rank 0 first;
+//!                            with `axis_in_progress`, one more array of surfels x 48 bytes
+//!                            after them (out of core: the light of the main axis in progress)
 //!  .  payload_crc   u32      CRC-32 of the radiosity and partial-sum bytes
 //! ```
 //!
@@ -32,7 +35,7 @@ use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
 /// The version written; [`OLDEST_VERSION`] up to it are read.
-pub const FORMAT_VERSION: u32 = 3;
+pub const FORMAT_VERSION: u32 = 4;
 /// Version 1: iteration boundaries only (no position, no partial sums).
 pub const OLDEST_VERSION: u32 = 1;
 /// Bytes per surfel of the radiosity payload.
@@ -91,7 +94,7 @@ pub fn decode_gathered(bytes: &[u8]) -> Gathered {
 
 /// Bytes of the payload (radiosity and partial sums) of a checkpoint with this header.
 fn payload_len(header: &Header) -> Option<u64> {
-    let per_surfel = RADIOSITY_LEN as u64 + header.partial_ranks() as u64 * PARTIAL_LEN as u64;
+    let per_surfel = RADIOSITY_LEN as u64 + header.partial_arrays() as u64 * PARTIAL_LEN as u64;
     header.identity.surfels.checked_mul(per_surfel)
 }
 
@@ -136,6 +139,8 @@ fn encode_header(header: &Header) -> Vec<u8> {
     u64s(&mut b, state.within.unwrap_or(0));
     // Version 3: whose partial sums they are (by directions, or by held surfels, see `State`).
     u32s(&mut b, state.data_groups);
+    // Version 4: whether the light of an out-of-core axis in progress follows the sums.
+    u32s(&mut b, state.axis_in_progress as u32);
     b
 }
 
@@ -217,6 +222,16 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
         None
     };
     let data_groups = if version >= 3 { f.u32()? } else { 0 };
+    let axis_in_progress = if version >= 4 {
+        match f.u32()? {
+            0 => false,
+            // Only inside an iteration, and only in the layout by directions (out of core).
+            1 if within.is_some() && data_groups == 0 => true,
+            _ => return None,
+        }
+    } else {
+        false
+    };
     if f.at != body.len() {
         return None;
     }
@@ -229,6 +244,7 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
             extrapolation: ExtrapolationState::from_parts(changes, count, last_ratio),
             within,
             data_groups,
+            axis_in_progress,
         },
     })
 }
@@ -334,7 +350,8 @@ pub fn head<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
     &bytes[..radiosity_end(bytes, header)]
 }
 
-/// The partial sums of a checked checkpoint (every rank's, rank 0 first); empty at a boundary.
+/// The partial sums of a checked checkpoint (every rank's, rank 0 first, then the axis in
+/// progress's if it has one); empty at a boundary.
 pub fn sums<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
     if bytes.is_empty() {
         return bytes;
@@ -432,16 +449,18 @@ impl CheckpointFile {
         buffer_bytes: usize,
         f: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
-        self.read_payload(buffer_bytes, f, |_| Ok(()))
+        self.read_payload(buffer_bytes, f, |_| Ok(()), |_| Ok(()))
     }
 
     /// As [`CheckpointFile::read_radiosity`], and then the partial sums to `sums` in pieces of
-    /// whole surfels (every rank's in turn; the out-of-core solver writes one).
+    /// whole surfels (every rank's in turn; the out-of-core solver writes one), then the light
+    /// of the axis in progress (see [`State::axis_in_progress`]) to `axis`.
     pub fn read_payload<E: From<CheckpointError>>(
         &self,
         buffer_bytes: usize,
         mut radiosity: impl FnMut(&[u8]) -> Result<(), E>,
         mut sums: impl FnMut(&[u8]) -> Result<(), E>,
+        mut axis: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
         use std::io::{Seek, SeekFrom};
         let path = &self.path;
@@ -470,8 +489,11 @@ impl CheckpointFile {
             }
             Ok::<(), E>(())
         };
+        let axis_count =
+            surfels * (self.header.partial_arrays() - self.header.partial_ranks()) as u64;
         read(RADIOSITY_LEN, surfels, &mut radiosity)?;
         read(PARTIAL_LEN, sums_count, &mut sums)?;
+        read(PARTIAL_LEN, axis_count, &mut axis)?;
         let mut stored = [0u8; 4];
         file.read_exact(&mut stored).map_err(|e| io("read", e))?;
         if crc.finalize() != u32::from_le_bytes(stored) {
@@ -502,7 +524,7 @@ impl<W: Write> Write for Summing<'_, W> {
 
 /// Writes a checkpoint at `path` durably (see the module header); `fill` writes the payload: the
 /// radiosity of `header.identity.surfels` surfels, then in mid-iteration the partial sums of
-/// every rank. On failure nothing is left under `path` but what was there.
+/// every rank (and the axis in progress's, see [`State::axis_in_progress`]). On failure nothing is left under `path` but what was there.
 pub fn write(
     path: &Path,
     header: &Header,
@@ -562,10 +584,10 @@ fn write_partial(
         let (crc, bytes) = (summing.crc.finalize(), summing.bytes);
         if Some(bytes) != payload_len(header) {
             return Err(std::io::Error::other(format!(
-                "internal error: {bytes} bytes of payload for {} surfels and {} rank(s) of \
+                "internal error: {bytes} bytes of payload for {} surfels and {} array(s) of \
                  partial sums",
                 header.identity.surfels,
-                header.partial_ranks()
+                header.partial_arrays()
             )));
         }
         out.write_all(&crc.to_le_bytes())?;
@@ -581,6 +603,19 @@ mod tests {
     use super::*;
 
     fn header(surfels: u64, within: Option<u64>) -> Header {
+        header_with(surfels, within, false)
+    }
+
+    /// An out-of-core header inside a main axis: one rank's sums and the axis's.
+    fn axis_header(surfels: u64, within: u64) -> Header {
+        let mut h = header_with(surfels, Some(within), true);
+        h.identity.solver = Solver::OutOfCore;
+        h.state.ranks = 1;
+        h.state.data_groups = 0;
+        h
+    }
+
+    fn header_with(surfels: u64, within: Option<u64>, axis_in_progress: bool) -> Header {
         let mut observed = crate::solve::accelerate::Extrapolation::default();
         observed.observe(1.0, 0.5, 0.0);
         observed.observe(0.5, 0.25, 0.0);
@@ -604,6 +639,7 @@ mod tests {
                 extrapolation,
                 within,
                 data_groups: if within.is_some() { 2 } else { 0 },
+                axis_in_progress,
             },
         }
     }
@@ -635,7 +671,7 @@ mod tests {
                 w.write_all(&bytes)?;
             }
             let mut bytes = [0u8; PARTIAL_LEN];
-            for rank in 0..header.partial_ranks() as usize {
+            for rank in 0..header.partial_arrays() as usize {
                 for g in sums(values.len(), rank) {
                     encode_gathered(&g, &mut bytes);
                     w.write_all(&bytes)?;
@@ -658,8 +694,8 @@ mod tests {
     fn round_trip_in_memory_and_streamed() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
-        for within in [None, Some(17)] {
-            let h = header(37, within);
+        for h in [header(37, None), header(37, Some(17)), axis_header(37, 17)] {
+            let within = h.state.within;
             let values = radiosity(37);
             write_one(&path, &h, &values);
             assert!(!partial_path(&path).exists());
@@ -668,7 +704,8 @@ mod tests {
                 let got = parse(&path, &bytes, rank).unwrap();
                 assert_eq!(got.header, h);
                 assert_eq!(bits(&got.radiosity), bits(&values));
-                let want = (within.is_some() && rank < 2).then(|| sum_bits(&sums(37, rank)));
+                let ranks = h.partial_ranks() as usize;
+                let want = (within.is_some() && rank < ranks).then(|| sum_bits(&sums(37, rank)));
                 assert_eq!(got.partial.as_deref().map(sum_bits), want);
             }
             let file = CheckpointFile::open(&path).unwrap();
@@ -681,33 +718,60 @@ mod tests {
             })
             .unwrap();
             assert_eq!(bits(&streamed), bits(&values));
+            // Streamed whole: the ranks' sums, then the axis in progress's, each exactly.
+            let (mut ranks, mut axis) = (Vec::new(), Vec::new());
+            let take = |into: &mut Vec<Gathered>, piece: &[u8]| {
+                assert_eq!(piece.len() % PARTIAL_LEN, 0);
+                into.extend(piece.chunks_exact(PARTIAL_LEN).map(decode_gathered));
+                Ok::<(), CheckpointError>(())
+            };
+            file.read_payload::<CheckpointError>(
+                100,
+                |_| Ok(()),
+                |piece| take(&mut ranks, piece),
+                |piece| take(&mut axis, piece),
+            )
+            .unwrap();
+            let ranks_want: Vec<u64> = (0..h.partial_ranks() as usize)
+                .flat_map(|rank| sum_bits(&sums(37, rank)))
+                .collect();
+            assert_eq!(sum_bits(&ranks), ranks_want);
+            let axis_want = match h.state.axis_in_progress {
+                true => sum_bits(&sums(37, h.partial_ranks() as usize)),
+                false => Vec::new(),
+            };
+            assert_eq!(sum_bits(&axis), axis_want);
         }
     }
 
     /// An older file made from a current boundary one: the version, without the fields later
-    /// versions added at the header's end (version 2 the layout of the sums, version 1 also the
-    /// position), checksum redone.
-    fn as_version(v3: &[u8], version: u32) -> Vec<u8> {
-        let header_len = u32::from_le_bytes(v3[12..16].try_into().unwrap()) as usize;
+    /// versions added at the header's end (version 3 the axis in progress, version 2 also the
+    /// layout of the sums, version 1 also the position), checksum redone.
+    fn as_version(current: &[u8], version: u32) -> Vec<u8> {
+        let header_len = u32::from_le_bytes(current[12..16].try_into().unwrap()) as usize;
         let end = PREFIX_LEN + header_len;
-        let cut = if version == 1 { 16 } else { 4 };
-        let mut old = v3[..end - cut].to_vec();
+        let cut = match version {
+            1 => 20,
+            2 => 8,
+            _ => 4,
+        };
+        let mut old = current[..end - cut].to_vec();
         old[8..12].copy_from_slice(&version.to_le_bytes());
         old[12..16].copy_from_slice(&((header_len - cut) as u32).to_le_bytes());
         let crc = crc32fast::hash(&old);
         old.extend_from_slice(&crc.to_le_bytes());
-        old.extend_from_slice(&v3[end + 4..]);
+        old.extend_from_slice(&current[end + 4..]);
         old
     }
 
     #[test]
-    fn versions_1_and_2_are_read_and_an_unknown_version_is_refused() {
+    fn versions_1_to_3_are_read_and_an_unknown_version_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
         let h = header(5, None);
         write_one(&path, &h, &radiosity(5));
         let current = std::fs::read(&path).unwrap();
-        for old in [1, 2] {
+        for old in [1, 2, 3] {
             let bytes = as_version(&current, old);
             let got = parse(&path, &bytes, 0).unwrap();
             assert_eq!(got.header, h);
@@ -715,8 +779,19 @@ mod tests {
             std::fs::write(&path, &bytes).unwrap();
             assert_eq!(CheckpointFile::open(&path).unwrap().header, h);
         }
+        // A mid-iteration file of version 3 (an out-of-core one between two main axes had this
+        // layout): its sums are read as they were written.
+        let mid = header(5, Some(2));
+        write_one(&path, &mid, &radiosity(5));
+        let v3 = as_version(&std::fs::read(&path).unwrap(), 3);
+        let got = parse(&path, &v3, 1).unwrap();
+        assert_eq!(got.header, mid);
+        assert_eq!(
+            got.partial.as_deref().map(sum_bits),
+            Some(sum_bits(&sums(5, 1)))
+        );
         let v1 = as_version(&current, 1);
-        for version in [0u32, 4, 99] {
+        for version in [0u32, FORMAT_VERSION + 1, 99] {
             let mut b = v1.clone();
             b[8..12].copy_from_slice(&version.to_le_bytes());
             let err = parse(&path, &b, 0).unwrap_err();
@@ -733,8 +808,8 @@ mod tests {
     fn every_damage_is_named_and_never_panics() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
-        for within in [None, Some(3)] {
-            write_one(&path, &header(9, within), &radiosity(9));
+        for h in [header(9, None), header(9, Some(3)), axis_header(9, 3)] {
+            write_one(&path, &h, &radiosity(9));
             let good = std::fs::read(&path).unwrap();
             // Every truncation and every single-byte flip is refused, by both readers.
             let mut cases: Vec<Vec<u8>> = (0..good.len()).map(|n| good[..n].to_vec()).collect();

@@ -24,8 +24,9 @@
 //! holding the light of the surfels it holds, by id ([`State::data_groups`] says which layout a
 //! file has). A resume on another rank count or layout starts that iteration from its beginning
 //! (the radiosity it starts from is in the file) and says so. The out-of-core solver writes the
-//! same layout between two main axes, with its canonical sum as the one rank's
-//! (`outcore::solver`).
+//! same layout between two directions, with the canonical sum of the main axes done as the one
+//! rank's, and inside a main axis one more array, that axis's light so far
+//! ([`State::axis_in_progress`], `outcore::solver`).
 //!
 //! A checkpoint names the run it belongs to ([`Identity`]: solver, grid, surfels, directions,
 //! channels, extrapolation, and a checksum of the voxelized scene or of the shard set): one from

@@ -54,8 +54,7 @@ impl Saver {
         }
     }
 
-    /// Also writes checkpoints inside iterations, between two directions (or steps, or main
-    /// axes out of core).
+    /// Also writes checkpoints inside iterations, between two directions (or steps).
     pub fn within(mut self, on: bool) -> Self {
         self.within = on;
         self
@@ -106,6 +105,7 @@ impl Saver {
             extrapolation: extrapolation.into(),
             within: None,
             data_groups: 0,
+            axis_in_progress: false,
         }
     }
 

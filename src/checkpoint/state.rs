@@ -52,6 +52,11 @@ pub struct State {
     /// surfel id (zero for the others); `within` then counts the steps of the group's
     /// directions. Only a run of the same layout and rank count continues inside the iteration.
     pub data_groups: u32,
+    /// Out of core, inside a main axis (format version 4): after the one rank's partial sums
+    /// (then the canonical sum of the light of the axes done), the file holds one more array,
+    /// the light the axis in progress has gathered so far, brought to canonical order
+    /// (`outcore::solver`). `false` at an iteration boundary and in every other layout.
+    pub axis_in_progress: bool,
 }
 
 /// Everything in a checkpoint but the radiosity.
@@ -69,5 +74,11 @@ impl Header {
         } else {
             0
         }
+    }
+
+    /// Arrays of partial sums the file holds: the ranks', then the axis in progress's (see
+    /// [`State::axis_in_progress`]).
+    pub fn partial_arrays(&self) -> u32 {
+        self.partial_ranks() + (self.state.within.is_some() && self.state.axis_in_progress) as u32
     }
 }

@@ -1,6 +1,7 @@
 //! One direction, band by band (see the `outcore` module header): cutting the direction's line
 //! columns into bands that fit the budget, reading a band's ranges of its axis copy, running the
-//! in-memory dispatch and propagation on it, and adding the gathered light to the copy's file.
+//! in-memory dispatch and propagation on it, and adding the gathered light to the copy's file
+//! (in place, or read from one file and written to another, see [`CopyFiles::previous`]).
 
 use super::budget::MemoryPlan;
 use super::files::{
@@ -20,15 +21,36 @@ use std::time::Instant;
 pub struct CopyFiles {
     pub statics: RecordFile,
     pub radiosity: RecordFile,
+    /// Where a direction writes the light gathered so far, its own added.
     pub gathered: RecordFile,
+    /// Where the light of the copy's earlier directions is read from, when not from `gathered`
+    /// itself. Every direction writes every record of the copy, so two files used in turn hold
+    /// the light of the directions done whole while one is in progress (the one-process solver
+    /// saves it in checkpoints from there; a direction stopped by a signal leaves it intact).
+    pub previous: Option<RecordFile>,
 }
 
 impl CopyFiles {
+    /// A copy's files adding each direction's light in place, in `gathered`.
     pub fn open(copy: &AxisCopy, gathered: &std::path::Path) -> Result<Self, OocError> {
         Ok(CopyFiles {
             statics: RecordFile::open(&copy.statics)?,
             radiosity: RecordFile::open(&copy.radiosity)?,
             gathered: RecordFile::open(gathered)?,
+            previous: None,
+        })
+    }
+
+    /// A copy's files reading the earlier directions' light from `previous` and writing it,
+    /// with this direction's added, to `gathered`.
+    pub fn open_from(
+        copy: &AxisCopy,
+        previous: &std::path::Path,
+        gathered: &std::path::Path,
+    ) -> Result<Self, OocError> {
+        Ok(CopyFiles {
+            previous: Some(RecordFile::open(previous)?),
+            ..CopyFiles::open(copy, gathered)?
         })
     }
 }
@@ -101,7 +123,7 @@ pub struct DirectionPass<'a> {
     /// Channels to gather (1 for a grey scene, see `solve::jacobi`).
     pub channels: usize,
     /// First direction of this copy in this iteration: the gathered file is overwritten, not
-    /// added to.
+    /// added to (nothing is read from [`CopyFiles::previous`]).
     pub first: bool,
 }
 
@@ -366,9 +388,12 @@ impl DirectionPass<'_> {
                         .extend(std::iter::repeat_n([[0.0; 3]; 2], k as usize));
                 } else {
                     let bytes = &mut buffers.bytes[..k as usize * GATHER_LEN];
-                    self.files
-                        .gathered
-                        .read_at(first * GATHER_LEN as u64, bytes, io)?;
+                    let earlier = self.files.previous.as_ref();
+                    earlier.unwrap_or(&self.files.gathered).read_at(
+                        first * GATHER_LEN as u64,
+                        bytes,
+                        io,
+                    )?;
                     buffers
                         .gathered
                         .extend(bytes.chunks_exact(GATHER_LEN).map(decode_gathered));

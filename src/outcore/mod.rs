@@ -14,8 +14,10 @@
 //! of copy `m`; the band is these ranges read layer after layer, so the bands of one direction
 //! read every record exactly once, and the per-line frontier is never larger than a band's
 //! lines. Inside a band the in-memory engine runs unchanged (`solve::dispatch` into lists,
-//! `solve::propagate` along them, on the worker threads), and the light gathered is added to the
-//! copy's gather file at the same ranges.
+//! `solve::propagate` along them, on the worker threads), and the light gathered is added to
+//! that of the axis's earlier directions at the same ranges: read from one of two gather files
+//! and written to the other, so that the light of the directions done stays whole on disk for a
+//! checkpoint (`workset::WorkSet::gathered`).
 //!
 //! **An iteration** ([`solver`]) walks the directions grouped by main axis, then brings the
 //! three gather files back to canonical order ([`scatter`]), computes `B = E + rho H / S(n)`

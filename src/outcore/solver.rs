@@ -14,12 +14,21 @@
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
 //! copies from the source, their radiosity from the canonical file). Inside an iteration
-//! (`Saver::within`) a checkpoint can be written between two main axes, when one is due or on
-//! a stop signal: it adds the canonical sum of the light gathered by the axes done (the same
-//! bytes the sum file holds), and a resume continues with the next axis. Not inside an axis:
-//! its light is spread over the shared gathered file in that axis's order, and folding it early
-//! would change the order of the sums. Stop signals are heard between directions, as in
-//! `solve::jacobi`.
+//! (`Saver::within`) a checkpoint can be written between any two directions, when one is due
+//! or on a stop signal ([`Position`]: the axes folded and the directions done of the next).
+//! Between two main axes it adds the canonical sum of the light gathered by the axes done (the
+//! same bytes the sum file holds). Inside an axis it also holds that axis's light so far,
+//! brought to canonical order into an array of its own (`State::axis_in_progress`): folded into
+//! the sum early, it would be added in another order than the uninterrupted run adds it. A
+//! resume puts the sum back, scatters the axis's light back into its copy's order and goes on
+//! with the next direction, adding to it; f64 values kept exactly give the same bits.
+//!
+//! That light is whole on disk between any two directions because the two shared gathered files
+//! are used in turn (`WorkSet::gathered`): a direction reads the light of the ones before it from
+//! one and writes it, with its own, to the other. Stop signals are heard between directions, as
+//! in `solve::jacobi`, and between bands inside a direction (on a large scene one direction can
+//! take minutes); a direction stopped so is abandoned, and the file it read from still holds the
+//! directions before it.
 
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
@@ -27,7 +36,7 @@ use super::files::{
     decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, Gathered, IoCounters,
     Radiosity, RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN,
 };
-use super::scatter::Scatter;
+use super::scatter::{ChunkReader, Scatter};
 use super::source::SurfelSource;
 use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
@@ -296,39 +305,40 @@ fn run(
     let mut extrapolation = Extrapolation::default();
 
     let by_axis = walk_by_axis(directions);
-    let files: Vec<CopyFiles> = work
+    // Each copy's files twice: direction `k` of an axis reads the light of the directions
+    // before it from gathered file `(k + 1) % 2` and writes to file `k % 2` (see `WorkSet`).
+    let files: Vec<[CopyFiles; 2]> = work
         .copies
         .iter()
-        .map(|c| CopyFiles::open(c, &work.gathered))
-        .collect::<Result<_, _>>()?;
+        .map(|c| {
+            Ok([
+                CopyFiles::open_from(c, &work.gathered[1], &work.gathered[0])?,
+                CopyFiles::open_from(c, &work.gathered[0], &work.gathered[1])?,
+            ])
+        })
+        .collect::<Result<_, OocError>>()?;
     let mut buffers = BandBuffers::default();
     let mut times = BandTimes::default();
     let mut last = first;
     let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
     let mut convergence = Convergence::new();
     let mut first_iteration = 1;
-    // Directions done after each main axis: the places inside an iteration a checkpoint can
-    // hold (the light of the axes before it is then whole in the canonical sum).
-    let axis_ends: Vec<u64> = by_axis
-        .iter()
-        .scan(0, |done, axis| {
-            *done += axis.len() as u64;
-            Some(*done)
-        })
-        .collect();
-    // Axes already gathered in the iteration resumed from a mid-iteration checkpoint.
-    let mut resume_axes = 0;
+    let axes = AxisSpans::new(&by_axis);
+    // Where the iteration resumed from a mid-iteration checkpoint stands.
+    let mut resume_at = Position::default();
     if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
         let t = Instant::now();
-        resume_axes = restore(&file, &work, &plan, &axis_ends, &mut io)?;
+        resume_at = restore(&file, &work, &plan, &axes, &mut io)?;
         send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         first_iteration = convergence.resume(&file.header.state, &file.path, &mut stats.solve);
         extrapolation = file.header.state.extrapolation.clone().into();
-        if resume_axes > 0 {
+        if resume_at != Position::default() {
             tracing::info!(
                 iteration = first_iteration,
-                within = axis_ends[resume_axes - 1],
+                within = axes.done(resume_at),
+                axis = resume_at.axes,
+                axis_directions = resume_at.directions,
                 "continuing inside an iteration from the checkpoint's partial sums"
             );
         }
@@ -344,26 +354,30 @@ fn run(
         }
         progress.reset();
         progress.set_message(format!("iteration {iteration}"));
-        // Axes whose light is in the canonical sum (those resumed from first).
-        let mut axes_done = std::mem::take(&mut resume_axes);
-        progress.set_position(axes_done.checked_sub(1).map_or(0, |m| axis_ends[m]));
-        let mut gathered_any = axes_done > 0;
+        // The light gathered so far: axes whole in the canonical sum, and directions of the
+        // next axis in its gathered files (those resumed from first).
+        let mut at = std::mem::take(&mut resume_at);
+        progress.set_position(axes.done(at));
+        // Whether the canonical sum holds any axis's light yet (else the next fold starts it).
+        let mut gathered_any = by_axis[..at.axes].iter().any(|a| !a.is_empty());
         let mut signal = None;
         for (m, (copy, copy_files)) in work.copies.iter().zip(&files).enumerate() {
-            if m < axes_done || by_axis[m].is_empty() || signal.is_some() {
+            if m < at.axes || by_axis[m].is_empty() || signal.is_some() {
                 continue;
             }
+            at.axes = m;
             let histogram = copy.load_histogram(&plan)?;
-            for (k, &d) in by_axis[m].iter().enumerate() {
-                // Abandon the iteration on a stop signal: the canonical radiosity file still
-                // holds the last completed one (it changes only in `update`).
+            for (k, &d) in by_axis[m].iter().enumerate().skip(at.directions) {
+                // Stop on a signal, keeping the light of the directions done (the canonical
+                // radiosity file still holds the last completed iteration: it changes only in
+                // `update`).
                 signal = crate::interrupt::requested();
                 if signal.is_some() {
                     break;
                 }
                 let pass = DirectionPass {
                     copy,
-                    files: copy_files,
+                    files: &copy_files[k % 2],
                     histogram: &histogram,
                     dims: info.grid.dims,
                     plan: &plan,
@@ -372,23 +386,57 @@ fn run(
                     first: k == 0,
                 };
                 pass.run(&directions.directions[d], &mut buffers, &mut io, &mut times)?;
-                // The pass may have stopped early on a signal: its light is incomplete.
+                // The pass may have stopped early on a signal: its light is incomplete, and
+                // the file it read from holds the directions before it, whole.
                 signal = crate::interrupt::requested();
                 if signal.is_some() {
                     break;
                 }
+                at.directions = k + 1;
                 progress.inc(1);
+                // Between two directions of this axis (its end comes below), when a checkpoint
+                // is due.
+                if at.directions == by_axis[m].len() {
+                    continue;
+                }
+                if let Some(c) = checkpoints
+                    .as_mut()
+                    .filter(|c| within && c.saver.due_within())
+                {
+                    // The save's permutation takes the memory a band holds: let the band's
+                    // arrays go (the next direction makes them again).
+                    buffers = BandBuffers::default();
+                    let state =
+                        c.saver
+                            .state(iteration - 1, convergence.previous_change, &extrapolation);
+                    let result = save_in_axis(
+                        c.saver,
+                        state,
+                        (&axes, at),
+                        copy,
+                        gathered_any,
+                        (&work, &plan),
+                        &mut io,
+                    );
+                    c.saver.warn_on_failure(result);
+                }
             }
             drop(histogram);
+            // What comes next (the fold, a checkpoint, the update) takes the memory a band holds.
+            drop(std::mem::take(&mut buffers));
             if signal.is_some() {
                 continue;
             }
-            // This axis's light joins the canonical sum before the next axis reuses the file.
+            // This axis's light joins the canonical sum before the next axis reuses the files.
             let t = Instant::now();
-            fold_gathered(copy, &work, &plan, !gathered_any, &mut io)?;
+            let last_file = &work.gathered[(at.directions - 1) % 2];
+            fold_gathered(copy, last_file, &work, &plan, !gathered_any, &mut io)?;
             fold_seconds += t.elapsed().as_secs_f64();
             gathered_any = true;
-            axes_done = m + 1;
+            at = Position {
+                axes: m + 1,
+                directions: 0,
+            };
             // Between two axes (not after the last: the iteration's boundary comes next), when
             // a checkpoint is due.
             let more = by_axis[m + 1..].iter().any(|a| !a.is_empty());
@@ -399,17 +447,36 @@ fn run(
                 let state =
                     c.saver
                         .state(iteration - 1, convergence.previous_change, &extrapolation);
-                let result = save_within(c.saver, state, axis_ends[m], &work, &plan);
+                let result = save_within(c.saver, state, axes.done(at), &work, &plan);
                 c.saver.warn_on_failure(result);
             }
         }
         if let Some(signal) = signal {
             progress.finish_and_clear();
             let completed = iteration - 1;
+            let done = axes.done(at);
             let interruption = match checkpoints.as_mut() {
+                // Directions of the axis in progress are done: their light is kept.
+                Some(c) if within && at.directions > 0 => {
+                    let copy = &work.copies[at.axes];
+                    c.saver
+                        .interrupt_at(signal, completed, Some(done), |saver| {
+                            let state =
+                                saver.state(completed, convergence.previous_change, &extrapolation);
+                            let places = (&work, &plan);
+                            save_in_axis(
+                                saver,
+                                state,
+                                (&axes, at),
+                                copy,
+                                gathered_any,
+                                places,
+                                &mut io,
+                            )
+                        })
+                }
                 // The axes whose light is summed are kept.
-                Some(c) if within && axes_done > 0 => {
-                    let done = axis_ends[axes_done - 1];
+                Some(c) if within && done > 0 => {
                     c.saver
                         .interrupt_at(signal, completed, Some(done), |saver| {
                             let state =
@@ -511,6 +578,73 @@ fn run(
     })
 }
 
+/// A place inside an iteration where the light gathered so far is whole on disk: the first
+/// `axes` main axes (in `walk_by_axis` order) folded into the canonical sum, and the first
+/// `directions` directions of the next axis in its gathered files (in file
+/// `(directions - 1) % 2`, see `WorkSet::gathered`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Position {
+    axes: usize,
+    directions: usize,
+}
+
+/// Where each main axis's directions lie in an iteration's order: a [`Position`] as the count
+/// of directions done that a checkpoint stores, and back.
+struct AxisSpans {
+    /// Directions before each axis, and after the last (four entries).
+    starts: Vec<u64>,
+}
+
+impl AxisSpans {
+    fn new(by_axis: &[Vec<usize>]) -> Self {
+        let mut starts = vec![0u64];
+        for axis in by_axis {
+            starts.push(starts.last().copied().unwrap_or(0) + axis.len() as u64);
+        }
+        AxisSpans { starts }
+    }
+
+    /// Directions of the iteration done at `at`.
+    fn done(&self, at: Position) -> u64 {
+        self.starts[at.axes.min(self.starts.len() - 1)] + at.directions as u64
+    }
+
+    /// The position `done` directions into an iteration: inside a main axis (`in_axis`, at
+    /// least one of its directions done and one left), or else at the end of one. `None` if
+    /// `done` is no such place.
+    fn position(&self, done: u64, in_axis: bool) -> Option<Position> {
+        let axes = self.starts.len() - 1;
+        if in_axis {
+            (0..axes)
+                .find(|&m| self.starts[m] < done && done < self.starts[m + 1])
+                .map(|m| Position {
+                    axes: m,
+                    directions: (done - self.starts[m]) as usize,
+                })
+        } else {
+            (0..axes)
+                .find(|&m| self.starts[m + 1] == done)
+                .map(|m| Position {
+                    axes: m + 1,
+                    directions: 0,
+                })
+        }
+    }
+}
+
+/// Copies the `LEN`-byte records of a work file into a checkpoint being written.
+fn copy_records<const LEN: usize>(
+    path: &Path,
+    plan: &MemoryPlan,
+    w: &mut dyn std::io::Write,
+) -> std::io::Result<()> {
+    let mut reader = SeqReader::<LEN>::open(path, plan.io_bytes).map_err(std::io::Error::other)?;
+    while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+        w.write_all(&record)?;
+    }
+    Ok(())
+}
+
 /// Saves a checkpoint whose radiosity is the canonical radiosity file, streamed through the
 /// plan's I/O buffer.
 fn save(
@@ -520,14 +654,12 @@ fn save(
     plan: &MemoryPlan,
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     saver.save(state, plan.io_bytes, |w| {
-        let mut reader = SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)
-            .map_err(std::io::Error::other)?;
-        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
-            w.write_all(&record)?;
-        }
-        Ok(())
+        copy_records::<RADIOSITY_LEN>(&work.canonical_radiosity, plan, w)
     })
 }
+
+// Same layout as a checkpoint's partial sums: f64 x 6 per surfel, side-major, LE.
+const _: () = assert!(crate::checkpoint::file::PARTIAL_LEN == GATHER_LEN);
 
 /// Saves a checkpoint inside an iteration, `done` directions into it (the end of a main axis):
 /// the canonical radiosity file, then the canonical sum of the light gathered so far.
@@ -540,40 +672,76 @@ fn save_within(
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     state.within = Some(done);
     saver.save(state, plan.io_bytes, |w| {
-        let mut reader = SeqReader::<RADIOSITY_LEN>::open(&work.canonical_radiosity, plan.io_bytes)
-            .map_err(std::io::Error::other)?;
-        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
-            w.write_all(&record)?;
+        copy_records::<RADIOSITY_LEN>(&work.canonical_radiosity, plan, w)?;
+        copy_records::<GATHER_LEN>(&work.canonical_gathered, plan, w)
+    })
+}
+
+/// Saves a checkpoint inside main axis `at.axes`, `at.directions` of its directions done
+/// (`copy` is that axis's copy): the canonical radiosity file, the canonical sum of the axes
+/// before it (zeros when `summed` is false: none gathered yet, and the file holds an older
+/// iteration's), then the light of the axis's directions done, brought from its gathered file to
+/// canonical order as [`fold_gathered`] brings it, but into an array of its own (added to the
+/// sum, it would round otherwise than the uninterrupted run, which adds the whole axis at once).
+fn save_in_axis(
+    saver: &mut Saver,
+    mut state: crate::checkpoint::State,
+    (axes, at): (&AxisSpans, Position),
+    copy: &AxisCopy,
+    summed: bool,
+    (work, plan): (&WorkSet, &MemoryPlan),
+    io: &mut IoCounters,
+) -> Result<(), crate::checkpoint::CheckpointError> {
+    state.within = Some(axes.done(at));
+    state.axis_in_progress = true;
+    let gathered = &work.gathered[(at.directions - 1) % 2];
+    saver.save(state, plan.io_bytes, |w| {
+        copy_records::<RADIOSITY_LEN>(&work.canonical_radiosity, plan, w)?;
+        if summed {
+            copy_records::<GATHER_LEN>(&work.canonical_gathered, plan, w)?;
+        } else {
+            let zeros = vec![0u8; plan.io_bytes.max(GATHER_LEN) / GATHER_LEN * GATHER_LEN];
+            let mut left = work.count * GATHER_LEN as u64;
+            while left > 0 {
+                let len = left.min(zeros.len() as u64) as usize;
+                w.write_all(&zeros[..len])?;
+                left -= len as u64;
+            }
         }
-        // Same layout as a checkpoint's partial sums: f64 x 6 per surfel, side-major, LE.
-        const _: () = assert!(crate::checkpoint::file::PARTIAL_LEN == GATHER_LEN);
-        let mut reader = SeqReader::<GATHER_LEN>::open(&work.canonical_gathered, plan.io_bytes)
+        let mut canonical = Canonical::new(copy, gathered, work, plan, "checkpoint-axis", io)
             .map_err(std::io::Error::other)?;
-        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
-            w.write_all(&record)?;
+        let mut bytes = Vec::new();
+        while let Some((_, values)) = canonical.next_chunk().map_err(std::io::Error::other)? {
+            bytes.resize(values.len() * GATHER_LEN, 0);
+            for (h, slot) in values.iter().zip(bytes.chunks_exact_mut(GATHER_LEN)) {
+                encode_gathered(h, slot);
+            }
+            w.write_all(&bytes)?;
         }
+        canonical.finish(io);
         Ok(())
     })
 }
 
 /// Puts a checkpoint's radiosity (the canonical order's, checked against its checksum before
 /// anything is solved from it) into the canonical radiosity file (the caller sends it to the
-/// axis copies), and a mid-iteration checkpoint's sum into the canonical sum; returns the axes
-/// of the iteration that sum holds (0 at a boundary). `axis_ends` are the directions done after
-/// each axis.
+/// axis copies); in a mid-iteration checkpoint, its sum into the canonical sum and the light of
+/// the axis in progress, if it has one, into that axis's gathered file, in its copy's order.
+/// Returns where in the iteration the light it holds stands (the default at a boundary).
 fn restore(
     file: &CheckpointFile,
     work: &WorkSet,
     plan: &MemoryPlan,
-    axis_ends: &[u64],
+    axes: &AxisSpans,
     io: &mut IoCounters,
-) -> Result<usize, OocError> {
+) -> Result<Position, OocError> {
     let bad = |what: String| OocError::BadData {
         source_name: file.path.display().to_string(),
         what,
     };
-    let axes = match file.header.state.within {
-        None => 0,
+    let state = &file.header.state;
+    let at = match state.within {
+        None => Position::default(),
         Some(done) => {
             if file.header.partial_ranks() != 1 {
                 return Err(bad(format!(
@@ -581,12 +749,18 @@ fn restore(
                     file.header.partial_ranks()
                 )));
             }
-            match axis_ends.iter().position(|&e| e == done) {
-                Some(m) => m + 1,
+            match axes.position(done, state.axis_in_progress) {
+                Some(at) => at,
+                None if state.axis_in_progress => {
+                    return Err(bad(format!(
+                        "it is {done} directions into an iteration, not inside a main axis as \
+                         it says (damaged?)"
+                    )))
+                }
                 None => {
                     return Err(bad(format!(
                         "it is {done} directions into an iteration, not at the end of a main \
-                         axis (damaged?)"
+                         axis, and holds no light of the axis in progress (damaged?)"
                     )))
                 }
             }
@@ -595,19 +769,30 @@ fn restore(
     // Same layout: f32 x 6 per surfel, side-major, little-endian.
     const _: () = assert!(crate::checkpoint::file::RADIOSITY_LEN == RADIOSITY_LEN);
     if file.header.identity.surfels != work.count {
-        return Err(OocError::BadData {
-            source_name: file.path.display().to_string(),
-            what: format!(
-                "it holds {} surfels, the scene {}",
-                file.header.identity.surfels, work.count
-            ),
-        });
+        return Err(bad(format!(
+            "it holds {} surfels, the scene {}",
+            file.header.identity.surfels, work.count
+        )));
     }
+    let n = work.count;
     let mut out = SeqWriter::create(&work.canonical_radiosity, plan.io_bytes)?;
     // The sum file is rewritten only if the checkpoint has a sum (it keeps its length else).
-    let mut sums = match axes {
+    let mut sums = match state.within {
+        None => None,
+        Some(_) => Some(SeqWriter::create(&work.canonical_gathered, plan.io_bytes)?),
+    };
+    // The axis's light goes to its copy's order, where each canonical surfel sits in it.
+    let mut axis = match at.directions {
         0 => None,
-        _ => Some(SeqWriter::create(&work.canonical_gathered, plan.io_bytes)?),
+        _ => {
+            let copy = &work.copies[at.axes];
+            let chunk = plan.chunk_surfels.min(n).max(1);
+            let buffer = plan.bucket_buffer(n.div_ceil(chunk));
+            let scatter =
+                Scatter::<GATHER_LEN>::new(work.dir.path(), "checkpoint-axis", n, chunk, buffer)?;
+            let positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
+            Some((scatter, positions))
+        }
     };
     file.read_payload::<OocError>(
         plan.io_bytes,
@@ -616,14 +801,41 @@ fn restore(
             Some(s) => s.write(piece),
             None => Ok(()),
         },
+        |piece| {
+            let Some((scatter, positions)) = axis.as_mut() else {
+                return Ok(());
+            };
+            for value in piece.chunks_exact(GATHER_LEN) {
+                let p = u32::from_le_bytes(positions.expect_record()?) as u64;
+                let value: &[u8; GATHER_LEN] = value.try_into().expect("whole records");
+                scatter.push(p, value)?;
+            }
+            Ok(())
+        },
     )?;
     io.written += out.finish()?;
-    io.read += work.count * RADIOSITY_LEN as u64;
+    io.read += n * RADIOSITY_LEN as u64;
     if let Some(s) = sums {
         io.written += s.finish()?;
-        io.read += work.count * GATHER_LEN as u64;
+        io.read += n * GATHER_LEN as u64;
     }
-    Ok(axes)
+    if let Some((scatter, _)) = axis {
+        io.read += n * (4 + GATHER_LEN as u64);
+        let mut chunks = scatter.into_chunks()?;
+        // Where the next direction of the axis reads the light of those before it.
+        let into = &work.gathered[(at.directions - 1) % 2];
+        let mut out = SeqWriter::create(into, plan.io_bytes)?;
+        let chunk = plan.chunk_surfels.min(n).max(1) as usize;
+        let mut values = vec![[0u8; GATHER_LEN]; chunk];
+        while let Some((_, len)) = chunks.next_chunk(|at, value| values[at] = *value)? {
+            for v in &values[..len as usize] {
+                out.write(v)?;
+            }
+        }
+        io.written += out.finish()? + chunks.written;
+        io.read += chunks.read;
+    }
+    Ok(at)
 }
 
 /// What one update of the radiosity found.
@@ -638,55 +850,98 @@ struct Update {
 
 pub use crate::solve::update::UpdateSums;
 
-/// Adds the light gathered in `copy`'s order (the shared gathered file) to the canonical sum,
-/// or starts the sum with it (`first`).
+/// The light of a gathered file (in an axis copy's order) in canonical order, chunk by chunk:
+/// a permutation by the copy's canonical indices ([`Scatter`]), its first pass made by
+/// [`Canonical::new`].
+struct Canonical {
+    chunks: ChunkReader<GATHER_LEN>,
+    /// One chunk's values (`chunk` surfels at most), reused.
+    values: Vec<Gathered>,
+    chunk: u64,
+}
+
+impl Canonical {
+    /// Scatters `gathered` (in `copy`'s order) into bucket files named after `name`.
+    fn new(
+        copy: &AxisCopy,
+        gathered: &Path,
+        work: &WorkSet,
+        plan: &MemoryPlan,
+        name: &str,
+        io: &mut IoCounters,
+    ) -> Result<Self, OocError> {
+        let n = work.count;
+        let chunk = plan.chunk_surfels.min(n).max(1);
+        let buffer = plan.bucket_buffer(n.div_ceil(chunk));
+        let mut scatter = Scatter::<GATHER_LEN>::new(work.dir.path(), name, n, chunk, buffer)?;
+        let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
+        let mut values = SeqReader::<GATHER_LEN>::open(gathered, plan.io_bytes)?;
+        while let Some(id) = ids.next_record()? {
+            let value = values.expect_record()?;
+            scatter.push(u32::from_le_bytes(id) as u64, &value)?;
+        }
+        io.read += n * (4 + GATHER_LEN as u64);
+        Ok(Canonical {
+            chunks: scatter.into_chunks()?,
+            values: Vec::new(),
+            chunk,
+        })
+    }
+
+    /// The next chunk of canonical surfels: its first index and the light of each.
+    fn next_chunk(&mut self) -> Result<Option<(u64, &[Gathered])>, OocError> {
+        let values = &mut self.values;
+        values.clear();
+        values.resize(self.chunk as usize, [[0.0; 3]; 2]);
+        let Some((start, len)) = self
+            .chunks
+            .next_chunk(|at, value| values[at] = decode_gathered(value))?
+        else {
+            return Ok(None);
+        };
+        Ok(Some((start, &self.values[..len as usize])))
+    }
+
+    /// Counts the bucket files' bytes.
+    fn finish(self, io: &mut IoCounters) {
+        io.written += self.chunks.written;
+        io.read += self.chunks.read;
+    }
+}
+
+/// Adds the light gathered in `copy`'s order (the shared gathered file `gathered` of its last
+/// direction) to the canonical sum, or starts the sum with it (`first`).
 fn fold_gathered(
     copy: &AxisCopy,
+    gathered: &Path,
     work: &WorkSet,
     plan: &MemoryPlan,
     first: bool,
     io: &mut IoCounters,
 ) -> Result<(), OocError> {
-    let n = work.count;
-    let chunk = plan.chunk_surfels.min(n).max(1);
-    let buffer = plan.bucket_buffer(n.div_ceil(chunk));
-    let mut scatter = Scatter::<GATHER_LEN>::new(work.dir.path(), "gathered", n, chunk, buffer)?;
-    let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
-    let mut values = SeqReader::<GATHER_LEN>::open(&work.gathered, plan.io_bytes)?;
-    while let Some(id) = ids.next_record()? {
-        let value = values.expect_record()?;
-        scatter.push(u32::from_le_bytes(id) as u64, &value)?;
-    }
-    io.read += n * (4 + GATHER_LEN as u64);
-    let mut chunks = scatter.into_chunks()?;
-    let canonical = RecordFile::open(&work.canonical_gathered)?;
-    let mut sum: Vec<Gathered> = Vec::new();
-    let mut bytes = vec![0u8; chunk as usize * GATHER_LEN];
-    loop {
-        sum.clear();
-        sum.resize(chunk as usize, [[0.0; 3]; 2]);
-        let Some((start, len)) = chunks.next_chunk(|at, value| sum[at] = decode_gathered(value))?
-        else {
-            break;
-        };
-        let slots = &mut bytes[..len as usize * GATHER_LEN];
+    let mut canonical = Canonical::new(copy, gathered, work, plan, "gathered", io)?;
+    let sum_file = RecordFile::open(&work.canonical_gathered)?;
+    // With the chunk's values, what a permutation chunk may hold (`CHUNK_BYTES_PER_SURFEL`).
+    let mut bytes = Vec::new();
+    while let Some((start, values)) = canonical.next_chunk()? {
+        bytes.resize(values.len() * GATHER_LEN, 0);
         if !first {
-            canonical.read_at(start * GATHER_LEN as u64, slots, io)?;
-            for (h, slot) in sum.iter_mut().zip(slots.chunks_exact(GATHER_LEN)) {
+            sum_file.read_at(start * GATHER_LEN as u64, &mut bytes, io)?;
+        }
+        for (h, slot) in values.iter().zip(bytes.chunks_exact_mut(GATHER_LEN)) {
+            let mut total = *h;
+            if !first {
                 let before = decode_gathered(slot);
-                for (t, b) in h.iter_mut().flatten().zip(before.iter().flatten()) {
-                    // The earlier axes' sum first, then this axis: a fixed order.
+                for (t, b) in total.iter_mut().flatten().zip(before.iter().flatten()) {
+                    // This axis's light plus the earlier axes' sum: a fixed order.
                     *t += *b;
                 }
             }
+            encode_gathered(&total, slot);
         }
-        for (h, slot) in sum.iter().zip(slots.chunks_exact_mut(GATHER_LEN)) {
-            encode_gathered(h, slot);
-        }
-        canonical.write_at(start * GATHER_LEN as u64, slots, io)?;
+        sum_file.write_at(start * GATHER_LEN as u64, &bytes, io)?;
     }
-    io.written += chunks.written;
-    io.read += chunks.read;
+    canonical.finish(io);
     Ok(())
 }
 
@@ -963,4 +1218,33 @@ fn send_to_copies(
         io.read += reader.read;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn positions_inside_and_at_the_end_of_main_axes() {
+        // Axes of 3, 0 and 4 directions.
+        let axes = AxisSpans::new(&[vec![7, 8, 9], vec![], vec![1, 2, 3, 4]]);
+        let at = |axes, directions| Position { axes, directions };
+        assert_eq!(axes.position(2, true), Some(at(0, 2)));
+        assert_eq!(axes.position(5, true), Some(at(2, 2)));
+        // The end of an axis is no place inside one, and the inside no axis's end.
+        assert_eq!(axes.position(3, true), None);
+        assert_eq!(axes.position(0, true), None);
+        assert_eq!(axes.position(2, false), None);
+        assert_eq!(axes.position(3, false), Some(at(1, 0)));
+        for done in 1..7 {
+            for inside in [true, false] {
+                if let Some(p) = axes.position(done, inside) {
+                    assert_eq!(axes.done(p), done);
+                }
+            }
+        }
+        // The empty axis's end is the first's: resumed there, the third axis comes next.
+        assert_eq!(axes.done(at(2, 0)), 3);
+        assert_eq!(axes.done(at(3, 0)), 7);
+    }
 }

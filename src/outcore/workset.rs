@@ -63,9 +63,11 @@ pub struct WorkSet {
     pub copies: Vec<AxisCopy>,
     /// Radiosity in canonical order.
     pub canonical_radiosity: PathBuf,
-    /// Light gathered by the directions of the axis being solved, in that copy's order (one
-    /// file serves the three copies in turn).
-    pub gathered: PathBuf,
+    /// Light gathered by the directions of the axis being solved, in that copy's order (the
+    /// files serve the three copies in turn): direction `k` of an axis reads the light of the
+    /// directions before it from file `(k - 1) % 2` and writes it with its own to file `k % 2`,
+    /// so the light of the directions done is whole on disk between any two of them.
+    pub gathered: [PathBuf; 2],
     /// Light gathered this iteration by the axes done so far, in canonical order.
     pub canonical_gathered: PathBuf,
     /// Surfels and distinct voxels.
@@ -248,8 +250,10 @@ pub fn build(
     }
     let canonical_radiosity = dir.path().join("radiosity-canonical.bin");
     RecordFile::create(&canonical_radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
-    let gathered = dir.path().join("gathered.bin");
-    RecordFile::create(&gathered)?.set_len(count * GATHER_LEN as u64)?;
+    let gathered = [0, 1].map(|k| dir.path().join(format!("gathered-{k}.bin")));
+    for path in &gathered {
+        RecordFile::create(path)?.set_len(count * GATHER_LEN as u64)?;
+    }
     let canonical_gathered = dir.path().join("gathered-canonical.bin");
     RecordFile::create(&canonical_gathered)?.set_len(count * GATHER_LEN as u64)?;
     Ok(WorkSet {
@@ -279,10 +283,10 @@ fn check_voxel(
 }
 
 /// Bytes of work files per surfel at their peak: the three copies' static records, radiosity,
-/// indices and positions, the shared and canonical gathered light, canonical radiosity, and the
-/// bucket files of one permutation.
+/// indices and positions, the two shared gathered files and the canonical one, canonical
+/// radiosity, and the bucket files of one permutation.
 pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + RADIOSITY_LEN as u64 + 8)
-    + 2 * GATHER_LEN as u64
+    + 3 * GATHER_LEN as u64
     + RADIOSITY_LEN as u64
     + (8 + GATHER_LEN as u64);
 
