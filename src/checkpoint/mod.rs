@@ -4,7 +4,7 @@
 //!
 //! What makes the continuation bit-identical: the solvers' next iteration is a pure function of
 //! the radiosity after the last one (stored as the f32 values the solver itself keeps), the
-//! stopping rule's last relative change (`jacobi::Convergence`) and the extrapolation's history
+//! stopping rule's last relative change (`iterate::Convergence`) and the extrapolation's history
 //! of change norms (`accelerate::Extrapolation`); the gathering order within an iteration is
 //! fixed (directions in set order, sums across ranks in rank order), so it does not need saving.
 //! A checkpoint is written only at a boundary the solve goes on from (never for the iteration it

@@ -38,7 +38,7 @@ pub struct State {
     /// Ranks of the run that wrote it (a resume on another count is allowed; its sums across
     /// ranks are added in another grouping, so the last bits may differ).
     pub ranks: u32,
-    /// The stopping rule's last relative change (`jacobi::Convergence`).
+    /// The stopping rule's last relative change (`iterate::Convergence`).
     pub previous_change: Option<f64>,
     pub extrapolation: ExtrapolationState,
     /// In mid-iteration: how many of this rank's directions (the same count on every rank, see

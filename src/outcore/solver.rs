@@ -1,7 +1,7 @@
-//! The out-of-core iteration loop: directions grouped by main axis, each solved band by band
-//! ([`super::band`]); then the light gathered in the three copies is brought to canonical order,
-//! `B = E + rho H / S(n)` is computed there with the stopping rule of `solve::jacobi`, and the
-//! new radiosity is sent back to the copies ([`super::scatter`]). As in memory, a grey scene
+//! The out-of-core solver, a sweep of the one iteration loop (`solve::iterate`): directions
+//! grouped by main axis, each solved band by band ([`super::band`]); then the light gathered in
+//! the three copies is brought to canonical order, `B = E + rho H / S(n)` is computed there,
+//! and the new radiosity is sent back to the copies ([`super::scatter`]). As in memory, a grey scene
 //! gathers one channel, and the tail extrapolation (`solve::accelerate`) runs on the canonical
 //! file chunk by chunk, from the radiosity the update replaced (kept in one more work file).
 //! Every surfel is updated by `solve::update`, as in every other loop.
@@ -25,8 +25,8 @@
 //!
 //! That light is whole on disk between any two directions because the two shared gathered files
 //! are used in turn (`WorkSet::gathered`): a direction reads the light of the ones before it from
-//! one and writes it, with its own, to the other. Stop signals are heard between directions, as
-//! in `solve::jacobi`, and between bands inside a direction (on a large scene one direction can
+//! one and writes it, with its own, to the other. Stop signals are heard between directions (the
+//! loop's agreement) and between bands inside a direction (on a large scene one direction can
 //! take minutes); a direction stopped so is abandoned, and the file it read from still holds the
 //! directions before it.
 
@@ -40,10 +40,9 @@ use super::scatter::{ChunkReader, Scatter};
 use super::source::SurfelSource;
 use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
-use crate::checkpoint::{CheckpointFile, Interruption, Saver};
+use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
 use crate::geometry::directions::DirectionSet;
-use crate::solve::accelerate::Extrapolation;
-use crate::solve::jacobi::Convergence;
+use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::normalize::cosine_sums;
 use crate::solve::update::{add_power, update_surfel};
 use crate::solve::{SolveOptions, SolveStats};
@@ -286,10 +285,8 @@ fn run(
         )?),
         _ => None,
     };
-    let direct_path = direct.as_ref().map(|d| d.path.as_path());
     let t = Instant::now();
     send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
-    let mut fold_seconds = 0.0;
     stats.update_seconds += t.elapsed().as_secs_f64();
     // As `solve::jacobi`: one channel for a grey scene, checked here on the materials used.
     let channels = if options.grey && first.grey { 1 } else { 3 };
@@ -302,7 +299,6 @@ fn run(
     } else {
         None
     };
-    let mut extrapolation = Extrapolation::default();
 
     let by_axis = walk_by_axis(directions);
     // Each copy's files twice: direction `k` of an axis reads the light of the directions
@@ -317,13 +313,8 @@ fn run(
             ])
         })
         .collect::<Result<_, OocError>>()?;
-    let mut buffers = BandBuffers::default();
-    let mut times = BandTimes::default();
-    let mut last = first;
-    let progress = crate::progress::bar(directions.len() as u64, "iteration 1");
-    let mut convergence = Convergence::new();
-    let mut first_iteration = 1;
     let axes = AxisSpans::new(&by_axis);
+    let mut start = Start::fresh();
     // Where the iteration resumed from a mid-iteration checkpoint stands.
     let mut resume_at = Position::default();
     if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
@@ -331,223 +322,64 @@ fn run(
         resume_at = restore(&file, &work, &plan, &axes, &mut io)?;
         send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
-        first_iteration = convergence.resume(&file.header.state, &file.path, &mut stats.solve);
-        extrapolation = file.header.state.extrapolation.clone().into();
+        let done = axes.done(resume_at);
+        start = Start::resumed(
+            &file.header.state,
+            &file.path,
+            done as usize,
+            &mut stats.solve,
+        );
         if resume_at != Position::default() {
             tracing::info!(
-                iteration = first_iteration,
-                within = axes.done(resume_at),
+                iteration = start.iteration,
+                within = done,
                 axis = resume_at.axes,
                 axis_directions = resume_at.directions,
                 "continuing inside an iteration from the checkpoint's partial sums"
             );
         }
     }
-    let within = checkpoints.as_ref().is_some_and(|c| c.saver.saves_within());
-    if checkpoints.is_some() {
-        crate::interrupt::start_iterating();
-    }
-    for iteration in first_iteration..=options.max_iterations {
-        if !any_light {
-            stats.solve.converged = true;
-            break;
-        }
-        progress.reset();
-        progress.set_message(format!("iteration {iteration}"));
-        // The light gathered so far: axes whole in the canonical sum, and directions of the
-        // next axis in its gathered files (those resumed from first).
-        let mut at = std::mem::take(&mut resume_at);
-        progress.set_position(axes.done(at));
-        // Whether the canonical sum holds any axis's light yet (else the next fold starts it).
-        let mut gathered_any = by_axis[..at.axes].iter().any(|a| !a.is_empty());
-        let mut signal = None;
-        for (m, (copy, copy_files)) in work.copies.iter().zip(&files).enumerate() {
-            if m < at.axes || by_axis[m].is_empty() || signal.is_some() {
-                continue;
-            }
-            at.axes = m;
-            let histogram = copy.load_histogram(&plan)?;
-            for (k, &d) in by_axis[m].iter().enumerate().skip(at.directions) {
-                // Stop on a signal, keeping the light of the directions done (the canonical
-                // radiosity file still holds the last completed iteration: it changes only in
-                // `update`).
-                signal = crate::interrupt::requested();
-                if signal.is_some() {
-                    break;
-                }
-                let pass = DirectionPass {
-                    copy,
-                    files: &copy_files[k % 2],
-                    histogram: &histogram,
-                    dims: info.grid.dims,
-                    plan: &plan,
-                    threads,
-                    channels,
-                    first: k == 0,
-                };
-                pass.run(&directions.directions[d], &mut buffers, &mut io, &mut times)?;
-                // The pass may have stopped early on a signal: its light is incomplete, and
-                // the file it read from holds the directions before it, whole.
-                signal = crate::interrupt::requested();
-                if signal.is_some() {
-                    break;
-                }
-                at.directions = k + 1;
-                progress.inc(1);
-                // Between two directions of this axis (its end comes below), when a checkpoint
-                // is due.
-                if at.directions == by_axis[m].len() {
-                    continue;
-                }
-                if let Some(c) = checkpoints
-                    .as_mut()
-                    .filter(|c| within && c.saver.due_within())
-                {
-                    // The save's permutation takes the memory a band holds: let the band's
-                    // arrays go (the next direction makes them again).
-                    buffers = BandBuffers::default();
-                    let state =
-                        c.saver
-                            .state(iteration - 1, convergence.previous_change, &extrapolation);
-                    let result = save_in_axis(
-                        c.saver,
-                        state,
-                        (&axes, at),
-                        copy,
-                        gathered_any,
-                        (&work, &plan),
-                        &mut io,
-                    );
-                    c.saver.warn_on_failure(result);
-                }
-            }
-            drop(histogram);
-            // What comes next (the fold, a checkpoint, the update) takes the memory a band holds.
-            drop(std::mem::take(&mut buffers));
-            if signal.is_some() {
-                continue;
-            }
-            // This axis's light joins the canonical sum before the next axis reuses the files.
-            let t = Instant::now();
-            let last_file = &work.gathered[(at.directions - 1) % 2];
-            fold_gathered(copy, last_file, &work, &plan, !gathered_any, &mut io)?;
-            fold_seconds += t.elapsed().as_secs_f64();
-            gathered_any = true;
-            at = Position {
-                axes: m + 1,
-                directions: 0,
-            };
-            // Between two axes (not after the last: the iteration's boundary comes next), when
-            // a checkpoint is due.
-            let more = by_axis[m + 1..].iter().any(|a| !a.is_empty());
-            if let Some(c) = checkpoints
-                .as_mut()
-                .filter(|c| within && more && c.saver.due_within())
-            {
-                let state =
-                    c.saver
-                        .state(iteration - 1, convergence.previous_change, &extrapolation);
-                let result = save_within(c.saver, state, axes.done(at), &work, &plan);
-                c.saver.warn_on_failure(result);
-            }
-        }
-        if let Some(signal) = signal {
-            progress.finish_and_clear();
-            let completed = iteration - 1;
-            let done = axes.done(at);
-            let interruption = match checkpoints.as_mut() {
-                // Directions of the axis in progress are done: their light is kept.
-                Some(c) if within && at.directions > 0 => {
-                    let copy = &work.copies[at.axes];
-                    c.saver
-                        .interrupt_at(signal, completed, Some(done), |saver| {
-                            let state =
-                                saver.state(completed, convergence.previous_change, &extrapolation);
-                            let places = (&work, &plan);
-                            save_in_axis(
-                                saver,
-                                state,
-                                (&axes, at),
-                                copy,
-                                gathered_any,
-                                places,
-                                &mut io,
-                            )
-                        })
-                }
-                // The axes whose light is summed are kept.
-                Some(c) if within && done > 0 => {
-                    c.saver
-                        .interrupt_at(signal, completed, Some(done), |saver| {
-                            let state =
-                                saver.state(completed, convergence.previous_change, &extrapolation);
-                            save_within(saver, state, done, &work, &plan)
-                        })
-                }
-                Some(c) => c.saver.interrupt(signal, completed, |saver| {
-                    let state = saver.state(completed, convergence.previous_change, &extrapolation);
-                    save(saver, state, &work, &plan)
-                }),
-                None => Interruption::without_checkpoint(signal, completed, true),
-            };
-            return Err(OocError::Interrupted(interruption));
-        }
-        stats.solve.updates += work.count * directions.len() as u64;
-        let t = Instant::now();
-        let result = update(
-            source,
-            &work,
-            &plan,
-            &cosine_sum,
-            gathered_any,
-            channels,
-            previous.as_deref(),
-            direct_path,
-            &mut io,
-        )?;
-        // Right after an extrapolation the change history starts again (see `accelerate`).
-        let stop = convergence.record(
-            iteration,
-            result.sums.change,
-            result.sums.total,
-            options,
-            &mut stats.solve,
-            |relative| extrapolation.error_estimate(relative),
-        );
-        last = result;
-        if stop {
-            stats.update_seconds += t.elapsed().as_secs_f64();
-            break;
-        }
-        if let Some(path) = &previous {
-            if let Some(factor) = extrapolation.observe(
-                result.sums.change,
-                stats.solve.last_change,
-                result.sums.falling,
-            ) {
-                extrapolate_canonical(source, &work, &plan, path, factor, &mut io)?;
-                // The jump is not an iteration's change: the stopping rule starts again.
-                convergence.restart();
-            }
-        }
-        send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
-        stats.update_seconds += t.elapsed().as_secs_f64();
-        // A boundary the solve goes on from (as in `solve::jacobi`).
-        if iteration < options.max_iterations {
-            if let Some(c) = checkpoints.as_mut() {
-                c.saver.save_if_due(
-                    |saver| saver.state(iteration, convergence.previous_change, &extrapolation),
-                    |saver, state| save(saver, state, &work, &plan),
-                );
-            }
-        }
-    }
-    progress.finish_and_clear();
-    if options.tolerance.is_none() {
-        stats.solve.converged =
-            stats.solve.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
-    }
-    stats.solve.extrapolations = extrapolation.count;
+    let mut sweep = OutOfCore {
+        source,
+        directions,
+        work: &work,
+        plan: &plan,
+        files,
+        axes,
+        by_axis,
+        cosine_sum,
+        channels,
+        threads,
+        previous,
+        direct: direct.as_ref().map(|d| d.path.clone()),
+        at: resume_at,
+        summed: false,
+        histogram: None,
+        buffers: BandBuffers::default(),
+        times: BandTimes::default(),
+        io,
+        last: first,
+        lit: true,
+        update_seconds: 0.0,
+    };
+    let saver = checkpoints.map(|c| c.saver);
+    iterate(
+        &mut sweep,
+        options,
+        &crate::comm::SingleProcess,
+        saver,
+        start,
+        any_light,
+        &mut stats.solve,
+    )?;
+    let OutOfCore {
+        times,
+        io,
+        last,
+        update_seconds,
+        ..
+    } = sweep;
+    stats.update_seconds += update_seconds;
     stats.solve.emitted_power = last.sums.emitted;
     stats.solve.absorbed_power = last.sums.absorbed;
     if let Some(d) = direct {
@@ -566,7 +398,6 @@ fn run(
     stats.solve.propagate_seconds = times.propagate;
     stats.read_seconds = times.read;
     stats.write_seconds = times.write;
-    stats.update_seconds += fold_seconds;
     stats.bands = times.bands;
     stats.tiled_columns = times.tiled_columns;
     stats.bytes_read = io.read;
@@ -576,6 +407,217 @@ fn run(
         work,
         io_bytes: plan.io_bytes,
     })
+}
+
+/// The out-of-core store (the scene in three axis copies and canonical files on disk) on one
+/// process, as the iteration loop drives it: a step is one direction of the walk by main axis
+/// (and, after an axis's last direction, the fold of its light into the canonical sum).
+struct OutOfCore<'a> {
+    source: &'a dyn SurfelSource,
+    directions: &'a DirectionSet,
+    work: &'a WorkSet,
+    plan: &'a MemoryPlan,
+    files: Vec<[CopyFiles; 2]>,
+    axes: AxisSpans,
+    by_axis: Vec<Vec<usize>>,
+    cosine_sum: Vec<f64>,
+    channels: usize,
+    threads: usize,
+    /// The radiosity an update replaces (for the tail extrapolation).
+    previous: Option<std::path::PathBuf>,
+    /// The direct-light file, when the pass ran.
+    direct: Option<std::path::PathBuf>,
+    /// The light gathered so far in this iteration.
+    at: Position,
+    /// Whether the canonical sum holds any axis's light of this iteration.
+    summed: bool,
+    /// The row histogram of the axis in progress.
+    histogram: Option<(usize, Vec<u32>)>,
+    buffers: BandBuffers,
+    times: BandTimes,
+    io: IoCounters,
+    /// The last update (its energy).
+    last: Update,
+    /// The axis copies hold what the lines carry of the current radiosity.
+    lit: bool,
+    update_seconds: f64,
+}
+
+impl OutOfCore<'_> {
+    /// The main axis and the index in it of step `step`.
+    fn place(&self, step: usize) -> (usize, usize) {
+        let done = step as u64;
+        let m = (0..3)
+            .find(|&m| done < self.axes.starts[m + 1])
+            .expect("a step of the iteration");
+        (m, (done - self.axes.starts[m]) as usize)
+    }
+}
+
+impl Sweep for OutOfCore<'_> {
+    type Error = OocError;
+
+    fn steps(&self) -> usize {
+        self.directions.len()
+    }
+
+    fn updates(&self) -> u64 {
+        self.work.count * self.directions.len() as u64
+    }
+
+    fn begin(&mut self, from: usize) -> Result<(), OocError> {
+        if !self.lit {
+            let t = Instant::now();
+            send_lit(
+                self.source,
+                self.work,
+                self.plan,
+                self.direct.is_some(),
+                &mut self.io,
+            )?;
+            self.update_seconds += t.elapsed().as_secs_f64();
+            self.lit = true;
+        }
+        if from == 0 {
+            self.at = Position::default();
+        }
+        debug_assert_eq!(self.axes.done(self.at), from as u64);
+        // Whether the canonical sum holds any axis's light yet (else the next fold starts it).
+        self.summed = self.by_axis[..self.at.axes].iter().any(|a| !a.is_empty());
+        Ok(())
+    }
+
+    fn step(&mut self, step: usize) -> Result<bool, OocError> {
+        let (m, k) = self.place(step);
+        let copy = &self.work.copies[m];
+        if self.histogram.as_ref().is_none_or(|(axis, _)| *axis != m) {
+            self.histogram = Some((m, copy.load_histogram(self.plan)?));
+        }
+        let (_, histogram) = self.histogram.as_ref().expect("just loaded");
+        let d = self.by_axis[m][k];
+        let pass = DirectionPass {
+            copy,
+            files: &self.files[m][k % 2],
+            histogram,
+            dims: self.source.info().grid.dims,
+            plan: self.plan,
+            threads: self.threads,
+            channels: self.channels,
+            first: k == 0,
+        };
+        pass.run(
+            &self.directions.directions[d],
+            &mut self.buffers,
+            &mut self.io,
+            &mut self.times,
+        )?;
+        // The pass may have stopped early on a signal: its light is incomplete, and the file it
+        // read from holds the directions before it, whole.
+        if crate::interrupt::requested().is_some() {
+            return Ok(false);
+        }
+        self.at = Position {
+            axes: m,
+            directions: k + 1,
+        };
+        if k + 1 == self.by_axis[m].len() {
+            // What comes next (the fold, a checkpoint, the update) takes the memory a band
+            // holds.
+            self.histogram = None;
+            drop(std::mem::take(&mut self.buffers));
+            // This axis's light joins the canonical sum before the next axis reuses the files.
+            let t = Instant::now();
+            let last_file = &self.work.gathered[k % 2];
+            fold_gathered(
+                copy,
+                last_file,
+                self.work,
+                self.plan,
+                !self.summed,
+                &mut self.io,
+            )?;
+            self.update_seconds += t.elapsed().as_secs_f64();
+            self.summed = true;
+            self.at = Position {
+                axes: m + 1,
+                directions: 0,
+            };
+        }
+        Ok(true)
+    }
+
+    fn can_save_within(&self, done: usize) -> bool {
+        // After the last direction the iteration's boundary is next.
+        done < self.directions.len()
+    }
+
+    fn save_within(
+        &mut self,
+        saver: &mut Saver,
+        state: State,
+        done: usize,
+    ) -> Result<(), CheckpointError> {
+        debug_assert_eq!(self.axes.done(self.at), done as u64);
+        // The save's permutation takes the memory a band holds: let the band's arrays go (the
+        // next direction makes them again).
+        self.buffers = BandBuffers::default();
+        if self.at.directions > 0 {
+            save_in_axis(
+                saver,
+                state,
+                (&self.axes, self.at),
+                &self.work.copies[self.at.axes],
+                self.summed,
+                (self.work, self.plan),
+                &mut self.io,
+            )
+        } else {
+            save_between_axes(saver, state, done as u64, self.work, self.plan)
+        }
+    }
+
+    fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
+        save(saver, state, self.work, self.plan)
+    }
+
+    fn end(&mut self) -> Result<[f64; 3], OocError> {
+        self.histogram = None;
+        drop(std::mem::take(&mut self.buffers));
+        let t = Instant::now();
+        let result = update(
+            self.source,
+            self.work,
+            self.plan,
+            &self.cosine_sum,
+            self.summed,
+            self.channels,
+            self.previous.as_deref(),
+            self.direct.as_deref(),
+            &mut self.io,
+        )?;
+        self.update_seconds += t.elapsed().as_secs_f64();
+        self.last = result;
+        self.lit = false;
+        Ok([result.sums.change, result.sums.total, result.sums.falling])
+    }
+
+    fn extrapolate(&mut self, factor: f64) -> Result<(), OocError> {
+        let t = Instant::now();
+        let previous = self
+            .previous
+            .as_deref()
+            .expect("kept with the extrapolation on");
+        extrapolate_canonical(
+            self.source,
+            self.work,
+            self.plan,
+            previous,
+            factor,
+            &mut self.io,
+        )?;
+        self.update_seconds += t.elapsed().as_secs_f64();
+        Ok(())
+    }
 }
 
 /// A place inside an iteration where the light gathered so far is whole on disk: the first
@@ -663,7 +705,7 @@ const _: () = assert!(crate::checkpoint::file::PARTIAL_LEN == GATHER_LEN);
 
 /// Saves a checkpoint inside an iteration, `done` directions into it (the end of a main axis):
 /// the canonical radiosity file, then the canonical sum of the light gathered so far.
-fn save_within(
+fn save_between_axes(
     saver: &mut Saver,
     mut state: crate::checkpoint::State,
     done: u64,

@@ -23,8 +23,11 @@
 //! signal any of them received and on whether rank 0 finds a mid-iteration checkpoint due;
 //! none waits for a rank that has stopped. A stop keeps the steps already gathered where the
 //! sweep can save them ([`Sweep::can_save_within`]) and mid-iteration checkpoints are on, else
-//! it saves the last completed iteration. At a boundary the solve goes on from, a checkpoint is
-//! written when rank 0's clock says one is due.
+//! it saves the last completed iteration. A signal during the last step stops the solve at the
+//! next boundary, with that iteration kept. A one-process sweep may stop inside a step (the
+//! out-of-core solver between two bands of a long direction); the solve then stops where that
+//! step began. At a boundary the solve goes on from, a checkpoint is written when rank 0's
+//! clock says one is due.
 
 use super::accelerate::Extrapolation;
 use super::{SolveOptions, SolveStats};
@@ -47,8 +50,10 @@ pub(crate) trait Sweep {
     /// the light a checkpoint put back.
     fn begin(&mut self, from: usize) -> Result<(), Self::Error>;
 
-    /// Gathers step `step`.
-    fn step(&mut self, step: usize) -> Result<(), Self::Error>;
+    /// Gathers step `step`. `false`: it stopped part way on a stop signal (its light is not
+    /// whole; the loop stops as if the signal had come before it). Only a one-process sweep
+    /// may stop part way: the ranks of the others must agree on where they stop.
+    fn step(&mut self, step: usize) -> Result<bool, Self::Error>;
 
     /// Whether a checkpoint can hold the state `done` steps into an iteration (0 < done).
     fn can_save_within(&self, done: usize) -> bool;
@@ -148,9 +153,9 @@ pub(crate) fn iterate<S: Sweep>(
         progress.set_position(begin as u64);
         progress.set_message(format!("iteration {iteration}"));
         let completed = iteration - 1;
-        for step in begin..=steps {
-            // Between two steps (and after the last, before anything is summed) every rank
-            // agrees on stopping and on saving.
+        // Between two steps every rank agrees on stopping and on saving. (Not after the last:
+        // a signal then stops the solve at the next boundary, with this iteration kept.)
+        for step in begin..steps {
             let asked = crate::interrupt::requested().unwrap_or(0);
             let (signal, save) = match saver.as_deref() {
                 Some(s) if within => s.agree_within(world, asked),
@@ -158,35 +163,30 @@ pub(crate) fn iterate<S: Sweep>(
             };
             if signal != 0 {
                 progress.finish_and_clear();
-                let interruption = match saver.as_deref_mut() {
-                    Some(s) if within && step > 0 && sweep.can_save_within(step) => {
-                        s.interrupt_at(signal, completed, Some(step as u64), |s| {
-                            let state =
-                                s.state(completed, convergence.previous_change, &extrapolation);
-                            sweep.save_within(s, state, step)
-                        })
-                    }
-                    Some(s) => s.interrupt(signal, completed, |s| {
-                        let state = s.state(completed, convergence.previous_change, &extrapolation);
-                        sweep.save_boundary(s, state)
-                    }),
-                    None => Interruption::without_checkpoint(signal, completed, world.rank() == 0),
-                };
-                return Err(interruption.into());
+                let history = (convergence.previous_change, &extrapolation);
+                let at = (completed, step);
+                let saver = saver.as_deref_mut().map(|s| (s, within));
+                return Err(interrupted(sweep, saver, signal, at, history, world).into());
             }
             // Not at the iteration's start (its boundary was saved, or is the one resumed
-            // from), nor where this run resumed, nor after the last step (the boundary is next).
-            if save && step > begin && step < steps && sweep.can_save_within(step) {
+            // from), nor where this run resumed.
+            if save && step > begin && sweep.can_save_within(step) {
                 if let Some(s) = saver.as_deref_mut() {
                     let state = s.state(completed, convergence.previous_change, &extrapolation);
                     let result = sweep.save_within(s, state, step);
                     s.warn_on_failure(result);
                 }
             }
-            if step == steps {
-                break;
+            if !sweep.step(step)? {
+                // Stopped part way: the signal, still pending, stops the solve where this step
+                // began (a one-process sweep: no other rank waits for an agreement).
+                let signal = crate::interrupt::requested().unwrap_or(0);
+                progress.finish_and_clear();
+                let history = (convergence.previous_change, &extrapolation);
+                let at = (completed, step);
+                let saver = saver.as_deref_mut().map(|s| (s, within));
+                return Err(interrupted(sweep, saver, signal, at, history, world).into());
             }
-            sweep.step(step)?;
             progress.inc(1);
         }
         stats.updates += sweep.updates();
@@ -225,6 +225,33 @@ pub(crate) fn iterate<S: Sweep>(
         stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
     }
     Ok(())
+}
+
+/// The interruption by `signal` at `(completed, done)`: `done` steps into the iteration after
+/// `completed`. With mid-iteration checkpoints on (`saver`'s flag) and where the sweep can hold
+/// them, those steps are saved; else the last completed iteration (unless the checkpoint on
+/// disk holds it already). `history` is the stopping rule's and the extrapolation's.
+fn interrupted<S: Sweep>(
+    sweep: &mut S,
+    saver: Option<(&mut Saver, bool)>,
+    signal: i32,
+    (completed, done): (usize, usize),
+    (previous_change, extrapolation): (Option<f64>, &Extrapolation),
+    world: &dyn Comm,
+) -> Interruption {
+    match saver {
+        Some((s, true)) if done > 0 && sweep.can_save_within(done) => {
+            s.interrupt_at(signal, completed, Some(done as u64), |s| {
+                let state = s.state(completed, previous_change, extrapolation);
+                sweep.save_within(s, state, done)
+            })
+        }
+        Some((s, _)) => s.interrupt(signal, completed, |s| {
+            let state = s.state(completed, previous_change, extrapolation);
+            sweep.save_boundary(s, state)
+        }),
+        None => Interruption::without_checkpoint(signal, completed, world.rank() == 0),
+    }
 }
 
 /// The stopping rule's bookkeeping.

@@ -378,9 +378,9 @@ impl Sweep for InMemory<'_> {
         Ok(())
     }
 
-    fn step(&mut self, step: usize) -> Result<(), SolveError> {
+    fn step(&mut self, step: usize) -> Result<bool, SolveError> {
         let Some(&k) = self.mine.get(step) else {
-            return Ok(());
+            return Ok(true);
         };
         let (d, frame) = (&self.directions.directions[k], &self.frames[k]);
         let (orders, lines, acc, threads) =
@@ -405,7 +405,7 @@ impl Sweep for InMemory<'_> {
         });
         self.seconds[0] += (t1 - t0).as_secs_f64();
         self.seconds[1] += t1.elapsed().as_secs_f64();
-        Ok(())
+        Ok(true)
     }
 
     fn can_save_within(&self, _done: usize) -> bool {
@@ -461,8 +461,6 @@ impl Sweep for InMemory<'_> {
         Ok(())
     }
 }
-
-pub(crate) use super::iterate::Convergence;
 
 /// Runs `gather_line` over all lines, spread over `threads` in contiguous line ranges of about
 /// equal surfel counts.

@@ -566,9 +566,9 @@ impl Sweep for DataSweep<'_, '_> {
         Ok(())
     }
 
-    fn step(&mut self, step: usize) -> Result<(), SolveError> {
+    fn step(&mut self, step: usize) -> Result<bool, SolveError> {
         let Some(&k) = self.mine.get(step) else {
-            return Ok(());
+            return Ok(true);
         };
         let solver = self.solver;
         let d = &solver.directions.directions[k];
@@ -610,7 +610,7 @@ impl Sweep for DataSweep<'_, '_> {
             &mut self.reflected,
             &mut self.tally,
         );
-        Ok(())
+        Ok(true)
     }
 
     fn can_save_within(&self, done: usize) -> bool {

@@ -722,7 +722,7 @@ impl Sweep for DataOocSweep<'_, '_> {
         Ok(())
     }
 
-    fn step(&mut self, step: usize) -> Result<(), OocError> {
+    fn step(&mut self, step: usize) -> Result<bool, OocError> {
         let solver = self.solver;
         let ranks = solver.group.size();
         let dims = solver.source.info().grid.dims;
@@ -733,7 +733,7 @@ impl Sweep for DataOocSweep<'_, '_> {
             direction: d,
         }) = self.walk.get(step)
         else {
-            return Ok(());
+            return Ok(true);
         };
         let key = AxisKey::new(main, dims);
         let direction = &solver.directions.directions[d];
@@ -794,7 +794,7 @@ impl Sweep for DataOocSweep<'_, '_> {
         if last {
             self.pending = true;
         }
-        Ok(())
+        Ok(true)
     }
 
     fn can_save_within(&self, _done: usize) -> bool {
