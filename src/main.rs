@@ -85,8 +85,9 @@ enum Command {
         /// Preview image size, WIDTHxHEIGHT.
         #[arg(long, default_value = "800x600", value_parser = parse_size)]
         image_size: (u32, u32),
-        /// Solve out of core, holding at most this much (e.g. 512MiB, 4G); a shard set is always
-        /// solved out of core (default: a quarter of the available memory).
+        /// Solve out of core, holding at most this much (e.g. 512MiB, 4G; per rank with
+        /// `--distribute data|hybrid`); a shard set is always solved out of core (default: a
+        /// quarter of the available memory).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         memory: Option<u64>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
