@@ -1063,12 +1063,10 @@ fn update(
             for m in s.material {
                 used[m as usize] = true;
             }
-            result.emitting += s.material.iter().any(|&m| {
-                info.materials[m as usize]
-                    .emission
-                    .iter()
-                    .any(|&e| e as f32 > 0.0)
-            }) as u64;
+            let emission = s
+                .material
+                .map(|m| info.materials[m as usize].emission.map(|e| e as f32));
+            result.emitting += crate::solve::direct::emits(&emission) as u64;
             let d = d_slots.next().map(decode_gathered);
             let sides = s.material.map(|m| &info.materials[m as usize]);
             let (h, norm) = (decode_gathered(h_slot), cosine_sum[s.normal_id as usize]);

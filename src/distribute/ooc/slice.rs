@@ -138,12 +138,11 @@ impl Solver<'_> {
                     slice.any_light |= m.emission[ch] > 0.0;
                 }
             }
-            slice.emitting += s.material.iter().any(|&m| {
-                info.materials[m as usize]
-                    .emission
-                    .iter()
-                    .any(|&e| e as f32 > 0.0)
-            }) as u64;
+            // As the one-process out-of-core solver counts them (`solve::direct::emits`).
+            let emission = s
+                .material
+                .map(|m| info.materials[m as usize].emission.map(|e| e as f32));
+            slice.emitting += crate::solve::direct::emits(&emission) as u64;
             // The lines carry `B` until the direct pass, if it runs, makes it `B - E`.
             encode_radiosity(&b, &mut w[held::RADIOSITY_AT..]);
             encode_radiosity(&b, &mut w[held::CARRIED_AT..]);
