@@ -243,9 +243,28 @@ fn data_and_hybrid_modes_match_one_process_for_1_to_4_ranks() {
 /// pass on such rooms).
 #[test]
 fn many_small_lamps_give_the_one_process_answer_in_every_mode() {
+    every_mode_gives_the_one_process_answer("office", &voxrad::gen::office().scene, true);
+}
+
+/// The furnished room lit by a window-sized emitter, with the default preset (whose pass its
+/// window calls for at this resolution): every mode, in memory and out of core, gives the
+/// one-process answer.
+#[test]
+fn furnished_room_gives_the_one_process_answer_in_every_mode() {
+    every_mode_gives_the_one_process_answer(
+        "window room",
+        &voxrad::gen::window_room().scene,
+        true,
+    );
+}
+
+/// `scene` solved at resolution 24 with the default preset (49 directions, 3 iterations) in the
+/// directions, data and hybrid modes and in the data and hybrid modes out of core, against the
+/// one-process in-memory solve; `pass`: whether the scene calls for the direct-light pass.
+fn every_mode_gives_the_one_process_answer(name: &str, scene: &voxrad::scene::Scene, pass: bool) {
     let tmp = tempfile::tempdir().unwrap();
-    let obj = tmp.path().join("office.obj");
-    voxrad::gen::write_obj(&voxrad::gen::office().scene, &obj).unwrap();
+    let obj = tmp.path().join("scene.obj");
+    voxrad::gen::write_obj(scene, &obj).unwrap();
     let scene = voxrad::scene::obj::load_obj(&obj).unwrap();
     let set = voxelize(&scene, GridSpec::Resolution(24)).unwrap();
     let options = SolveOptions {
@@ -257,9 +276,10 @@ fn many_small_lamps_give_the_one_process_answer_in_every_mode() {
         ..SolveOptions::default()
     };
     let reference = solve_with(&set, &DirectionSet::with_count(49), &options).unwrap();
-    assert!(
+    assert_eq!(
         reference.stats.direct.is_some(),
-        "the lamps call for the pass"
+        pass,
+        "{name}: the direct-light pass"
     );
     for (mode, ranks, memory) in [
         ("directions", 3, None),
@@ -303,7 +323,7 @@ fn many_small_lamps_give_the_one_process_answer_in_every_mode() {
         let worst =
             common::worst_against_results(&set, &reference.radiosity, &out.join("surfels.bin"));
         println!(
-            "office, {mode}, {ranks} ranks, memory {memory:?}: worst relative difference \
+            "{name}, {mode}, {ranks} ranks, memory {memory:?}: worst relative difference \
              {worst:.2e}"
         );
         assert!(
