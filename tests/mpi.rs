@@ -251,11 +251,7 @@ fn many_small_lamps_give_the_one_process_answer_in_every_mode() {
 /// one-process answer.
 #[test]
 fn furnished_room_gives_the_one_process_answer_in_every_mode() {
-    every_mode_gives_the_one_process_answer(
-        "window room",
-        &voxrad::gen::window_room().scene,
-        true,
-    );
+    every_mode_gives_the_one_process_answer("window room", &voxrad::gen::window_room().scene, true);
 }
 
 /// `scene` solved at resolution 24 with the default preset (49 directions, 3 iterations) in the
