@@ -404,6 +404,30 @@ fn what_cannot_work_out_of_core_is_refused_clearly() {
 
 #[test]
 fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
+    // Resumed on three ranks: rank 0 sends each its slice of the checkpoint.
+    stopped_by_sigterm_resumes_to_the_same_bytes(&["--distribute", "data"], 2, 3);
+}
+
+/// The hybrid mode out of core (2 groups of 2 ranks) stopped by SIGTERM resumes to the bytes of
+/// an uninterrupted run: rank 0 sends the checkpoint's slices to the rank at each place of every
+/// group.
+#[test]
+fn hybrid_out_of_core_stopped_by_sigterm_resumes_to_the_same_bytes() {
+    stopped_by_sigterm_resumes_to_the_same_bytes(
+        &["--distribute", "hybrid", "--groups", "2"],
+        4,
+        4,
+    );
+}
+
+/// A solve (Cornell box at 48, 1 MiB per rank) in `mode` on `ranks` ranks, stopped by SIGTERM
+/// to rank 1 in its second iteration and resumed on `resume_ranks`, ends with the bytes of an
+/// uninterrupted run on `ranks`.
+fn stopped_by_sigterm_resumes_to_the_same_bytes(
+    mode: &[&'static str],
+    ranks: usize,
+    resume_ranks: usize,
+) {
     let tmp = tempfile::tempdir().unwrap();
     let set = tmp.path().join("set");
     cornell_set(&set, 48, 2);
@@ -422,10 +446,9 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
             "1",
             "--memory",
             "1MiB",
-            "--distribute",
-            "data",
         ]
         .iter()
+        .chain(mode)
         .chain(extra)
         .map(|s| s.to_string())
         .collect()
@@ -433,7 +456,7 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
     let reference = tmp.path().join("reference");
     let a = args(&reference, &[]);
     ok(
-        &mpirun(2, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+        &mpirun(ranks, &a.iter().map(String::as_str).collect::<Vec<_>>()),
         "reference",
     );
 
@@ -441,7 +464,7 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
     let log = tmp.path().join("run.log");
     let a = args(&out, &["--checkpoint-every", "0"]);
     let mut child = Child::spawn(
-        mpirun_command(2, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+        mpirun_command(ranks, &a.iter().map(String::as_str).collect::<Vec<_>>()),
         &log,
     );
     assert!(
@@ -459,9 +482,11 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
         voxrad::checkpoint::path_in(&out).exists(),
         "no checkpoint:\n{text}"
     );
-    // Resumed on three ranks: rank 0 sends each its slice of the checkpoint.
     let a = args(&out, &["--resume"]);
-    let o = mpirun(3, &a.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = mpirun(
+        resume_ranks,
+        &a.iter().map(String::as_str).collect::<Vec<_>>(),
+    );
     ok(&o, "resume");
     let text = String::from_utf8_lossy(&o.stderr);
     assert!(text.contains("resumed from a checkpoint"), "{text}");
