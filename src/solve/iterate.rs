@@ -3,7 +3,8 @@
 //! extrapolation. What differs between the paths (where the surfels and their light live, and
 //! how the work is dealt over processes) is a [`Sweep`]: the in-memory solver (one process or
 //! directions over ranks, `jacobi`), the data and hybrid modes (`distribute::data`), the
-//! out-of-core solver (`outcore::solver`) and the data mode out of core (`distribute::ooc`).
+//! out-of-core solver (`outcore::solver`) and the data and hybrid modes out of core
+//! (`distribute::ooc`).
 //!
 //! **An iteration** is [`Sweep::steps`] steps, the same count on every rank (a rank with less
 //! to do idles in its last steps), each gathering one direction (or one per rank or group) into
