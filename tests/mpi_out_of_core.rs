@@ -190,16 +190,7 @@ fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
             assert!(rank["bytes_written_per_voxel_direction"].as_f64().unwrap() > 0.0);
         }
         // The energy balance is that of one process (its sums added in another grouping).
-        let one = report(&single);
-        for what in ["emitted_power", "absorbed_power"] {
-            for ch in 0..3 {
-                let (a, b) = (
-                    r["energy"][what][ch].as_f64().unwrap(),
-                    one["energy"][what][ch].as_f64().unwrap(),
-                );
-                assert!((a - b).abs() <= 1e-9 * b.abs(), "{what}: {a} {b}");
-            }
-        }
+        same_energy(&r, &report(&single), 1e-9);
     }
 }
 

@@ -805,11 +805,16 @@ impl Sweep for DataOocSweep<'_, '_> {
 
     fn save_within(
         &mut self,
-        _saver: &mut Saver,
+        saver: &mut Saver,
         _state: State,
         _done: usize,
     ) -> Result<(), crate::checkpoint::CheckpointError> {
-        unreachable!("the data mode out of core saves at iteration boundaries only")
+        // Never asked for (`can_save_within` is false); refused rather than written wrong.
+        Err(crate::checkpoint::CheckpointError::Bad {
+            path: saver.path().to_path_buf(),
+            what: "the data and hybrid modes out of core save at iteration boundaries only"
+                .to_string(),
+        })
     }
 
     fn save_boundary(
