@@ -2,19 +2,23 @@
 //!
 //! ```text
 //!  0  magic         8 bytes  "VXRDCKPT"
-//!  8  version       u32      FORMAT_VERSION (4; versions 1 to 3 are still read)
+//!  8  version       u32      FORMAT_VERSION (5; versions 1 to 4 are still read)
 //! 12  header_len    u32      bytes of the header body that follows
 //! 16  header body            Identity then State (see `encode_header`), little-endian;
 //!                            version 2 ends it with the mid-iteration position, version 3
 //!                            then with the layout of the partial sums (`State::data_groups`),
-//!                            version 4 then with `State::axis_in_progress`
+//!                            version 4 then with `State::axis_in_progress` (version 5
+//!                            also with `data_groups`: the layout by groups out of core)
 //!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
 //!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
 //!                            back RGB), in the solver's surfel order
 //!  .  partial sums           only in mid-iteration: ranks x surfels x 48 bytes, the light each
 //!                            rank had gathered (f64 x 6 per surfel, side-major), rank 0 first;
 //!                            with `axis_in_progress`, one more array of surfels x 48 bytes
-//!                            after them (out of core: the light of the main axis in progress)
+//!                            after them (out of core: the light of the main axis in progress);
+//!                            by groups out of core (`data_groups` G and `axis_in_progress`),
+//!                            G arrays of the axes each group has done, then G of each group's
+//!                            axis in progress, all in canonical order
 //!  .  payload_crc   u32      CRC-32 of the radiosity and partial-sum bytes
 //! ```
 //!
@@ -35,7 +39,7 @@ use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
 /// The version written; [`OLDEST_VERSION`] up to it are read.
-pub const FORMAT_VERSION: u32 = 4;
+pub const FORMAT_VERSION: u32 = 5;
 /// Version 1: iteration boundaries only (no position, no partial sums).
 pub const OLDEST_VERSION: u32 = 1;
 /// Bytes per surfel of the radiosity payload.
@@ -225,8 +229,9 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
     let axis_in_progress = if version >= 4 {
         match f.u32()? {
             0 => false,
-            // Only inside an iteration, and only in the layout by directions (out of core).
-            1 if within.is_some() && data_groups == 0 => true,
+            // Only inside an iteration: in the layout by directions (out of core), or from
+            // version 5 by groups out of core.
+            1 if within.is_some() && (data_groups == 0 || version >= 5) => true,
             _ => return None,
         }
     } else {
@@ -503,6 +508,46 @@ impl CheckpointFile {
     }
 }
 
+impl CheckpointFile {
+    /// Hands partial-sum array `index` (`0 .. partial_arrays`) to `f` in pieces of whole
+    /// surfels (at most `buffer_bytes` each). Unchecked: only after a whole read
+    /// ([`CheckpointFile::read_radiosity`]) has checked the payload's checksum.
+    pub fn read_array<E: From<CheckpointError>>(
+        &self,
+        index: u32,
+        buffer_bytes: usize,
+        mut f: impl FnMut(&[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        use std::io::{Seek, SeekFrom};
+        let path = &self.path;
+        let io = |action, source| CheckpointError::Io {
+            path: path.to_path_buf(),
+            action,
+            source,
+        };
+        if index >= self.header.partial_arrays() {
+            return Err(bad(path, format!("it holds no partial-sum array {index}")).into());
+        }
+        let surfels = self.header.identity.surfels;
+        let at = self.payload_at
+            + surfels * RADIOSITY_LEN as u64
+            + index as u64 * surfels * PARTIAL_LEN as u64;
+        let mut file = File::open(path).map_err(|e| io("open", e))?;
+        file.seek(SeekFrom::Start(at)).map_err(|e| io("read", e))?;
+        let piece = (buffer_bytes / PARTIAL_LEN).max(1) * PARTIAL_LEN;
+        let mut buffer = vec![0u8; piece];
+        let mut left = surfels * PARTIAL_LEN as u64;
+        while left > 0 {
+            let len = (left as usize).min(piece);
+            file.read_exact(&mut buffer[..len])
+                .map_err(|e| io("read", e))?;
+            f(&buffer[..len])?;
+            left -= len as u64;
+        }
+        Ok(())
+    }
+}
+
 /// A writer that checksums and counts what passes through it.
 struct Summing<'a, W: Write> {
     inner: &'a mut W,
@@ -615,6 +660,15 @@ mod tests {
         h
     }
 
+    /// The layout by groups out of core: 3 groups over 6 ranks.
+    fn groups_header(surfels: u64, within: u64) -> Header {
+        let mut h = header_with(surfels, Some(within), true);
+        h.identity.solver = Solver::OutOfCore;
+        h.state.ranks = 6;
+        h.state.data_groups = 3;
+        h
+    }
+
     fn header_with(surfels: u64, within: Option<u64>, axis_in_progress: bool) -> Header {
         let mut observed = crate::solve::accelerate::Extrapolation::default();
         observed.observe(1.0, 0.5, 0.0);
@@ -694,7 +748,12 @@ mod tests {
     fn round_trip_in_memory_and_streamed() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
-        for h in [header(37, None), header(37, Some(17)), axis_header(37, 17)] {
+        for h in [
+            header(37, None),
+            header(37, Some(17)),
+            axis_header(37, 17),
+            groups_header(37, 17),
+        ] {
             let within = h.state.within;
             let values = radiosity(37);
             write_one(&path, &h, &values);
@@ -736,12 +795,23 @@ mod tests {
                 .flat_map(|rank| sum_bits(&sums(37, rank)))
                 .collect();
             assert_eq!(sum_bits(&ranks), ranks_want);
-            let axis_want = match h.state.axis_in_progress {
-                true => sum_bits(&sums(37, h.partial_ranks() as usize)),
-                false => Vec::new(),
-            };
+            let axis_want: Vec<u64> = (h.partial_ranks()..h.partial_arrays())
+                .flat_map(|array| sum_bits(&sums(37, array as usize)))
+                .collect();
             assert_eq!(sum_bits(&axis), axis_want);
+            // Each array alone, after the whole read checked the checksum.
+            for array in 0..h.partial_arrays() {
+                let mut one = Vec::new();
+                file.read_array::<CheckpointError>(array, 100, |piece| take(&mut one, piece))
+                    .unwrap();
+                assert_eq!(sum_bits(&one), sum_bits(&sums(37, array as usize)));
+            }
+            assert!(file
+                .read_array::<CheckpointError>(h.partial_arrays(), 100, |_| Ok(()))
+                .is_err());
         }
+        let groups = groups_header(37, 17);
+        assert_eq!((groups.partial_ranks(), groups.partial_arrays()), (3, 6));
     }
 
     /// An older file made from a current boundary one: the version, without the fields later
@@ -753,7 +823,8 @@ mod tests {
         let cut = match version {
             1 => 20,
             2 => 8,
-            _ => 4,
+            3 => 4,
+            _ => 0,
         };
         let mut old = current[..end - cut].to_vec();
         old[8..12].copy_from_slice(&version.to_le_bytes());
@@ -765,13 +836,13 @@ mod tests {
     }
 
     #[test]
-    fn versions_1_to_3_are_read_and_an_unknown_version_is_refused() {
+    fn versions_1_to_4_are_read_and_an_unknown_version_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
         let h = header(5, None);
         write_one(&path, &h, &radiosity(5));
         let current = std::fs::read(&path).unwrap();
-        for old in [1, 2, 3] {
+        for old in [1, 2, 3, 4] {
             let bytes = as_version(&current, old);
             let got = parse(&path, &bytes, 0).unwrap();
             assert_eq!(got.header, h);
@@ -790,6 +861,11 @@ mod tests {
             got.partial.as_deref().map(sum_bits),
             Some(sum_bits(&sums(5, 1)))
         );
+        // The layout by groups out of core is version 5's: in a version 4 file it is damage.
+        let groups = groups_header(5, 2);
+        write_one(&path, &groups, &radiosity(5));
+        let v4 = as_version(&std::fs::read(&path).unwrap(), 4);
+        assert!(parse(&path, &v4, 0).unwrap_err().is_bad_input());
         let v1 = as_version(&current, 1);
         for version in [0u32, FORMAT_VERSION + 1, 99] {
             let mut b = v1.clone();
@@ -808,7 +884,12 @@ mod tests {
     fn every_damage_is_named_and_never_panics() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
-        for h in [header(9, None), header(9, Some(3)), axis_header(9, 3)] {
+        for h in [
+            header(9, None),
+            header(9, Some(3)),
+            axis_header(9, 3),
+            groups_header(9, 3),
+        ] {
             write_one(&path, &h, &radiosity(9));
             let good = std::fs::read(&path).unwrap();
             // Every truncation and every single-byte flip is refused, by both readers.

@@ -55,7 +55,11 @@ pub struct State {
     /// Out of core, inside a main axis (format version 4): after the one rank's partial sums
     /// (then the canonical sum of the light of the axes done), the file holds one more array,
     /// the light the axis in progress has gathered so far, brought to canonical order
-    /// (`outcore::solver`). `false` at an iteration boundary and in every other layout.
+    /// (`outcore::solver`). With `data_groups` `G` (format version 5, the data and hybrid
+    /// modes out of core, `distribute::ooc`): the file holds `G` canonical sums of the axes each
+    /// group has done, then `G` arrays of the light of each group's axis in progress (zeros
+    /// where a group has none), whatever the rank count. `false` at an iteration boundary and in
+    /// every other layout.
     pub axis_in_progress: bool,
 }
 
@@ -67,18 +71,32 @@ pub struct Header {
 }
 
 impl Header {
-    /// Ranks whose partial sums the file holds (none at an iteration boundary).
+    /// Whether the partial sums are the out-of-core layout by groups (see
+    /// [`State::axis_in_progress`]).
+    pub fn by_groups_out_of_core(&self) -> bool {
+        self.state.within.is_some() && self.state.axis_in_progress && self.state.data_groups > 0
+    }
+
+    /// Arrays of partial sums the file holds before the axes in progress: one per rank that
+    /// wrote it, or one per group out of core (none at an iteration boundary).
     pub fn partial_ranks(&self) -> u32 {
-        if self.state.within.is_some() {
+        if self.by_groups_out_of_core() {
+            self.state.data_groups
+        } else if self.state.within.is_some() {
             self.state.ranks
         } else {
             0
         }
     }
 
-    /// Arrays of partial sums the file holds: the ranks', then the axis in progress's (see
-    /// [`State::axis_in_progress`]).
+    /// Arrays of partial sums the file holds: the ranks' (or groups'), then the axis in
+    /// progress's, one or one per group (see [`State::axis_in_progress`]).
     pub fn partial_arrays(&self) -> u32 {
-        self.partial_ranks() + (self.state.within.is_some() && self.state.axis_in_progress) as u32
+        let axes = if self.by_groups_out_of_core() {
+            self.state.data_groups
+        } else {
+            (self.state.within.is_some() && self.state.axis_in_progress) as u32
+        };
+        self.partial_ranks() + axes
     }
 }
