@@ -125,6 +125,10 @@ pub struct DirectionPass<'a> {
     /// First direction of this copy in this iteration: the gathered file is overwritten, not
     /// added to (nothing is read from [`CopyFiles::previous`]).
     pub first: bool,
+    /// A stop signal abandons the direction between two bands (one process: the solver then
+    /// stops where the direction began). Under MPI the ranks must agree on where they stop, so
+    /// there the signal waits for the next step's agreement.
+    pub stops_on_signal: bool,
 }
 
 impl DirectionPass<'_> {
@@ -166,10 +170,10 @@ impl DirectionPass<'_> {
         let max_width = (self.plan.band_lines / frame.ni.max(1)).max(1);
         let mut j0 = 0u64;
         while j0 < frame.nj {
-            // A stop signal abandons the direction, and with it the iteration (the solver checks
-            // again after every direction and never uses this iteration's light): on a large
-            // scene one direction can take minutes, longer than a batch system waits.
-            if crate::interrupt::requested().is_some() {
+            // A stop signal abandons the direction (the solver checks again after it and never
+            // uses its light): on a large scene one direction can take minutes, longer than a
+            // batch system waits.
+            if self.stops_on_signal && crate::interrupt::requested().is_some() {
                 return Ok(());
             }
             // Widen the band while it fits.
