@@ -289,8 +289,39 @@ fn solve_under_mpi(cmd: &SolveCommand, mode: Mode) -> Result<(Report, usize), Ap
     if let Err(e) = voxrad::interrupt::install() {
         tracing::warn!("cannot handle SIGTERM and SIGINT ({e})");
     }
-    let report = voxrad::app::run_solve_on(cmd, &comm, mode)?;
-    Ok((report, comm.rank()))
+    let outcome = voxrad::app::run_solve_on(cmd, &comm, mode);
+    if let Err(e) = &outcome {
+        end_if_alone(e);
+    }
+    let rank = comm.rank();
+    // MPI's end (`MPI_Finalize`) when `comm` drops.
+    drop(comm);
+    Ok((outcome?, rank))
+}
+
+/// How long a rank that failed waits for MPI's end before it gives up on it.
+#[cfg(feature = "mpi")]
+const FINALIZE_GRACE: std::time::Duration = std::time::Duration::from_secs(20);
+
+/// A rank that failed alone (its own file, its own disk) would wait for ever in MPI's end while
+/// the others wait for it in their next collective call. So a watchdog: if MPI's end has not
+/// come after [`FINALIZE_GRACE`], this rank says why and exits without it, and the launcher
+/// ends the whole job. When every rank failed together (the errors they agree on), MPI's end
+/// comes at once and the error is reported as usual.
+#[cfg(feature = "mpi")]
+fn end_if_alone(error: &AppError) {
+    let (message, code) = (error.to_string(), error.exit_code());
+    std::thread::spawn(move || {
+        std::thread::sleep(FINALIZE_GRACE);
+        eprintln!("error: {message}");
+        eprintln!(
+            "error: the other ranks did not stop with this one; ending without MPI's end, so \
+             that the launcher stops the job"
+        );
+        // Not `process::exit`: MPI's exit handlers could wait for the other ranks again.
+        // SAFETY: `_exit` ends the process at once; nothing of it is used afterwards.
+        unsafe { libc::_exit(code) }
+    });
 }
 
 #[cfg(not(feature = "mpi"))]
