@@ -399,21 +399,21 @@ fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
     stopped_by_sigterm_resumes_to_the_same_bytes(&["--distribute", "data"], 2, 3);
 }
 
-/// The hybrid mode out of core (2 groups of 2 ranks) stopped by SIGTERM resumes to the bytes of
-/// an uninterrupted run: rank 0 sends the checkpoint's slices to the rank at each place of every
-/// group.
+/// The hybrid mode out of core (2 groups of 2 ranks) stopped by SIGTERM resumes on 2 groups of
+/// 1 rank to the bytes of an uninterrupted run: rank 0 sends each group's light so far to that
+/// group's ranks, the radiosity to the rank at each place of every group.
 #[test]
 fn hybrid_out_of_core_stopped_by_sigterm_resumes_to_the_same_bytes() {
     stopped_by_sigterm_resumes_to_the_same_bytes(
         &["--distribute", "hybrid", "--groups", "2"],
         4,
-        4,
+        2,
     );
 }
 
 /// A solve (Cornell box at 48, 1 MiB per rank) in `mode` on `ranks` ranks, stopped by SIGTERM
-/// to rank 1 in its second iteration and resumed on `resume_ranks`, ends with the bytes of an
-/// uninterrupted run on `ranks`.
+/// to rank 1 between two steps of its third iteration and resumed inside it on
+/// `resume_ranks`, ends with the bytes of an uninterrupted run on `ranks`.
 fn stopped_by_sigterm_resumes_to_the_same_bytes(
     mode: &[&'static str],
     ranks: usize,
@@ -451,41 +451,72 @@ fn stopped_by_sigterm_resumes_to_the_same_bytes(
         "reference",
     );
 
-    let out = tmp.path().join("out");
-    let log = tmp.path().join("run.log");
-    let a = args(&out, &["--checkpoint-every", "0"]);
-    let mut child = Child::spawn(
-        mpirun_command(ranks, &a.iter().map(String::as_str).collect::<Vec<_>>()),
-        &log,
-    );
-    assert!(
-        child.wait_for(HANG_LIMIT, || {
-            std::fs::read_to_string(&log).is_ok_and(|t| t.contains("iteration=2 "))
-        }),
-        "no iteration 2:\n{}",
-        child.log()
-    );
-    common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
-    let status = child.wait_at_most(HANG_LIMIT);
-    let text = child.log();
-    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
-    assert!(
-        voxrad::checkpoint::path_in(&out).exists(),
-        "no checkpoint:\n{text}"
-    );
-    let a = args(&out, &["--resume"]);
-    let o = mpirun(
-        resume_ranks,
-        &a.iter().map(String::as_str).collect::<Vec<_>>(),
-    );
-    ok(&o, "resume");
-    let text = String::from_utf8_lossy(&o.stderr);
-    assert!(text.contains("resumed from a checkpoint"), "{text}");
-    assert!(
-        radiosity(&out) == radiosity(&reference),
-        "resumed results differ"
-    );
-    assert!(!voxrad::checkpoint::path_in(&out).exists());
+    // Stopped between two steps of an iteration (again if the signal came at a boundary):
+    // the checkpoint holds every group's light so far, and the resume goes on from there.
+    for attempt in 1..=4 {
+        let out = tmp.path().join(format!("out{attempt}"));
+        let log = tmp.path().join(format!("run{attempt}.log"));
+        let a = args(&out, &["--checkpoint-every", "0"]);
+        let mut child = Child::spawn(
+            mpirun_command(ranks, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+            &log,
+        );
+        // Once a checkpoint inside the third iteration is written (due at every step, spaced
+        // by its writing time), so that the signal comes inside it.
+        let inside = |text: &str| {
+            text.lines().any(|l| {
+                l.contains("checkpoint written")
+                    && l.contains("iteration=2 ")
+                    && !l.contains("within=0 ")
+            })
+        };
+        assert!(
+            child.wait_for(HANG_LIMIT, || {
+                std::fs::read_to_string(&log).is_ok_and(|t| inside(&t))
+            }),
+            "no checkpoint inside iteration 3:\n{}",
+            child.log()
+        );
+        common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
+        let status = child.wait_at_most(HANG_LIMIT);
+        let text = child.log();
+        assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+        let path = voxrad::checkpoint::path_in(&out);
+        let saved = voxrad::checkpoint::CheckpointFile::open(&path)
+            .unwrap_or_else(|e| panic!("no checkpoint ({e}):\n{text}"));
+        let Some(done) = saved.header.state.within else {
+            let said = text
+                .lines()
+                .filter(|l| l.contains("interrupted"))
+                .collect::<Vec<_>>();
+            println!("attempt {attempt}: stopped at an iteration boundary ({said:?}), again");
+            continue;
+        };
+        println!(
+            "attempt {attempt}: stopped {done} steps into iteration {}",
+            saved.header.state.iteration + 1
+        );
+        let a = args(&out, &["--resume"]);
+        let o = mpirun(
+            resume_ranks,
+            &a.iter().map(String::as_str).collect::<Vec<_>>(),
+        );
+        ok(&o, "resume");
+        let text = String::from_utf8_lossy(&o.stderr);
+        assert!(text.contains("resumed from a checkpoint"), "{text}");
+        assert!(
+            text.contains("continuing inside an iteration")
+                && text.contains(&format!("within={done}")),
+            "{text}"
+        );
+        assert!(
+            radiosity(&out) == radiosity(&reference),
+            "resumed results differ"
+        );
+        assert!(!path.exists());
+        return;
+    }
+    panic!("four SIGTERMs, none inside an iteration");
 }
 
 /// The data mode out of core simulates what the one-process solvers do: a grey furnace

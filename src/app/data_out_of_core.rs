@@ -6,9 +6,11 @@ use super::*;
 
 /// `mpirun -n P voxrad solve SCENE --distribute data --memory SIZE` (`groups` 1; the hybrid
 /// mode with more): every rank holds its share of the scene (of its group's copy of it) in
-/// work files under the out directory, within `budget` (see `distribute::ooc`); rank 0 writes the outputs and the checkpoints (those of the one-process
-/// out-of-core solve, so either resumes the other's). An OBJ scene is first converted to a
-/// shard set by every rank, each in its own work directory, within the budget.
+/// work files under the out directory, within `budget` (see `distribute::ooc`); rank 0 writes
+/// the outputs and the checkpoints (at iteration boundaries those of the one-process
+/// out-of-core solve, so either resumes the other's; inside an iteration a layout by groups that
+/// a run of as many groups continues). An OBJ scene is first converted to a shard set by every
+/// rank, each in its own work directory, within the budget.
 pub(super) fn run_solve_data_out_of_core(
     cmd: &SolveCommand,
     comm: &dyn Comm,
@@ -49,7 +51,9 @@ pub(super) fn run_solve_data_out_of_core(
         cmd.checkpoint.every,
         comm.size(),
         state.as_ref().map(|s| s.iteration),
-    );
+    )
+    // Inside iterations too, as every path (`distribute::ooc::within`).
+    .within(true);
     let checkpoints = crate::distribute::ooc::DataOocCheckpoints {
         saver: &mut saver,
         resume,
@@ -183,7 +187,7 @@ pub(super) fn open_checkpoint_on_rank0(
         _ => {}
     }
     // The state, from rank 0 to all (whole numbers and f64s: a sum with zeros keeps them).
-    let mut words = [0.0f64; 7];
+    let mut words = [0.0f64; 11];
     let mut changes = Vec::new();
     if let Some(f) = &file {
         let state = &f.header.state;
@@ -197,13 +201,18 @@ pub(super) fn open_checkpoint_on_rank0(
             last_ratio.is_some() as u8 as f64,
             last_ratio.unwrap_or(0.0),
             changes.len() as f64,
+            state.within.is_some() as u8 as f64,
+            state.within.unwrap_or(0) as f64,
+            state.data_groups as f64,
+            state.axis_in_progress as u8 as f64,
         ];
     }
     comm.sum_in_place(&mut words);
     changes.resize(words[6] as usize, 0.0);
     comm.sum_in_place(&mut changes);
-    // A checkpoint from inside an iteration (the one-process solver's, between two directions)
-    // is continued from that iteration's start: the same radiosity, so the same answer.
+    // Where inside an iteration it stands: the solver continues there when the layout is its
+    // own (`distribute::ooc::within`), else from that iteration's start (the same radiosity,
+    // so the same answer).
     let state = checkpoint::State {
         iteration: words[0] as u64,
         ranks: comm.size() as u32,
@@ -213,9 +222,9 @@ pub(super) fn open_checkpoint_on_rank0(
             words[3] as usize,
             (words[4] == 1.0).then_some(words[5]),
         ),
-        within: None,
-        data_groups: 0,
-        axis_in_progress: false,
+        within: (words[7] == 1.0).then_some(words[8] as u64),
+        data_groups: words[9] as u32,
+        axis_in_progress: words[10] == 1.0,
     };
     Ok((file, Some(state)))
 }

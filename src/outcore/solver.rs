@@ -504,6 +504,7 @@ impl Sweep for OutOfCore<'_> {
             threads: self.threads,
             channels: self.channels,
             first: k == 0,
+            stops_on_signal: true,
         };
         pass.run(
             &self.directions.directions[d],
@@ -782,7 +783,20 @@ fn restore(
         what,
     };
     let state = &file.header.state;
-    let at = match state.within {
+    // The data and hybrid modes out of core keep their sums by group, in their own order of
+    // directions: their iteration starts again here (from the same radiosity, so the same
+    // answer).
+    let within = state.within.filter(|&done| {
+        let own = state.data_groups == 0;
+        if !own {
+            tracing::info!(
+                "the checkpoint is {done} steps into iteration {} of the data or hybrid mode out                  of core; this solve cannot continue inside it, so that iteration starts from                  its beginning",
+                state.iteration + 1
+            );
+        }
+        own
+    });
+    let at = match within {
         None => Position::default(),
         Some(done) => {
             if file.header.partial_ranks() != 1 {
@@ -819,7 +833,7 @@ fn restore(
     let n = work.count;
     let mut out = SeqWriter::create(&work.canonical_radiosity, plan.io_bytes)?;
     // The sum file is rewritten only if the checkpoint has a sum (it keeps its length else).
-    let mut sums = match state.within {
+    let mut sums = match within {
         None => None,
         Some(_) => Some(SeqWriter::create(&work.canonical_gathered, plan.io_bytes)?),
     };

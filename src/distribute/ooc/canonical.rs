@@ -5,7 +5,7 @@
 
 use super::held::{self, Held, HeldReader, HeldWriter};
 use super::route::{exchange_files, Router};
-use super::{Solver, RESULT_PAIR_LEN};
+use super::Solver;
 use crate::checkpoint::{CheckpointFile, Saver, State};
 use crate::outcore::budget::MemoryPlan;
 use crate::outcore::files::{
@@ -24,7 +24,7 @@ impl Solver<'_> {
         &self,
         held: Held,
         first: u64,
-        file: Option<CheckpointFile>,
+        file: Option<&CheckpointFile>,
         generation: u64,
         router: &Router,
         io: &mut IoCounters,
@@ -61,7 +61,26 @@ impl Solver<'_> {
         router: &Router,
         io: &mut IoCounters,
     ) -> Result<PathBuf, OocError> {
+        let mine = self.send_slices_to(None, first, len, name, read, router, io)?;
+        Ok(mine.expect("every rank receives its slice"))
+    }
+
+    /// [`Solver::send_slices`] to the ranks of group `group` only (`None`: of every group);
+    /// returns the file of this rank's slice where it receives one.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn send_slices_to(
+        &self,
+        group: Option<usize>,
+        first: u64,
+        len: usize,
+        name: &str,
+        read: impl FnOnce(&mut dyn FnMut(&[u8]) -> Result<(), OocError>) -> Result<(), OocError>,
+        router: &Router,
+        io: &mut IoCounters,
+    ) -> Result<Option<PathBuf>, OocError> {
         let me = self.comm.rank();
+        let group_size = self.group.size();
+        let receives = |r: usize| group.is_none_or(|g| r / group_size == g);
         let plan = router.plan;
         let dir = router.dir;
         let n = self.source.info().count;
@@ -69,7 +88,10 @@ impl Solver<'_> {
         // sends it to the rank at that place in every group.
         let starts = self.slice_starts(first);
         let slices = starts.len();
-        let path = |r: usize| dir.join(format!("slice-{r}.bin"));
+        // Named by the group sent to: a rank's own slice for one group must outlive the cutting
+        // of the next group's.
+        let to = group.map_or_else(|| "all".to_string(), |g| format!("group{g}"));
+        let path = |r: usize| dir.join(format!("slice-{to}-{r}.bin"));
         let mut failure = None;
         if me == 0 {
             let cut = || -> Result<(), OocError> {
@@ -111,10 +133,10 @@ impl Solver<'_> {
             }));
         }
         let outgoing: Vec<Option<PathBuf>> = (0..self.comm.size())
-            .map(|r| (me == 0 && r != 0).then(|| path(r % slices)))
+            .map(|r| (me == 0 && r != 0 && receives(r)).then(|| path(r % slices)))
             .collect();
         let mine = if me == 0 { path(0) } else { path(me) };
-        let mut received = if me == 0 {
+        let mut received = if me == 0 || !receives(me) {
             None
         } else {
             Some(crate::outcore::files::SeqWriter::create(
@@ -137,12 +159,13 @@ impl Solver<'_> {
             io.written += out.finish()?;
         }
         if me == 0 {
-            for r in 1..slices {
+            let own = receives(0) as usize;
+            for r in own..slices {
                 let p = path(r);
                 std::fs::remove_file(&p).map_err(|e| OocError::io(&p, "remove", e))?;
             }
         }
-        Ok(mine)
+        Ok(receives(me).then_some(mine))
     }
 
     /// The first canonical index of every slice of the group, from this rank's `first`
@@ -190,28 +213,51 @@ impl Solver<'_> {
         plan: &MemoryPlan,
         io: &mut IoCounters,
     ) -> Result<Option<PathBuf>, OocError> {
+        // Group 0 holds every surfel once (the hybrid mode's other groups hold copies).
+        let name = "radiosity-canonical.bin";
+        self.gather_canonical::<RADIOSITY_LEN>(held, 0, surfels, name, (dir, plan), io, |w| {
+            w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN]
+                .try_into()
+                .expect("a radiosity record")
+        })
+    }
+
+    /// Sends `value` of every surfel that the ranks of group `group` hold (each surfel once) to
+    /// rank 0 with its id, which places them in a file of `surfels` records of `L` bytes in
+    /// canonical order, `name` in `dir` (returned there; `None` elsewhere). Collective.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn gather_canonical<const L: usize>(
+        &self,
+        held: &Held,
+        group: usize,
+        surfels: u64,
+        name: &str,
+        (dir, plan): (&Path, &MemoryPlan),
+        io: &mut IoCounters,
+        value: impl Fn(&held::Wire) -> [u8; L],
+    ) -> Result<Option<PathBuf>, OocError> {
         let me = self.comm.rank();
-        let canonical_path = dir.join("radiosity-canonical.bin");
+        let pair_len = 4 + L;
+        let canonical_path = dir.join(name);
         let canonical = if me == 0 {
             let f = RecordFile::create(&canonical_path)?;
-            f.set_len(surfels * RADIOSITY_LEN as u64)?;
+            f.set_len(surfels * L as u64)?;
             Some(f)
         } else {
             None
         };
-        let out_path = dir.join("results-out.bin");
+        let out_path = dir.join("gather-out.bin");
         let mut out = crate::outcore::files::SeqWriter::create(&out_path, plan.io_bytes)?;
         let mut reader = HeldReader::open(held, plan.io_bytes)?;
-        // Group 0 holds every surfel once (the hybrid mode's other groups hold copies).
-        let sends = self.group_index == 0;
+        let sends = self.group_index == group;
         while let Some(w) = reader.next(io)?.filter(|_| sends) {
             let id = held::id(&w) as u64;
-            let b = &w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN];
+            let v = value(&w);
             match canonical.as_ref() {
-                Some(f) => f.write_at(id * RADIOSITY_LEN as u64, b, io)?,
+                Some(f) => f.write_at(id * L as u64, &v, io)?,
                 None => {
                     out.write(&(id as u32).to_le_bytes())?;
-                    out.write(b)?;
+                    out.write(&v)?;
                 }
             }
         }
@@ -231,14 +277,14 @@ impl Solver<'_> {
         exchange_files(
             self.comm,
             &outgoing,
-            RESULT_PAIR_LEN,
+            pair_len,
             router.round_bytes(),
             io,
             &mut |_, bytes| {
-                let f = canonical.as_ref().expect("only rank 0 receives results");
-                for pair in bytes.chunks_exact(RESULT_PAIR_LEN) {
+                let f = canonical.as_ref().expect("only rank 0 receives");
+                for pair in bytes.chunks_exact(pair_len) {
                     let id = u32::from_le_bytes([pair[0], pair[1], pair[2], pair[3]]) as u64;
-                    f.write_at(id * RADIOSITY_LEN as u64, &pair[4..], &mut placed)?;
+                    f.write_at(id * L as u64, &pair[4..], &mut placed)?;
                 }
                 Ok(())
             },

@@ -38,10 +38,12 @@
 //! **The loop** is the one of every path (`solve::iterate`, through [`DataOocSweep`]): a step
 //! is one direction of every group.
 //!
-//! **Checkpoints** ([`DataOocCheckpoints`]) are those of the single-process out-of-core solver:
-//! at a due iteration boundary the radiosity is gathered to rank 0, which writes it; on resume
-//! rank 0 reads it and sends every rank its slice. A stop signal is agreed on between
-//! directions (`max_u64`), and the checkpoint of the last completed iteration written.
+//! **Checkpoints** ([`DataOocCheckpoints`]): at a due iteration boundary the radiosity is
+//! gathered to rank 0, which writes it as the single-process out-of-core solver does; on
+//! resume rank 0 reads it and sends every rank its slice. Between any two steps (when one is
+//! due, or on a stop signal, agreed on with `max_u64`) a checkpoint also holds every group's
+//! light so far, by surfel id ([`within`]); a resume puts it back and goes on with the next
+//! step, to the bytes of the uninterrupted run.
 //!
 //! **Hybrid** (`groups` > 1): every group holds the whole scene over its ranks and walks its
 //! contiguous block of the directions; at the end of an iteration the groups route their
@@ -57,6 +59,7 @@ pub mod held;
 pub mod route;
 mod slice;
 mod summary;
+mod within;
 
 use super::data::PhaseSeconds;
 use super::Comm;
@@ -81,9 +84,6 @@ use route::Router;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 use tempfile::TempDir;
-
-/// Bytes of one `(id, B)` pair sent to rank 0 for the output.
-const RESULT_PAIR_LEN: usize = 4 + RADIOSITY_LEN;
 
 /// The outcome on one rank: statistics (the same on every rank) and, on rank 0, the radiosity
 /// in canonical order.
@@ -297,23 +297,44 @@ impl Solver<'_> {
             stats.direct = Some(direct);
             self.direct.set(true);
         }
+        let d_count = self.directions.len();
+        let steps = d_count.div_ceil(self.groups);
         let mut start = Start::fresh();
         if let Some(c) = checkpoints.as_mut() {
             if let Some(state) = c.state.take() {
+                let file = c.resume.take();
                 generation += 1;
                 held = self.restore(
                     held,
                     slice.first,
-                    c.resume.take(),
+                    file.as_ref(),
                     generation,
                     &router,
                     &mut io,
                 )?;
-                start = Start::resumed(&state, c.saver.path(), 0, &mut stats);
+                let inside = self.continues_inside(&state, steps);
+                if let Some(done) = inside {
+                    held = self.restore_inside(
+                        held,
+                        slice.first,
+                        file.as_ref(),
+                        &mut generation,
+                        &router,
+                        &mut io,
+                    )?;
+                    if me == 0 {
+                        tracing::info!(
+                            iteration = state.iteration + 1,
+                            within = done,
+                            "continuing inside an iteration from the checkpoint's partial sums"
+                        );
+                    }
+                }
+                let within = inside.unwrap_or(0) as usize;
+                start = Start::resumed(&state, c.saver.path(), within, &mut stats);
             }
         }
 
-        let d_count = self.directions.len();
         // The single-process out-of-core solver's order (the same answer bit for bit), of
         // which a group takes its contiguous block (all of it in the data mode).
         let walk: Vec<(usize, usize)> = crate::outcore::solver::walk_by_axis(self.directions)
@@ -344,7 +365,7 @@ impl Solver<'_> {
             held: Some(held),
             generation,
             walk,
-            steps: d_count.div_ceil(self.groups),
+            steps,
             starts,
             remembered: vec![None; d_count],
             imbalance: vec![0.0; d_count],
@@ -356,6 +377,7 @@ impl Solver<'_> {
             last: Update::default(),
             earlier_any: false,
             pending: false,
+            in_copy_order: false,
             surfels,
         };
         let saver = checkpoints.map(|c| c.saver);
@@ -427,6 +449,33 @@ impl Solver<'_> {
         })
     }
 
+    /// The steps of its iteration that a checkpoint's `state` holds, when this solve can
+    /// continue inside that iteration: a mid-iteration checkpoint of the data or hybrid mode out
+    /// of core with as many groups (any rank count). Else the iteration starts again from its
+    /// beginning (the same radiosity, so the same answer), said on rank 0.
+    fn continues_inside(&self, state: &State, steps: usize) -> Option<u64> {
+        let done = state.within?;
+        let ours = state.axis_in_progress
+            && state.data_groups == self.groups as u32
+            && (done as usize) < steps;
+        if !ours && self.comm.rank() == 0 {
+            let layout = match state.data_groups {
+                0 => "by directions".to_string(),
+                1 => "in the data mode out of core".to_string(),
+                g if state.axis_in_progress => {
+                    format!("in the hybrid mode out of core, {g} groups")
+                }
+                g => format!("in the data or hybrid mode in memory, {g} group(s)"),
+            };
+            tracing::info!(
+                "the checkpoint is {done} steps into iteration {} (written {layout}); this                  solve ({} group(s) out of core) cannot continue inside it, so that iteration                  starts from its beginning",
+                state.iteration + 1,
+                self.groups
+            );
+        }
+        ours.then_some(done)
+    }
+
     /// Surfels per line column of `frame`, added over ranks.
     fn column_load(
         &self,
@@ -491,6 +540,8 @@ impl Solver<'_> {
             threads: self.threads,
             channels: self.channels(),
             first,
+            // The ranks agree on stops between steps: a direction is never left half done.
+            stops_on_signal: false,
         };
         // Fresh band arrays: they must not hold their memory through the next merge.
         let mut buffers = BandBuffers::default();
@@ -692,6 +743,9 @@ struct DataOocSweep<'s, 'a> {
     /// `gathered` holds the light of an axis done, not yet added to `earlier` (that happens
     /// when the next axis starts, or at the update).
     pending: bool,
+    /// The held files are in the copy order of the last step's axis (a step inside an axis
+    /// then merges what moves; after a resume they are in canonical order and sorted again).
+    in_copy_order: bool,
     surfels: u64,
 }
 
@@ -716,9 +770,14 @@ impl Sweep for DataOocSweep<'_, '_> {
         self.surfels * self.solver.directions.len() as u64
     }
 
-    fn begin(&mut self, _from: usize) -> Result<(), OocError> {
-        self.earlier_any = false;
+    fn begin(&mut self, from: usize) -> Result<(), OocError> {
+        // From a mid-iteration checkpoint (`from` > 0) the sum of the axes done is whole in
+        // `earlier` (`within`), and the held files are in canonical order.
+        self.earlier_any = within::axes_done(&self.walk, from);
         self.pending = false;
+        if from > 0 {
+            self.in_copy_order = false;
+        }
         Ok(())
     }
 
@@ -766,7 +825,7 @@ impl Sweep for DataOocSweep<'_, '_> {
             held,
             self.generation,
             key,
-            !first,
+            !first && self.in_copy_order,
             std::mem::take(&mut self.histogram),
             &owner,
             &mut transform,
@@ -777,6 +836,7 @@ impl Sweep for DataOocSweep<'_, '_> {
             self.earlier_any = true;
             self.pending = false;
         }
+        self.in_copy_order = true;
         self.largest_share = self.largest_share.max(next.count);
         self.held = Some(next);
         self.histogram = rows;
@@ -797,24 +857,18 @@ impl Sweep for DataOocSweep<'_, '_> {
         Ok(true)
     }
 
-    fn can_save_within(&self, _done: usize) -> bool {
-        // The light gathered so far is spread over every rank's held files in the order of
-        // the current axis: a stop abandons the iteration.
-        false
+    fn can_save_within(&self, done: usize) -> bool {
+        // After the last step the iteration's boundary is next.
+        done < self.steps
     }
 
     fn save_within(
         &mut self,
         saver: &mut Saver,
-        _state: State,
-        _done: usize,
+        state: State,
+        done: usize,
     ) -> Result<(), crate::checkpoint::CheckpointError> {
-        // Never asked for (`can_save_within` is false); refused rather than written wrong.
-        Err(crate::checkpoint::CheckpointError::Bad {
-            path: saver.path().to_path_buf(),
-            what: "the data and hybrid modes out of core save at iteration boundaries only"
-                .to_string(),
-        })
+        self.save_inside(saver, state, done)
     }
 
     fn save_boundary(
@@ -858,6 +912,7 @@ impl Sweep for DataOocSweep<'_, '_> {
                 &mut self.seconds,
             )?;
             self.held = Some(next);
+            self.in_copy_order = false;
         }
         self.generation += 1;
         let fold = self.pending.then_some(!self.earlier_any);

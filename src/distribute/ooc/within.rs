@@ -1,0 +1,196 @@
+//! Checkpoints inside an iteration in the data and hybrid modes out of core: the light every
+//! group has gathered so far, brought to canonical order on rank 0 beside the radiosity, and
+//! put back into the held records of a resumed run.
+//!
+//! Between two steps a group's light is in two slots of its held records: the canonical sum of
+//! the main axes it has done (`earlier`, or still `gathered` when its last axis ended with the
+//! step just done, and is folded only when the next one starts), and the light of the axis in
+//! progress (`gathered`). The checkpoint keeps them apart (`State::axis_in_progress` with
+//! `data_groups`, format version 5): an axis's light added to the sum early would round
+//! otherwise than the uninterrupted run, which adds it whole. The sum of a finished axis is
+//! folded here exactly as the next step would fold it, so a resume adds the same bits in the
+//! same order. Each array is by surfel id, so a run with another rank count but the same
+//! groups continues inside the iteration too.
+
+use super::held::{self, Held, Wire, EARLIER_AT, GATHERED_AT};
+use super::route::Router;
+use super::{fold_axis, DataOocSweep, Solver, WalkStep};
+use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
+use crate::outcore::files::{IoCounters, GATHER_LEN, RADIOSITY_LEN};
+use crate::outcore::OocError;
+use std::path::PathBuf;
+use std::time::Instant;
+
+/// A group's light `done` steps into an iteration, as the held records of its last step hold
+/// it.
+#[derive(Clone, Copy)]
+struct Position {
+    /// `earlier` holds the sum of the axes done.
+    earlier_any: bool,
+    /// `gathered` holds a whole axis, to be added to `earlier` when the next one starts.
+    pending: bool,
+    /// `gathered` holds the light of the axis in progress.
+    in_axis: bool,
+}
+
+impl Position {
+    /// The canonical sum of the light of the axes done (zeros before the first).
+    fn sum(self, w: &Wire) -> [u8; GATHER_LEN] {
+        let mut record = *w;
+        if self.pending {
+            fold_axis(&mut record, !self.earlier_any);
+        } else if !self.earlier_any {
+            return [0; GATHER_LEN];
+        }
+        slot(&record, EARLIER_AT)
+    }
+
+    /// The light of the axis in progress (zeros between two axes).
+    fn axis(self, w: &Wire) -> [u8; GATHER_LEN] {
+        if self.in_axis {
+            slot(w, GATHERED_AT)
+        } else {
+            [0; GATHER_LEN]
+        }
+    }
+}
+
+fn slot(w: &Wire, at: usize) -> [u8; GATHER_LEN] {
+    w[at..at + GATHER_LEN].try_into().expect("a light slot")
+}
+
+/// Whether a group that has done the first `done` steps of `walk` has finished an axis.
+pub(super) fn axes_done(walk: &[WalkStep], done: usize) -> bool {
+    walk[..done.min(walk.len())].iter().any(|s| s.last)
+}
+
+impl DataOocSweep<'_, '_> {
+    /// Saves the state `done` steps into iteration `state.iteration + 1`: rank 0 gathers the
+    /// radiosity (from group 0), every group's sum of its axes done, then every group's light
+    /// of its axis in progress, each in canonical order, and writes them. Collective.
+    pub(super) fn save_inside(
+        &mut self,
+        saver: &mut Saver,
+        mut state: State,
+        done: usize,
+    ) -> Result<(), CheckpointError> {
+        let t = Instant::now();
+        let solver = self.solver;
+        let at = Position {
+            earlier_any: self.earlier_any,
+            pending: self.pending,
+            in_axis: done.min(self.walk.len()) > 0 && !self.pending,
+        };
+        let held = self.held.as_ref().expect("held files between steps");
+        let (dir, plan, surfels) = (self.dir, self.plan, self.surfels);
+        let mut io = IoCounters::default();
+        let mut files: Vec<PathBuf> = Vec::new();
+        let mut gather = || -> Result<(), OocError> {
+            let radiosity = solver.gather_canonical::<RADIOSITY_LEN>(
+                held,
+                0,
+                surfels,
+                "checkpoint-radiosity.bin",
+                (dir, plan),
+                &mut io,
+                |w| {
+                    w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN]
+                        .try_into()
+                        .expect("a radiosity record")
+                },
+            )?;
+            files.extend(radiosity);
+            for (kind, value) in [
+                (
+                    "sum",
+                    Position::sum as fn(Position, &Wire) -> [u8; GATHER_LEN],
+                ),
+                ("axis", Position::axis),
+            ] {
+                for group in 0..solver.groups {
+                    let name = format!("checkpoint-{kind}-{group}.bin");
+                    let array = solver.gather_canonical::<GATHER_LEN>(
+                        held,
+                        group,
+                        surfels,
+                        &name,
+                        (dir, plan),
+                        &mut io,
+                        |w| value(at, w),
+                    )?;
+                    files.extend(array);
+                }
+            }
+            Ok(())
+        };
+        let gathered = gather();
+        self.io.read += io.read;
+        self.io.written += io.written;
+        gathered.map_err(|e| CheckpointError::Io {
+            path: saver.path().to_path_buf(),
+            action: "gather the light of every rank for",
+            source: std::io::Error::other(e.to_string()),
+        })?;
+        state.within = Some(done as u64);
+        state.data_groups = solver.groups as u32;
+        state.axis_in_progress = true;
+        let result = saver.save(state, plan.io_bytes, |w| {
+            for path in &files {
+                let file = std::fs::File::open(path)?;
+                let mut reader = std::io::BufReader::with_capacity(plan.io_bytes, file);
+                std::io::copy(&mut reader, w)?;
+            }
+            Ok(())
+        });
+        for path in &files {
+            let _ = std::fs::remove_file(path);
+        }
+        // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
+        saver.took(t.elapsed());
+        result
+    }
+}
+
+impl Solver<'_> {
+    /// Puts a mid-iteration checkpoint's light (`file`, on rank 0; written by a run of this
+    /// many groups) into the held records in canonical order: each group's sum of its axes done
+    /// into `earlier`, its light of the axis in progress into `gathered`. Rank 0 sends every
+    /// rank of each group its slice of that group's arrays. Collective.
+    pub(super) fn restore_inside(
+        &self,
+        mut held: Held,
+        first: u64,
+        file: Option<&CheckpointFile>,
+        generation: &mut u64,
+        router: &Router,
+        io: &mut IoCounters,
+    ) -> Result<Held, OocError> {
+        let plan = router.plan;
+        let name = file
+            .map(|f| f.path.display().to_string())
+            .unwrap_or_else(|| "the checkpoint".to_string());
+        for (arrays_before, at) in [(0, EARLIER_AT), (self.groups, GATHERED_AT)] {
+            let mut mine = None;
+            for group in 0..self.groups {
+                let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
+                    let file = file.ok_or_else(|| OocError::BadData {
+                        source_name: "the checkpoint".to_string(),
+                        what: "rank 0 did not open it".to_string(),
+                    })?;
+                    let array = (arrays_before + group) as u32;
+                    file.read_array::<OocError>(array, plan.io_bytes, piece)
+                };
+                let slice =
+                    self.send_slices_to(Some(group), first, GATHER_LEN, &name, read, router, io)?;
+                mine = mine.or(slice);
+            }
+            let mine = mine.expect("every rank is in a group");
+            *generation += 1;
+            held =
+                self.place_slice::<GATHER_LEN>(held, &mine, *generation, router, io, |w, v| {
+                    w[at..at + GATHER_LEN].copy_from_slice(v)
+                })?;
+        }
+        Ok(held)
+    }
+}
