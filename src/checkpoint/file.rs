@@ -467,48 +467,27 @@ impl CheckpointFile {
         mut sums: impl FnMut(&[u8]) -> Result<(), E>,
         mut axis: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
-        use std::io::{Seek, SeekFrom};
-        let path = &self.path;
-        let io = |action, source| CheckpointError::Io {
-            path: path.to_path_buf(),
-            action,
-            source,
-        };
-        let mut file = File::open(path).map_err(|e| io("open", e))?;
-        file.seek(SeekFrom::Start(self.payload_at))
-            .map_err(|e| io("read", e))?;
+        let mut file = self.open_at(self.payload_at)?;
         let mut crc = crc32fast::Hasher::new();
         let surfels = self.header.identity.surfels;
         let sums_count = surfels * self.header.partial_ranks() as u64;
-        let mut read = |record: usize, count: u64, f: &mut dyn FnMut(&[u8]) -> Result<(), E>| {
-            let piece = (buffer_bytes / record).max(1) * record;
-            let mut buffer = vec![0u8; piece];
-            let mut left = count * record as u64;
-            while left > 0 {
-                let len = (left as usize).min(piece);
-                file.read_exact(&mut buffer[..len])
-                    .map_err(|e| io("read", e))?;
-                crc.update(&buffer[..len]);
-                f(&buffer[..len])?;
-                left -= len as u64;
-            }
-            Ok::<(), E>(())
-        };
         let axis_count =
             surfels * (self.header.partial_arrays() - self.header.partial_ranks()) as u64;
+        let mut read = |record, count, f: &mut dyn FnMut(&[u8]) -> Result<(), E>| {
+            self.read_records(&mut file, (record, count), buffer_bytes, Some(&mut crc), f)
+        };
         read(RADIOSITY_LEN, surfels, &mut radiosity)?;
         read(PARTIAL_LEN, sums_count, &mut sums)?;
         read(PARTIAL_LEN, axis_count, &mut axis)?;
         let mut stored = [0u8; 4];
-        file.read_exact(&mut stored).map_err(|e| io("read", e))?;
+        file.read_exact(&mut stored)
+            .map_err(|e| self.io_error("read", e))?;
         if crc.finalize() != u32::from_le_bytes(stored) {
-            return Err(bad(path, "damaged checkpoint (payload checksum mismatch)").into());
+            return Err(bad(&self.path, "damaged checkpoint (payload checksum mismatch)").into());
         }
         Ok(())
     }
-}
 
-impl CheckpointFile {
     /// Hands partial-sum array `index` (`0 .. partial_arrays`) to `f` in pieces of whole
     /// surfels (at most `buffer_bytes` each). Unchecked: only after a whole read
     /// ([`CheckpointFile::read_radiosity`]) has checked the payload's checksum.
@@ -518,29 +497,60 @@ impl CheckpointFile {
         buffer_bytes: usize,
         mut f: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
-        use std::io::{Seek, SeekFrom};
-        let path = &self.path;
-        let io = |action, source| CheckpointError::Io {
-            path: path.to_path_buf(),
-            action,
-            source,
-        };
         if index >= self.header.partial_arrays() {
-            return Err(bad(path, format!("it holds no partial-sum array {index}")).into());
+            return Err(bad(&self.path, format!("it holds no partial-sum array {index}")).into());
         }
         let surfels = self.header.identity.surfels;
         let at = self.payload_at
             + surfels * RADIOSITY_LEN as u64
             + index as u64 * surfels * PARTIAL_LEN as u64;
-        let mut file = File::open(path).map_err(|e| io("open", e))?;
-        file.seek(SeekFrom::Start(at)).map_err(|e| io("read", e))?;
-        let piece = (buffer_bytes / PARTIAL_LEN).max(1) * PARTIAL_LEN;
+        let mut file = self.open_at(at)?;
+        self.read_records(
+            &mut file,
+            (PARTIAL_LEN, surfels),
+            buffer_bytes,
+            None,
+            &mut f,
+        )
+    }
+
+    fn io_error(&self, action: &'static str, source: std::io::Error) -> CheckpointError {
+        CheckpointError::Io {
+            path: self.path.to_path_buf(),
+            action,
+            source,
+        }
+    }
+
+    /// The file, open at byte `at`.
+    fn open_at(&self, at: u64) -> Result<File, CheckpointError> {
+        use std::io::{Seek, SeekFrom};
+        let mut file = File::open(&self.path).map_err(|e| self.io_error("open", e))?;
+        file.seek(SeekFrom::Start(at))
+            .map_err(|e| self.io_error("read", e))?;
+        Ok(file)
+    }
+
+    /// Reads `count` records of `record` bytes from `file` in pieces of whole records (at most
+    /// `buffer_bytes`, at least one record), each added to `crc` if given and handed to `f`.
+    fn read_records<E: From<CheckpointError>>(
+        &self,
+        file: &mut File,
+        (record, count): (usize, u64),
+        buffer_bytes: usize,
+        mut crc: Option<&mut crc32fast::Hasher>,
+        f: &mut dyn FnMut(&[u8]) -> Result<(), E>,
+    ) -> Result<(), E> {
+        let piece = (buffer_bytes / record).max(1) * record;
         let mut buffer = vec![0u8; piece];
-        let mut left = surfels * PARTIAL_LEN as u64;
+        let mut left = count * record as u64;
         while left > 0 {
             let len = (left as usize).min(piece);
             file.read_exact(&mut buffer[..len])
-                .map_err(|e| io("read", e))?;
+                .map_err(|e| self.io_error("read", e))?;
+            if let Some(crc) = crc.as_deref_mut() {
+                crc.update(&buffer[..len]);
+            }
             f(&buffer[..len])?;
             left -= len as u64;
         }

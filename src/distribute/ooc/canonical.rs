@@ -39,7 +39,8 @@ impl Solver<'_> {
             file.read_radiosity::<OocError>(plan.io_bytes, piece)
         };
         let name = name.unwrap_or_else(|| "the checkpoint".to_string());
-        let mine = self.send_slices(first, RADIOSITY_LEN, &name, read, router, io)?;
+        let mine = self.send_slices(None, first, RADIOSITY_LEN, &name, read, router, io)?;
+        let mine = mine.expect("every rank receives its slice");
         let info = self.source.info();
         let direct = self.direct();
         self.place_slice::<RADIOSITY_LEN>(held, &mine, generation, router, io, |w, b| {
@@ -50,25 +51,11 @@ impl Solver<'_> {
 
     /// Rank 0 cuts the canonical records of `len` bytes that `read` hands it (in pieces of whole
     /// records; `name` names their origin in errors) into the slices of the ranks, whose first
-    /// canonical index this rank's `first` is, and sends each rank its own in bounded rounds;
-    /// returns the file that holds this rank's slice. Collective; `read` runs on rank 0 only.
-    pub(super) fn send_slices(
-        &self,
-        first: u64,
-        len: usize,
-        name: &str,
-        read: impl FnOnce(&mut dyn FnMut(&[u8]) -> Result<(), OocError>) -> Result<(), OocError>,
-        router: &Router,
-        io: &mut IoCounters,
-    ) -> Result<PathBuf, OocError> {
-        let mine = self.send_slices_to(None, first, len, name, read, router, io)?;
-        Ok(mine.expect("every rank receives its slice"))
-    }
-
-    /// [`Solver::send_slices`] to the ranks of group `group` only (`None`: of every group);
-    /// returns the file of this rank's slice where it receives one.
+    /// canonical index this rank's `first` is, and sends each rank of group `group` (`None`: of
+    /// every group) its own in bounded rounds; returns the file that holds this rank's slice
+    /// where it receives one. Collective; `read` runs on rank 0 only.
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn send_slices_to(
+    pub(super) fn send_slices(
         &self,
         group: Option<usize>,
         first: u64,

@@ -50,14 +50,9 @@ impl Solver<'_> {
             std::fs::remove_file(&file.path).map_err(|e| OocError::io(&file.path, "remove", e))
         };
         let mut sent = IoCounters::default();
-        let mine = self.send_slices(
-            first,
-            GATHER_LEN,
-            "the direct light's work file",
-            read,
-            router,
-            &mut sent,
-        )?;
+        let name = "the direct light's work file";
+        let mine = self.send_slices(None, first, GATHER_LEN, name, read, router, &mut sent)?;
+        let mine = mine.expect("every rank receives its slice");
         io.read += sent.read;
         io.written += sent.written;
         let info = self.source.info();

@@ -181,7 +181,7 @@ impl Solver<'_> {
                     file.read_array::<OocError>(array, plan.io_bytes, piece)
                 };
                 let slice =
-                    self.send_slices_to(Some(group), first, GATHER_LEN, &name, read, router, io)?;
+                    self.send_slices(Some(group), first, GATHER_LEN, &name, read, router, io)?;
                 mine = mine.or(slice);
             }
             let mine = mine.expect("every rank is in a group");
