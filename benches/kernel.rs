@@ -27,9 +27,15 @@ fn main() {
     let mut args: Vec<String> = std::env::args().skip(1).collect();
     let full = args.iter().any(|a| a == "--bench");
     args.retain(|a| a != "--bench");
-    let mut scene = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/examples/cornell_box.obj"));
-    let (mut resolution, mut directions, mut iterations, mut threads, mut repeat) =
-        if full { (128, 589, 2, 1, 1) } else { (16, 13, 1, 1, 1) };
+    let mut scene = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/examples/cornell_box.obj"
+    ));
+    let (mut resolution, mut directions, mut iterations, mut threads, mut repeat) = if full {
+        (128, 589, 2, 1, 1)
+    } else {
+        (16, 13, 1, 1, 1)
+    };
     let mut it = args.into_iter();
     while let Some(a) = it.next() {
         let mut value = |name: &str| -> usize {
