@@ -403,10 +403,14 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             }
         },
     };
+    let (mut ahead, mut behind) = (Chain::default(), Chain::default());
     for g in 0..group_count {
         for k in groups[g]..groups[g + 1] {
-            let ahead = view.nearest::<true>(g, k, sf);
-            let behind = view.nearest::<false>(g, k, -sf);
+            // The chains are filled in place: returned by value, each was copied through the
+            // stack with wide loads of narrower stores just written (a store-forwarding stall
+            // that cost a tenth of the search).
+            view.nearest::<true>(g, k, sf, &mut ahead);
+            view.nearest::<false>(g, k, -sf, &mut behind);
             let first = |c: &Chain| {
                 if c.len > 0 {
                     c.items[0]
@@ -944,13 +948,13 @@ impl LineView<'_> {
     /// so the plane is remembered as missed for the rest of the search. This is what keeps a ray
     /// that grazes past the outside corner of a room from meeting the inside of the wall beyond it.
     #[inline(always)]
-    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3) -> Chain {
-        let mut chain = Chain::default();
+    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3, chain: &mut Chain) {
+        chain.len = 0;
         let x = &self.locals[k];
         if x.ns == 0.0 {
             // The direction lies in the receiver's plane: it gathers nothing along it, and no
             // candidate could pass the test anyway, so do not walk the line.
-            return chain;
+            return;
         }
         let mut missed = Missed::default();
         let mut layer = OpenLayer::default();
@@ -972,15 +976,17 @@ impl LineView<'_> {
                 if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                     // An open edge sharing its voxel: it sends its share, its plane is now
                     // crossed, and the rest of the ray may still meet another plane here.
-                    layer.take(&mut chain, &mut left, found, share, candidate.normal);
+                    layer.take(chain, &mut left, found, share, candidate.normal);
                     missed.insert(candidate.group);
                     if left <= 1e-3 {
-                        return chain;
+                        return;
                     }
                     search_here = true;
                     continue;
                 }
-                if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                // The test is pure: its answer is computed once for the steps below.
+                let hit = Self::test::<FORWARD>(x, candidate);
+                if let Some(t) = hit {
                     if missed.has_room() && self.off_the_run(x, found, t, dir) {
                         missed.insert(candidate.group);
                         search_here = true;
@@ -994,25 +1000,25 @@ impl LineView<'_> {
                         t,
                         &mut missed,
                         &mut layer,
-                        &mut chain,
+                        chain,
                         &mut left,
                     );
                 }
-                let partner = match Self::test::<FORWARD>(x, candidate) {
+                let partner = match hit {
                     Some(t) => self.where_crossed::<FORWARD>(x, found, g2, t, dir),
                     None => found,
                 };
                 chain.push(partner, left);
-                return chain;
+                return;
             }
             if FORWARD {
                 g2 += 1;
                 if g2 >= group_count {
-                    return chain;
+                    return;
                 }
             } else {
                 if g2 == 0 {
-                    return chain;
+                    return;
                 }
                 g2 -= 1;
             }
@@ -1029,41 +1035,41 @@ impl LineView<'_> {
             if single != u32::MAX {
                 let c = self.groups[g2];
                 let candidate = &self.locals[c];
-                if !missed.contains(single) && Self::test::<FORWARD>(x, candidate).is_some() {
+                let hit = if missed.contains(single) {
+                    None
+                } else {
+                    Self::test::<FORWARD>(x, candidate)
+                };
+                if let Some(t) = hit {
                     let open = self.open_share::<FORWARD>(g, c);
                     if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                         // An open edge: it sends its share, and the ray goes on past its plane
                         // (now crossed, so no other piece of that plane can catch it).
-                        layer.take(&mut chain, &mut left, c, share, candidate.normal);
+                        layer.take(chain, &mut left, c, share, candidate.normal);
                         missed.insert(single);
                         if left <= 1e-3 {
-                            return chain;
+                            return;
                         }
                         continue;
                     }
-                    if let Some(t) = Self::test::<FORWARD>(x, candidate) {
-                        if missed.has_room() && self.off_the_run(x, c, t, dir) {
-                            missed.insert(single);
-                            continue;
-                        }
-                        self.open_before_hit::<FORWARD>(
-                            g,
-                            x,
-                            c,
-                            g2,
-                            t,
-                            &mut missed,
-                            &mut layer,
-                            &mut chain,
-                            &mut left,
-                        );
+                    if missed.has_room() && self.off_the_run(x, c, t, dir) {
+                        missed.insert(single);
+                        continue;
                     }
-                    let partner = match Self::test::<FORWARD>(x, candidate) {
-                        Some(t) => self.where_crossed::<FORWARD>(x, c, g2, t, dir),
-                        None => c,
-                    };
+                    self.open_before_hit::<FORWARD>(
+                        g,
+                        x,
+                        c,
+                        g2,
+                        t,
+                        &mut missed,
+                        &mut layer,
+                        chain,
+                        &mut left,
+                    );
+                    let partner = self.where_crossed::<FORWARD>(x, c, g2, t, dir);
                     chain.push(partner, left);
-                    return chain;
+                    return;
                 }
             } else {
                 search_here = true;
