@@ -219,6 +219,16 @@ fn facing<const RECEIVER_BEHIND: bool>(r: &Local, c: &Local) -> Option<f32> {
     }
 }
 
+/// `x.floor() as i32`, exactly (saturating, 0 for NaN), without the call to `floorf` that
+/// `f32::floor` compiles to on x86-64 without SSE 4.1.
+#[inline(always)]
+fn floor_to_i32(x: f32) -> i32 {
+    let t = x as i32;
+    // `t as f32` is exact: either |x| < 2^24 (and so is t), or x is an integer or out of range,
+    // where `t` is x itself or saturated and `x < t` is false, except below i32::MIN.
+    t.saturating_sub((x < t as f32) as i32)
+}
+
 /// The side of a surfel that faces along the direction, given `normal . s`.
 #[inline(always)]
 fn side_along(ns: f32) -> usize {
@@ -351,8 +361,15 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }
     groups.push(locals.len());
     let group_count = groups.len() - 1;
+    // Most lines hold one surfel per voxel: then no voxel has mates, and the plane runs that
+    // only judge mates at a run's ends (`LineView::off_the_run`) are not needed.
+    let shared = group_count < locals.len();
     open_crossings(locals, groups, section, open_ranges, open_items, open_slot);
-    plane_runs(locals, groups, runs);
+    if shared {
+        plane_runs(locals, groups, runs);
+    } else {
+        runs.clear();
+    }
     single.clear();
     single.extend((0..group_count).map(|g| {
         if groups[g + 1] - groups[g] == 1 {
@@ -363,17 +380,16 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }));
     run_after.clear();
     run_after.resize(group_count, 0);
-    for g in (0..group_count).rev() {
-        run_after[g] = if g + 1 < group_count && single[g] != u32::MAX && single[g + 1] == single[g]
-        {
-            run_after[g + 1]
-        } else {
-            g as u32 + 1
-        };
-    }
     run_before.clear();
     run_before.resize(group_count, 0);
     for g in 0..group_count {
+        let r = group_count - 1 - g;
+        run_after[r] = if r + 1 < group_count && single[r] != u32::MAX && single[r + 1] == single[r]
+        {
+            run_after[r + 1]
+        } else {
+            r as u32 + 1
+        };
         run_before[g] = if g > 0 && single[g] != u32::MAX && single[g - 1] == single[g] {
             run_before[g - 1]
         } else {
@@ -392,6 +408,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         open_items,
         open_slot,
         runs,
+        shared,
         main: {
             let a = sf.abs();
             if a.x >= a.y && a.x >= a.z {
@@ -593,6 +610,8 @@ struct LineView<'a> {
     open_items: &'a [(u32, u32, f32)],
     open_slot: &'a [u32],
     runs: &'a [[u32; 2]],
+    /// Whether some voxel of the line holds more than one surfel (else `runs` is empty).
+    shared: bool,
     /// The line's main axis (the largest component of the direction).
     main: usize,
 }
@@ -621,7 +640,7 @@ impl LineView<'_> {
         }
         let plane = self.locals[c].group;
         let main = self.main;
-        let layer = (x.voxel[main] as f32 + x.point[main] + dir[main] * t).floor() as i32;
+        let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
         let coordinate = |g: usize| self.locals[self.groups[g]].voxel[main];
         // Walk from the candidate's voxel along the search (the search met nothing of the plane
         // before it), one layer at a time towards the crossing's, while the next voxel holds the
@@ -681,6 +700,10 @@ impl LineView<'_> {
     /// judged there already.
     #[inline(always)]
     fn off_the_run(&self, x: &Local, c: usize, t: f32, dir: Vec3) -> bool {
+        if !self.shared {
+            // No run end holds mates.
+            return false;
+        }
         let plane = self.locals[c].group;
         let own = self.runs[c];
         let here = self.locals[c].voxel;
@@ -1213,5 +1236,45 @@ pub fn for_each_link(scratch: &LineScratch, s: DVec3, mut f: impl FnMut(Link)) {
     }
     for &(k, which, position, share) in &scratch.extra {
         link(k as usize, which, position, share);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::floor_to_i32;
+
+    #[test]
+    fn floor_to_i32_is_floor() {
+        let mut values = vec![
+            0.0f32,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            1.5,
+            -1.5,
+            2.999_999_8,
+            -2.999_999_8,
+            16_777_215.5,
+            -16_777_215.5,
+            16_777_216.0,
+            3.0e9,
+            -3.0e9,
+            2_147_483_648.0,
+            -2_147_483_648.0,
+            -2_147_483_904.0,
+            f32::MAX,
+            f32::MIN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            1e-30,
+            -1e-30,
+        ];
+        values.extend((-2000..2000).map(|i| i as f32 * 0.0137));
+        for x in values {
+            assert_eq!(floor_to_i32(x), x.floor() as i32, "{x}");
+        }
     }
 }
