@@ -639,6 +639,17 @@ impl LineView<'_> {
             return c;
         }
         let plane = self.locals[c].group;
+        let group_count = self.groups.len() - 1;
+        // Most hits are on a plane whose run ends at the candidate's voxel: the walk below would
+        // stop there whatever the crossing's layer, so that layer is not computed.
+        let next = if FORWARD {
+            g_c + 1
+        } else {
+            g_c.wrapping_sub(1)
+        };
+        if next >= group_count || self.single[next] != plane {
+            return c;
+        }
         let main = self.main;
         let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
         let coordinate = |g: usize| self.locals[self.groups[g]].voxel[main];
@@ -649,7 +660,6 @@ impl LineView<'_> {
         // and lies in the next layer (a gap ends it too). The walk is the same whichever way
         // the line is listed, so the out-of-core solver, which lists some lines the other way,
         // finds the same partner.
-        let group_count = self.groups.len() - 1;
         let mut at = g_c;
         loop {
             let here = coordinate(at);
@@ -1177,18 +1187,51 @@ pub unsafe fn gather_line(
 ) {
     let s = input.unit;
     find_partners(line, input.surfels, s, scratch);
-    for_each_link(scratch, s, |link| {
-        if link.cosine == 0.0 {
-            return;
+    // The links in `for_each_link`'s order, written out here so that the gather inlines (through
+    // the closure it was a call per link).
+    for (k, &[ahead, behind]) in scratch.partners.iter().enumerate() {
+        // SAFETY (all three): see the function's contract.
+        unsafe {
+            add_link(line, input, acc, scratch.link(s, k, 0, ahead.0, ahead.1));
+            add_link(line, input, acc, scratch.link(s, k, 1, behind.0, behind.1));
         }
-        let from = input.radiosity[line[link.partner] as usize][link.from_side];
-        // SAFETY: see the function's contract.
-        let to = unsafe { &mut (*acc.add(line[link.receiver] as usize))[link.to_side] };
-        let f = link.cosine * input.weight * link.share as f64;
-        for (t, b) in to.iter_mut().zip(from).take(input.channels) {
-            *t += b as f64 * f;
-        }
-    });
+    }
+    for &(k, which, position, share) in &scratch.extra {
+        unsafe {
+            add_link(
+                line,
+                input,
+                acc,
+                scratch.link(s, k as usize, which, position, share),
+            )
+        };
+    }
+}
+
+/// Adds the light `link` brings (if any) to its receiver's sum in `acc`.
+///
+/// # Safety
+/// As for [`gather_line`].
+#[inline(always)]
+unsafe fn add_link(
+    line: &[u32],
+    input: &DirectionInput,
+    acc: *mut [[f64; 3]; 2],
+    link: Option<Link>,
+) {
+    let Some(link) = link else {
+        return;
+    };
+    if link.cosine == 0.0 {
+        return;
+    }
+    let from = input.radiosity[line[link.partner] as usize][link.from_side];
+    // SAFETY: see the function's contract.
+    let to = unsafe { &mut (*acc.add(line[link.receiver] as usize))[link.to_side] };
+    let f = link.cosine * input.weight * link.share as f64;
+    for (t, b) in to.iter_mut().zip(from).take(input.channels) {
+        *t += b as f64 * f;
+    }
 }
 
 /// One partner link of a line: receiver `receiver`'s side `to_side` gathers `share` of its ray
@@ -1208,19 +1251,38 @@ pub struct Link {
 
 /// Calls `f` for every partner link that [`find_partners`] left in `scratch` for direction `s`.
 pub fn for_each_link(scratch: &LineScratch, s: DVec3, mut f: impl FnMut(Link)) {
-    let mut link = |k: usize, which: u8, position: u32, share: f32| {
-        if position == u32::MAX {
-            return;
+    for (k, [ahead, behind]) in scratch.partners.iter().enumerate() {
+        if let Some(link) = scratch.link(s, k, 0, ahead.0, ahead.1) {
+            f(link);
         }
-        let local = &scratch.locals[k];
-        let partner = &scratch.locals[position as usize];
+        if let Some(link) = scratch.link(s, k, 1, behind.0, behind.1) {
+            f(link);
+        }
+    }
+    for &(k, which, position, share) in &scratch.extra {
+        if let Some(link) = scratch.link(s, k as usize, which, position, share) {
+            f(link);
+        }
+    }
+}
+
+impl LineScratch {
+    /// The link from line position `k`'s search ahead (`which` 0) or behind (1) to line position
+    /// `position` with `share` of the ray; `None` when the search found nothing.
+    #[inline(always)]
+    fn link(&self, s: DVec3, k: usize, which: u8, position: u32, share: f32) -> Option<Link> {
+        if position == u32::MAX {
+            return None;
+        }
+        let local = &self.locals[k];
+        let partner = &self.locals[position as usize];
         // The receiver's side facing the partner gathers from the partner's side facing it.
         let (to_side, from_side) = if which == 0 {
             (side_along(local.ns), side_along(-partner.ns))
         } else {
             (side_along(-local.ns), side_along(partner.ns))
         };
-        f(Link {
+        Some(Link {
             receiver: k,
             to_side,
             partner: position as usize,
@@ -1228,14 +1290,7 @@ pub fn for_each_link(scratch: &LineScratch, s: DVec3, mut f: impl FnMut(Link)) {
             share,
             cosine: crate::solve::normalize::cosine(local.normal.to_array(), s),
             which,
-        });
-    };
-    for (k, [ahead, behind]) in scratch.partners.iter().enumerate() {
-        link(k, 0, ahead.0, ahead.1);
-        link(k, 1, behind.0, behind.1);
-    }
-    for &(k, which, position, share) in &scratch.extra {
-        link(k as usize, which, position, share);
+        })
     }
 }
 
