@@ -420,6 +420,16 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             }
         },
     };
+    if !shared && open_ranges.is_empty() {
+        // The common line: one surfel per voxel and no open edge (see `LineView::nearest_plain`).
+        partners.extend((0..locals.len()).map(|k| {
+            [
+                view.nearest_plain::<true>(k, sf),
+                view.nearest_plain::<false>(k, -sf),
+            ]
+        }));
+        return;
+    }
     let (mut ahead, mut behind) = (Chain::default(), Chain::default());
     for g in 0..group_count {
         for k in groups[g]..groups[g + 1] {
@@ -964,6 +974,47 @@ impl LineView<'_> {
             }
         }
         best.map(|b| b.1)
+    }
+
+    /// [`LineView::nearest`] on a line whose voxels hold one surfel each and that meets no open
+    /// edge, where it reduces to this: no voxel has mates to search or to judge a run's end by
+    /// (`off_the_run` is false), no plane is ever missed, and every hit ends the search with the
+    /// whole ray. Returns the partner's line position and share, `(u32::MAX, 0.0)` for none, as
+    /// the first item of `nearest`'s chain.
+    #[inline(always)]
+    fn nearest_plain<const FORWARD: bool>(&self, k: usize, dir: Vec3) -> (u32, f32) {
+        let x = &self.locals[k];
+        if x.ns == 0.0 {
+            return (u32::MAX, 0.0);
+        }
+        let count = self.locals.len();
+        // Voxel groups are line positions here.
+        let mut g2 = k;
+        loop {
+            if FORWARD {
+                g2 += 1;
+                if g2 >= count {
+                    return (u32::MAX, 0.0);
+                }
+            } else {
+                if g2 == 0 {
+                    return (u32::MAX, 0.0);
+                }
+                g2 -= 1;
+            }
+            let candidate = &self.locals[g2];
+            if candidate.group == x.group {
+                g2 = if FORWARD {
+                    self.run_after[g2] as usize - 1
+                } else {
+                    self.run_before[g2] as usize
+                };
+                continue;
+            }
+            if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                return (self.where_crossed::<FORWARD>(x, g2, g2, t, dir) as u32, 1.0);
+            }
+        }
     }
 
     /// Searches the receiver's own voxel group, then the voxel groups ahead (or behind) in order;
