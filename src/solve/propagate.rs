@@ -62,7 +62,12 @@
 //! Cost: a line is first copied into a small local buffer (so the search touches contiguous
 //! memory and the cosine with `s` is computed once per surfel), and runs of consecutive voxels that
 //! hold only the receiver's own plane (a sheet seen at a grazing angle, possibly hundreds of voxels
-//! long) are skipped in one step, so finding all partners of a line costs about its length.
+//! long) are skipped in one step, so finding all partners of a line costs about its length. Most
+//! lines (four in five surfels of the Cornell box) hold one surfel per voxel and meet no open
+//! edge; their searches take a plain path with none of the bookkeeping for voxel-mates and open
+//! edges (`LineView::nearest_plain`), which gives the same partners. The surfels, radiosity and
+//! sums of the lines a little ahead are prefetched ([`gather_lines`]): they lie scattered over
+//! arrays far larger than the caches (about a sixth of the kernel's time went to waiting).
 
 use crate::voxel::{BACK, FRONT};
 use glam::{DVec3, Vec3};
@@ -1165,9 +1170,9 @@ impl LineView<'_> {
 /// How many surfels ahead of the line being gathered [`gather_lines`] asks the memory for. A
 /// line's surfels, their radiosity and their sums sit at scattered places of arrays far larger
 /// than the caches, and most lines hold only a few surfels, so without this each line waits for
-/// its own misses one after the other (they were two thirds of the kernel's time on the Cornell
-/// box at resolution 128). About 40 surfels cover the latency of a miss with the work of the
-/// lines in between.
+/// its own misses one after the other (the Cornell box at resolution 128 ran about a sixth
+/// faster with this). About 40 surfels cover the latency of a miss with the work of the lines in
+/// between; 20 did as well, 200 worse.
 const PREFETCH_SURFELS: usize = 40;
 
 /// Asks the memory for the cache lines of `base[index]` without waiting for them.
