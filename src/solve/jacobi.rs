@@ -11,7 +11,7 @@
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
 use super::normalize::cosine_sums;
-use super::propagate::{gather_line, prop_surfels, DirectionInput, LineScratch, PropSurfel};
+use super::propagate::{gather_lines, prop_surfels, DirectionInput, LineScratch, PropSurfel};
 use super::update::{Gathered, Radiosity};
 use super::{Solution, SolveStats};
 use crate::checkpoint::{CheckpointError, Interruption, Loaded, Saver, State};
@@ -488,15 +488,9 @@ pub(crate) fn gather_all_lines(
     let acc_ptr = AccPtr(acc.as_mut_ptr());
     bounds.par_windows(2).for_each(|w| {
         let mut scratch = LineScratch::default();
-        for l in w[0]..w[1] {
-            let line = lines.line(l);
-            if line.len() < 2 {
-                continue;
-            }
-            // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of this
-            // direction and line ranges are disjoint, so no entry is touched by two threads.
-            unsafe { gather_line(line, input, &mut scratch, acc_ptr.get()) };
-        }
+        // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of this
+        // direction and line ranges are disjoint, so no entry is touched by two threads.
+        unsafe { gather_lines(lines, w[0]..w[1], input, &mut scratch, acc_ptr.get()) };
     });
 }
 

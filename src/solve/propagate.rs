@@ -62,7 +62,12 @@
 //! Cost: a line is first copied into a small local buffer (so the search touches contiguous
 //! memory and the cosine with `s` is computed once per surfel), and runs of consecutive voxels that
 //! hold only the receiver's own plane (a sheet seen at a grazing angle, possibly hundreds of voxels
-//! long) are skipped in one step, so finding all partners of a line costs about its length.
+//! long) are skipped in one step, so finding all partners of a line costs about its length. Most
+//! lines (four in five surfels of the Cornell box) hold one surfel per voxel and meet no open
+//! edge; their searches take a plain path with none of the bookkeeping for voxel-mates and open
+//! edges (`LineView::nearest_plain`), which gives the same partners. The surfels, radiosity and
+//! sums of the lines a little ahead are prefetched ([`gather_lines`]): they lie scattered over
+//! arrays far larger than the caches (about a sixth of the kernel's time went to waiting).
 
 use crate::voxel::{BACK, FRONT};
 use glam::{DVec3, Vec3};
@@ -219,6 +224,16 @@ fn facing<const RECEIVER_BEHIND: bool>(r: &Local, c: &Local) -> Option<f32> {
     }
 }
 
+/// `x.floor() as i32`, exactly (saturating, 0 for NaN), without the call to `floorf` that
+/// `f32::floor` compiles to on x86-64 without SSE 4.1.
+#[inline(always)]
+fn floor_to_i32(x: f32) -> i32 {
+    let t = x as i32;
+    // `t as f32` is exact: either |x| < 2^24 (and so is t), or x is an integer or out of range,
+    // where `t` is x itself or saturated and `x < t` is false, except below i32::MIN.
+    t.saturating_sub((x < t as f32) as i32)
+}
+
 /// The side of a surfel that faces along the direction, given `normal . s`.
 #[inline(always)]
 fn side_along(ns: f32) -> usize {
@@ -351,8 +366,15 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }
     groups.push(locals.len());
     let group_count = groups.len() - 1;
+    // Most lines hold one surfel per voxel: then no voxel has mates, and the plane runs that
+    // only judge mates at a run's ends (`LineView::off_the_run`) are not needed.
+    let shared = group_count < locals.len();
     open_crossings(locals, groups, section, open_ranges, open_items, open_slot);
-    plane_runs(locals, groups, runs);
+    if shared {
+        plane_runs(locals, groups, runs);
+    } else {
+        runs.clear();
+    }
     single.clear();
     single.extend((0..group_count).map(|g| {
         if groups[g + 1] - groups[g] == 1 {
@@ -363,17 +385,16 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     }));
     run_after.clear();
     run_after.resize(group_count, 0);
-    for g in (0..group_count).rev() {
-        run_after[g] = if g + 1 < group_count && single[g] != u32::MAX && single[g + 1] == single[g]
-        {
-            run_after[g + 1]
-        } else {
-            g as u32 + 1
-        };
-    }
     run_before.clear();
     run_before.resize(group_count, 0);
     for g in 0..group_count {
+        let r = group_count - 1 - g;
+        run_after[r] = if r + 1 < group_count && single[r] != u32::MAX && single[r + 1] == single[r]
+        {
+            run_after[r + 1]
+        } else {
+            r as u32 + 1
+        };
         run_before[g] = if g > 0 && single[g] != u32::MAX && single[g - 1] == single[g] {
             run_before[g - 1]
         } else {
@@ -392,6 +413,7 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
         open_items,
         open_slot,
         runs,
+        shared,
         main: {
             let a = sf.abs();
             if a.x >= a.y && a.x >= a.z {
@@ -403,10 +425,24 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             }
         },
     };
+    if !shared && open_ranges.is_empty() {
+        // The common line: one surfel per voxel and no open edge (see `LineView::nearest_plain`).
+        partners.extend((0..locals.len()).map(|k| {
+            [
+                view.nearest_plain::<true>(k, sf),
+                view.nearest_plain::<false>(k, -sf),
+            ]
+        }));
+        return;
+    }
+    let (mut ahead, mut behind) = (Chain::default(), Chain::default());
     for g in 0..group_count {
         for k in groups[g]..groups[g + 1] {
-            let ahead = view.nearest::<true>(g, k, sf);
-            let behind = view.nearest::<false>(g, k, -sf);
+            // The chains are filled in place: returned by value, each was copied through the
+            // stack with wide loads of narrower stores just written (a store-forwarding stall
+            // that cost a tenth of the search).
+            view.nearest::<true>(g, k, sf, &mut ahead);
+            view.nearest::<false>(g, k, -sf, &mut behind);
             let first = |c: &Chain| {
                 if c.len > 0 {
                     c.items[0]
@@ -589,6 +625,8 @@ struct LineView<'a> {
     open_items: &'a [(u32, u32, f32)],
     open_slot: &'a [u32],
     runs: &'a [[u32; 2]],
+    /// Whether some voxel of the line holds more than one surfel (else `runs` is empty).
+    shared: bool,
     /// The line's main axis (the largest component of the direction).
     main: usize,
 }
@@ -616,8 +654,19 @@ impl LineView<'_> {
             return c;
         }
         let plane = self.locals[c].group;
+        let group_count = self.groups.len() - 1;
+        // Most hits are on a plane whose run ends at the candidate's voxel: the walk below would
+        // stop there whatever the crossing's layer, so that layer is not computed.
+        let next = if FORWARD {
+            g_c + 1
+        } else {
+            g_c.wrapping_sub(1)
+        };
+        if next >= group_count || self.single[next] != plane {
+            return c;
+        }
         let main = self.main;
-        let layer = (x.voxel[main] as f32 + x.point[main] + dir[main] * t).floor() as i32;
+        let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
         let coordinate = |g: usize| self.locals[self.groups[g]].voxel[main];
         // Walk from the candidate's voxel along the search (the search met nothing of the plane
         // before it), one layer at a time towards the crossing's, while the next voxel holds the
@@ -626,7 +675,6 @@ impl LineView<'_> {
         // and lies in the next layer (a gap ends it too). The walk is the same whichever way
         // the line is listed, so the out-of-core solver, which lists some lines the other way,
         // finds the same partner.
-        let group_count = self.groups.len() - 1;
         let mut at = g_c;
         loop {
             let here = coordinate(at);
@@ -677,6 +725,10 @@ impl LineView<'_> {
     /// judged there already.
     #[inline(always)]
     fn off_the_run(&self, x: &Local, c: usize, t: f32, dir: Vec3) -> bool {
+        if !self.shared {
+            // No run end holds mates.
+            return false;
+        }
         let plane = self.locals[c].group;
         let own = self.runs[c];
         let here = self.locals[c].voxel;
@@ -929,6 +981,47 @@ impl LineView<'_> {
         best.map(|b| b.1)
     }
 
+    /// [`LineView::nearest`] on a line whose voxels hold one surfel each and that meets no open
+    /// edge, where it reduces to this: no voxel has mates to search or to judge a run's end by
+    /// (`off_the_run` is false), no plane is ever missed, and every hit ends the search with the
+    /// whole ray. Returns the partner's line position and share, `(u32::MAX, 0.0)` for none, as
+    /// the first item of `nearest`'s chain.
+    #[inline(always)]
+    fn nearest_plain<const FORWARD: bool>(&self, k: usize, dir: Vec3) -> (u32, f32) {
+        let x = &self.locals[k];
+        if x.ns == 0.0 {
+            return (u32::MAX, 0.0);
+        }
+        let count = self.locals.len();
+        // Voxel groups are line positions here.
+        let mut g2 = k;
+        loop {
+            if FORWARD {
+                g2 += 1;
+                if g2 >= count {
+                    return (u32::MAX, 0.0);
+                }
+            } else {
+                if g2 == 0 {
+                    return (u32::MAX, 0.0);
+                }
+                g2 -= 1;
+            }
+            let candidate = &self.locals[g2];
+            if candidate.group == x.group {
+                g2 = if FORWARD {
+                    self.run_after[g2] as usize - 1
+                } else {
+                    self.run_before[g2] as usize
+                };
+                continue;
+            }
+            if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                return (self.where_crossed::<FORWARD>(x, g2, g2, t, dir) as u32, 1.0);
+            }
+        }
+    }
+
     /// Searches the receiver's own voxel group, then the voxel groups ahead (or behind) in order;
     /// within a voxel group the accepted candidate with the smallest distance wins. Runs of voxels
     /// holding only the receiver's plane are jumped over (none of them can be its partner).
@@ -944,13 +1037,13 @@ impl LineView<'_> {
     /// so the plane is remembered as missed for the rest of the search. This is what keeps a ray
     /// that grazes past the outside corner of a room from meeting the inside of the wall beyond it.
     #[inline(always)]
-    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3) -> Chain {
-        let mut chain = Chain::default();
+    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3, chain: &mut Chain) {
+        chain.len = 0;
         let x = &self.locals[k];
         if x.ns == 0.0 {
             // The direction lies in the receiver's plane: it gathers nothing along it, and no
             // candidate could pass the test anyway, so do not walk the line.
-            return chain;
+            return;
         }
         let mut missed = Missed::default();
         let mut layer = OpenLayer::default();
@@ -972,15 +1065,17 @@ impl LineView<'_> {
                 if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                     // An open edge sharing its voxel: it sends its share, its plane is now
                     // crossed, and the rest of the ray may still meet another plane here.
-                    layer.take(&mut chain, &mut left, found, share, candidate.normal);
+                    layer.take(chain, &mut left, found, share, candidate.normal);
                     missed.insert(candidate.group);
                     if left <= 1e-3 {
-                        return chain;
+                        return;
                     }
                     search_here = true;
                     continue;
                 }
-                if let Some(t) = Self::test::<FORWARD>(x, candidate) {
+                // The test is pure: its answer is computed once for the steps below.
+                let hit = Self::test::<FORWARD>(x, candidate);
+                if let Some(t) = hit {
                     if missed.has_room() && self.off_the_run(x, found, t, dir) {
                         missed.insert(candidate.group);
                         search_here = true;
@@ -994,25 +1089,25 @@ impl LineView<'_> {
                         t,
                         &mut missed,
                         &mut layer,
-                        &mut chain,
+                        chain,
                         &mut left,
                     );
                 }
-                let partner = match Self::test::<FORWARD>(x, candidate) {
+                let partner = match hit {
                     Some(t) => self.where_crossed::<FORWARD>(x, found, g2, t, dir),
                     None => found,
                 };
                 chain.push(partner, left);
-                return chain;
+                return;
             }
             if FORWARD {
                 g2 += 1;
                 if g2 >= group_count {
-                    return chain;
+                    return;
                 }
             } else {
                 if g2 == 0 {
-                    return chain;
+                    return;
                 }
                 g2 -= 1;
             }
@@ -1029,46 +1124,108 @@ impl LineView<'_> {
             if single != u32::MAX {
                 let c = self.groups[g2];
                 let candidate = &self.locals[c];
-                if !missed.contains(single) && Self::test::<FORWARD>(x, candidate).is_some() {
+                let hit = if missed.contains(single) {
+                    None
+                } else {
+                    Self::test::<FORWARD>(x, candidate)
+                };
+                if let Some(t) = hit {
                     let open = self.open_share::<FORWARD>(g, c);
                     if let Some(share) = open.filter(|_| (chain.len as usize) < MAX_CHAIN - 1) {
                         // An open edge: it sends its share, and the ray goes on past its plane
                         // (now crossed, so no other piece of that plane can catch it).
-                        layer.take(&mut chain, &mut left, c, share, candidate.normal);
+                        layer.take(chain, &mut left, c, share, candidate.normal);
                         missed.insert(single);
                         if left <= 1e-3 {
-                            return chain;
+                            return;
                         }
                         continue;
                     }
-                    if let Some(t) = Self::test::<FORWARD>(x, candidate) {
-                        if missed.has_room() && self.off_the_run(x, c, t, dir) {
-                            missed.insert(single);
-                            continue;
-                        }
-                        self.open_before_hit::<FORWARD>(
-                            g,
-                            x,
-                            c,
-                            g2,
-                            t,
-                            &mut missed,
-                            &mut layer,
-                            &mut chain,
-                            &mut left,
-                        );
+                    if missed.has_room() && self.off_the_run(x, c, t, dir) {
+                        missed.insert(single);
+                        continue;
                     }
-                    let partner = match Self::test::<FORWARD>(x, candidate) {
-                        Some(t) => self.where_crossed::<FORWARD>(x, c, g2, t, dir),
-                        None => c,
-                    };
+                    self.open_before_hit::<FORWARD>(
+                        g,
+                        x,
+                        c,
+                        g2,
+                        t,
+                        &mut missed,
+                        &mut layer,
+                        chain,
+                        &mut left,
+                    );
+                    let partner = self.where_crossed::<FORWARD>(x, c, g2, t, dir);
                     chain.push(partner, left);
-                    return chain;
+                    return;
                 }
             } else {
                 search_here = true;
             }
         }
+    }
+}
+
+/// How many surfels ahead of the line being gathered [`gather_lines`] asks the memory for. A
+/// line's surfels, their radiosity and their sums sit at scattered places of arrays far larger
+/// than the caches, and most lines hold only a few surfels, so without this each line waits for
+/// its own misses one after the other (the Cornell box at resolution 128 ran about a sixth
+/// faster with this). About 40 surfels cover the latency of a miss with the work of the lines in
+/// between; 20 did as well, 200 worse.
+const PREFETCH_SURFELS: usize = 40;
+
+/// Asks the memory for the cache lines of `base[index]` without waiting for them.
+#[inline(always)]
+fn prefetch<T>(base: *const T, index: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
+        let first = base.wrapping_add(index) as *const i8;
+        let last = first.wrapping_add(std::mem::size_of::<T>() - 1);
+        // SAFETY: a prefetch is only a hint: it never faults and reads nothing into the program,
+        // whatever the address.
+        unsafe {
+            _mm_prefetch::<_MM_HINT_T0>(first);
+            _mm_prefetch::<_MM_HINT_T0>(last);
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (base, index);
+}
+
+/// Gathers light along the lines `range` of `lines` into `acc`, as [`gather_line`] on each line
+/// of two surfels or more, in order; the data of the lines a little ahead is prefetched.
+///
+/// # Safety
+/// As for [`gather_line`], for every line of `range`.
+pub unsafe fn gather_lines(
+    lines: &crate::solve::dispatch::Lines,
+    range: std::ops::Range<usize>,
+    input: &DirectionInput,
+    scratch: &mut LineScratch,
+    acc: *mut [[f64; 3]; 2],
+) {
+    let mut ahead = range.start;
+    for l in range.clone() {
+        let horizon = lines.starts[l] as usize + PREFETCH_SURFELS;
+        while ahead < range.end && (lines.starts[ahead] as usize) < horizon {
+            let line = lines.line(ahead);
+            if line.len() >= 2 {
+                for &m in line {
+                    prefetch(input.surfels.as_ptr(), m as usize);
+                    prefetch(input.radiosity.as_ptr(), m as usize);
+                    prefetch(acc as *const [[f64; 3]; 2], m as usize);
+                }
+            }
+            ahead += 1;
+        }
+        let line = lines.line(l);
+        if line.len() < 2 {
+            continue;
+        }
+        // SAFETY: see the function's contract.
+        unsafe { gather_line(line, input, scratch, acc) };
     }
 }
 
@@ -1086,18 +1243,51 @@ pub unsafe fn gather_line(
 ) {
     let s = input.unit;
     find_partners(line, input.surfels, s, scratch);
-    for_each_link(scratch, s, |link| {
-        if link.cosine == 0.0 {
-            return;
+    // The links in `for_each_link`'s order, written out here so that the gather inlines (through
+    // the closure it was a call per link).
+    for (k, &[ahead, behind]) in scratch.partners.iter().enumerate() {
+        // SAFETY (all three): see the function's contract.
+        unsafe {
+            add_link(line, input, acc, scratch.link(s, k, 0, ahead.0, ahead.1));
+            add_link(line, input, acc, scratch.link(s, k, 1, behind.0, behind.1));
         }
-        let from = input.radiosity[line[link.partner] as usize][link.from_side];
-        // SAFETY: see the function's contract.
-        let to = unsafe { &mut (*acc.add(line[link.receiver] as usize))[link.to_side] };
-        let f = link.cosine * input.weight * link.share as f64;
-        for (t, b) in to.iter_mut().zip(from).take(input.channels) {
-            *t += b as f64 * f;
-        }
-    });
+    }
+    for &(k, which, position, share) in &scratch.extra {
+        unsafe {
+            add_link(
+                line,
+                input,
+                acc,
+                scratch.link(s, k as usize, which, position, share),
+            )
+        };
+    }
+}
+
+/// Adds the light `link` brings (if any) to its receiver's sum in `acc`.
+///
+/// # Safety
+/// As for [`gather_line`].
+#[inline(always)]
+unsafe fn add_link(
+    line: &[u32],
+    input: &DirectionInput,
+    acc: *mut [[f64; 3]; 2],
+    link: Option<Link>,
+) {
+    let Some(link) = link else {
+        return;
+    };
+    if link.cosine == 0.0 {
+        return;
+    }
+    let from = input.radiosity[line[link.partner] as usize][link.from_side];
+    // SAFETY: see the function's contract.
+    let to = unsafe { &mut (*acc.add(line[link.receiver] as usize))[link.to_side] };
+    let f = link.cosine * input.weight * link.share as f64;
+    for (t, b) in to.iter_mut().zip(from).take(input.channels) {
+        *t += b as f64 * f;
+    }
 }
 
 /// One partner link of a line: receiver `receiver`'s side `to_side` gathers `share` of its ray
@@ -1117,19 +1307,38 @@ pub struct Link {
 
 /// Calls `f` for every partner link that [`find_partners`] left in `scratch` for direction `s`.
 pub fn for_each_link(scratch: &LineScratch, s: DVec3, mut f: impl FnMut(Link)) {
-    let mut link = |k: usize, which: u8, position: u32, share: f32| {
-        if position == u32::MAX {
-            return;
+    for (k, [ahead, behind]) in scratch.partners.iter().enumerate() {
+        if let Some(link) = scratch.link(s, k, 0, ahead.0, ahead.1) {
+            f(link);
         }
-        let local = &scratch.locals[k];
-        let partner = &scratch.locals[position as usize];
+        if let Some(link) = scratch.link(s, k, 1, behind.0, behind.1) {
+            f(link);
+        }
+    }
+    for &(k, which, position, share) in &scratch.extra {
+        if let Some(link) = scratch.link(s, k as usize, which, position, share) {
+            f(link);
+        }
+    }
+}
+
+impl LineScratch {
+    /// The link from line position `k`'s search ahead (`which` 0) or behind (1) to line position
+    /// `position` with `share` of the ray; `None` when the search found nothing.
+    #[inline(always)]
+    fn link(&self, s: DVec3, k: usize, which: u8, position: u32, share: f32) -> Option<Link> {
+        if position == u32::MAX {
+            return None;
+        }
+        let local = &self.locals[k];
+        let partner = &self.locals[position as usize];
         // The receiver's side facing the partner gathers from the partner's side facing it.
         let (to_side, from_side) = if which == 0 {
             (side_along(local.ns), side_along(-partner.ns))
         } else {
             (side_along(-local.ns), side_along(partner.ns))
         };
-        f(Link {
+        Some(Link {
             receiver: k,
             to_side,
             partner: position as usize,
@@ -1137,13 +1346,46 @@ pub fn for_each_link(scratch: &LineScratch, s: DVec3, mut f: impl FnMut(Link)) {
             share,
             cosine: crate::solve::normalize::cosine(local.normal.to_array(), s),
             which,
-        });
-    };
-    for (k, [ahead, behind]) in scratch.partners.iter().enumerate() {
-        link(k, 0, ahead.0, ahead.1);
-        link(k, 1, behind.0, behind.1);
+        })
     }
-    for &(k, which, position, share) in &scratch.extra {
-        link(k as usize, which, position, share);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::floor_to_i32;
+
+    #[test]
+    fn floor_to_i32_is_floor() {
+        let mut values = vec![
+            0.0f32,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            1.5,
+            -1.5,
+            2.999_999_8,
+            -2.999_999_8,
+            16_777_215.5,
+            -16_777_215.5,
+            16_777_216.0,
+            3.0e9,
+            -3.0e9,
+            2_147_483_648.0,
+            -2_147_483_648.0,
+            -2_147_483_904.0,
+            f32::MAX,
+            f32::MIN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            1e-30,
+            -1e-30,
+        ];
+        values.extend((-2000..2000).map(|i| i as f32 * 0.0137));
+        for x in values {
+            assert_eq!(floor_to_i32(x), x.floor() as i32, "{x}");
+        }
     }
 }
