@@ -790,7 +790,9 @@ fn restore(
         let own = state.data_groups == 0;
         if !own {
             tracing::info!(
-                "the checkpoint is {done} steps into iteration {} of the data or hybrid mode out                  of core; this solve cannot continue inside it, so that iteration starts from                  its beginning",
+                "the checkpoint is {done} steps into iteration {} of the data or hybrid mode out \
+                 of core; this solve cannot continue inside it, so that iteration starts from \
+                 its beginning",
                 state.iteration + 1
             );
         }

@@ -459,16 +459,16 @@ impl Solver<'_> {
             && state.data_groups == self.groups as u32
             && (done as usize) < steps;
         if !ours && self.comm.rank() == 0 {
-            let layout = match state.data_groups {
-                0 => "by directions".to_string(),
-                1 => "in the data mode out of core".to_string(),
-                g if state.axis_in_progress => {
-                    format!("in the hybrid mode out of core, {g} groups")
-                }
-                g => format!("in the data or hybrid mode in memory, {g} group(s)"),
+            let layout = match (state.data_groups, state.axis_in_progress) {
+                (0, _) => "by directions, in one process".to_string(),
+                (1, true) => "in the data mode out of core".to_string(),
+                (g, true) => format!("in the hybrid mode out of core, {g} groups"),
+                (g, false) => format!("in the data or hybrid mode, {g} group(s)"),
             };
             tracing::info!(
-                "the checkpoint is {done} steps into iteration {} (written {layout}); this                  solve ({} group(s) out of core) cannot continue inside it, so that iteration                  starts from its beginning",
+                "the checkpoint is {done} steps into iteration {} (written {layout}); this \
+                 solve ({} group(s) out of core) cannot continue inside it, so that iteration \
+                 starts from its beginning",
                 state.iteration + 1,
                 self.groups
             );
