@@ -69,7 +69,7 @@ fn main() {
             if line.len() < 2 {
                 continue;
             }
-            unsafe { gather_line(line, &input, &mut scratch, acc.as_mut_ptr()) };
+            unsafe { gather_line(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ()) };
             if only.is_some()
                 && line
                     .iter()

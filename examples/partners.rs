@@ -162,6 +162,7 @@ fn main() {
             grey: true,
             accelerate: false,
             direct: DirectPass::Off,
+            ..Default::default()
         };
         solve(&set, &options).unwrap()
     });

@@ -90,6 +90,12 @@ enum Command {
         /// quarter of the available memory).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         memory: Option<u64>,
+        /// In memory: keep each direction's partner links between iterations within this many
+        /// bytes, so that iterations after the first only stream the light along them (0: find
+        /// them again in every iteration; default: 1 GiB, at most a quarter of the available
+        /// memory).
+        #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
+        links_memory: Option<u64>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
         /// the scene and takes a share of the directions; `data`: ranks own whole lines and
         /// surfels move between them; `hybrid`: groups of ranks share the directions, the data
@@ -383,6 +389,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             threads,
             image_size,
             memory,
+            links_memory,
             distribute,
             groups,
             compress_exchange,
@@ -451,6 +458,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                     Some(0) => DirectPass::Off,
                     Some(n) => DirectPass::On(n),
                 },
+                links_memory: links_memory.unwrap_or_else(voxrad::solve::links::default_budget),
                 ..Default::default()
             };
             let cmd = SolveCommand {

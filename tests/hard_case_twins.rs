@@ -69,6 +69,7 @@ fn options(directions: usize, tolerance: f64, max_iterations: usize) -> SolveOpt
         grey: true,
         accelerate: false,
         direct: DirectPass::On(DENSE),
+        ..Default::default()
     }
 }
 

@@ -102,6 +102,9 @@ pub struct Report {
     /// reduction across ranks.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub per_rank: Vec<RankSeconds>,
+    /// The partner links kept between iterations (in memory; see `solve::links`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub links: Option<crate::solve::stats::LinkStats>,
     /// Present when the solve ran out of core (a shard set, or `--memory`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub out_of_core: Option<OutOfCoreReport>,
@@ -255,6 +258,7 @@ impl Report {
                     reduce,
                 })
                 .collect(),
+            links: stats.links.clone(),
             out_of_core: None,
             data_distribution: stats.data.clone(),
             resumed_from_iteration: stats.resumed_from_iteration,

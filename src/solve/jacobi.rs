@@ -10,6 +10,7 @@
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
+use super::links::{gather_and_record, DirectionLinks, LinkBudget};
 use super::normalize::cosine_sums;
 use super::propagate::{gather_lines, prop_surfels, DirectionInput, LineScratch, PropSurfel};
 use super::update::{Gathered, Radiosity};
@@ -41,7 +42,13 @@ pub struct SolveOptions {
     pub accelerate: bool,
     /// Gather the emitters' own light once with a dense direction set (see `direct`).
     pub direct: super::direct::DirectPass,
+    /// Bytes of partner links that may be kept between iterations (see `links`); a direction
+    /// whose links do not fit is searched again in every iteration.
+    pub links_memory: u64,
 }
+
+/// The default of [`SolveOptions::links_memory`]: 1 GiB.
+pub const DEFAULT_LINKS_MEMORY: u64 = 1 << 30;
 
 impl Default for SolveOptions {
     fn default() -> Self {
@@ -53,6 +60,7 @@ impl Default for SolveOptions {
             grey: false,
             accelerate: false,
             direct: super::direct::DirectPass::Off,
+            links_memory: super::links::default_budget(),
         }
     }
 }
@@ -246,6 +254,12 @@ fn run(
         previous: Vec::new(),
         lines: Lines::default(),
         seconds: [0.0; 3],
+        kept: vec![None; crate::comm::dealt(directions.len(), comm.rank(), comm.size()).len()],
+        // A link names its surfel with one bit to spare for the side.
+        link_budget: LinkBudget {
+            left: if n < 1 << 31 { options.links_memory } else { 0 },
+        },
+        link_tried: false,
     };
     let mut start = Start::fresh();
     if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
@@ -291,6 +305,14 @@ fn run(
         stats.propagate_seconds,
         stats.reduce_seconds,
     ] = sweep.seconds;
+    let kept = sweep.kept.iter().flatten();
+    let (kept_directions, bytes) = (kept.clone().count(), kept.map(DirectionLinks::bytes).sum());
+    stats.links = Some(super::stats::LinkStats {
+        kept_directions,
+        directions: sweep.kept.len(),
+        bytes,
+        bytes_per_surfel_direction: bytes as f64 / (n * kept_directions).max(1) as f64,
+    });
     let InMemory {
         mut radiosity,
         mut acc,
@@ -353,6 +375,11 @@ struct InMemory<'a> {
     lines: Lines,
     /// Dispatch, propagation and reduction seconds.
     seconds: [f64; 3],
+    /// Each of this rank's directions' links, once its first gather kept them.
+    kept: Vec<Option<DirectionLinks>>,
+    link_budget: LinkBudget,
+    /// Every direction has been gathered once (with its links kept where they fit).
+    link_tried: bool,
 }
 
 impl Sweep for InMemory<'_> {
@@ -397,12 +424,31 @@ impl Sweep for InMemory<'_> {
             channels: self.channels,
         };
         let t0 = Instant::now();
-        let t1 = self.pool.install(|| {
+        if let Some(links) = &self.kept[step] {
+            // Visibility known: a streaming gather.
+            self.pool
+                .install(|| links.replay(input.radiosity, input.channels, acc));
+            self.seconds[1] += t0.elapsed().as_secs_f64();
+            return Ok(true);
+        }
+        // The first gather of a direction writes its links down while they may still be kept.
+        let record = !self.link_tried && self.link_budget.left > 0;
+        let (t1, links) = self.pool.install(|| {
             dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
             let t1 = Instant::now();
-            gather_all_lines(lines, &input, acc, threads);
-            t1
+            if record {
+                (t1, Some(gather_and_record(lines, &input, acc, threads)))
+            } else {
+                gather_all_lines(lines, &input, acc, threads);
+                (t1, None)
+            }
         });
+        if let Some(links) = links.filter(|l| self.link_budget.take(l.bytes())) {
+            self.kept[step] = Some(links);
+        }
+        if step + 1 == self.mine.len() {
+            self.link_tried = true;
+        }
         self.seconds[0] += (t1 - t0).as_secs_f64();
         self.seconds[1] += t1.elapsed().as_secs_f64();
         Ok(true)
@@ -470,6 +516,28 @@ pub(crate) fn gather_all_lines(
     acc: &mut [[[f64; 3]; 2]],
     threads: usize,
 ) {
+    let bounds = line_pieces(lines, threads);
+    let acc_ptr = AccPtr(acc.as_mut_ptr());
+    bounds.par_windows(2).for_each(|w| {
+        let mut scratch = LineScratch::default();
+        // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of this
+        // direction and line ranges are disjoint, so no entry is touched by two threads.
+        unsafe {
+            gather_lines(
+                lines,
+                w[0]..w[1],
+                input,
+                &mut scratch,
+                acc_ptr.get(),
+                &mut (),
+            )
+        };
+    });
+}
+
+/// The lines of a direction cut into about `8 threads` pieces of about equal surfels, as
+/// bounds: piece `p` is lines `bounds[p]..bounds[p + 1]`.
+pub(crate) fn line_pieces(lines: &Lines, threads: usize) -> Vec<usize> {
     let line_count = lines.line_count();
     let total = lines.members.len();
     let pieces = (threads * 8).max(1);
@@ -485,13 +553,7 @@ pub(crate) fn gather_all_lines(
         }
     }
     bounds.push(line_count);
-    let acc_ptr = AccPtr(acc.as_mut_ptr());
-    bounds.par_windows(2).for_each(|w| {
-        let mut scratch = LineScratch::default();
-        // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of this
-        // direction and line ranges are disjoint, so no entry is touched by two threads.
-        unsafe { gather_lines(lines, w[0]..w[1], input, &mut scratch, acc_ptr.get()) };
-    });
+    bounds
 }
 
 #[derive(Clone, Copy)]

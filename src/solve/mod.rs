@@ -12,6 +12,7 @@ pub mod dispatch;
 pub mod effects;
 pub mod iterate;
 pub mod jacobi;
+pub mod links;
 pub mod normalize;
 pub mod propagate;
 pub mod stats;

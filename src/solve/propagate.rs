@@ -1199,12 +1199,13 @@ fn prefetch<T>(base: *const T, index: usize) {
 ///
 /// # Safety
 /// As for [`gather_line`], for every line of `range`.
-pub unsafe fn gather_lines(
+pub unsafe fn gather_lines<R: Record>(
     lines: &crate::solve::dispatch::Lines,
     range: std::ops::Range<usize>,
     input: &DirectionInput,
     scratch: &mut LineScratch,
     acc: *mut [[f64; 3]; 2],
+    record: &mut R,
 ) {
     let mut ahead = range.start;
     for l in range.clone() {
@@ -1225,8 +1226,21 @@ pub unsafe fn gather_lines(
             continue;
         }
         // SAFETY: see the function's contract.
-        unsafe { gather_line(line, input, scratch, acc) };
+        unsafe { gather_line(line, input, scratch, acc, record) };
     }
+}
+
+/// Where the links a gather applies are written down, in the order it applies them (see
+/// `solve::links`); `()` writes nothing.
+pub trait Record {
+    /// Side `to_side` of surfel `receiver` gathered `factor` times side `from_side` of surfel
+    /// `partner` (surfel indices).
+    fn link(&mut self, receiver: u32, to_side: usize, partner: u32, from_side: usize, factor: f64);
+}
+
+impl Record for () {
+    #[inline(always)]
+    fn link(&mut self, _: u32, _: usize, _: u32, _: usize, _: f64) {}
 }
 
 /// Gathers light along one line into `acc` (indexed by surfel).
@@ -1235,11 +1249,12 @@ pub unsafe fn gather_lines(
 /// `acc` must point to an array with one entry per surfel of `input.surfels`, and no other thread
 /// may access the entries of this line's surfels while this runs (each surfel lies on exactly one
 /// line of a direction).
-pub unsafe fn gather_line(
+pub unsafe fn gather_line<R: Record>(
     line: &[u32],
     input: &DirectionInput,
     scratch: &mut LineScratch,
     acc: *mut [[f64; 3]; 2],
+    record: &mut R,
 ) {
     let s = input.unit;
     find_partners(line, input.surfels, s, scratch);
@@ -1248,19 +1263,25 @@ pub unsafe fn gather_line(
     for (k, &[ahead, behind]) in scratch.partners.iter().enumerate() {
         // SAFETY (all three): see the function's contract.
         unsafe {
-            add_link(line, input, acc, scratch.link(s, k, 0, ahead.0, ahead.1));
-            add_link(line, input, acc, scratch.link(s, k, 1, behind.0, behind.1));
-        }
-    }
-    for &(k, which, position, share) in &scratch.extra {
-        unsafe {
             add_link(
                 line,
                 input,
                 acc,
-                scratch.link(s, k as usize, which, position, share),
-            )
-        };
+                scratch.link(s, k, 0, ahead.0, ahead.1),
+                record,
+            );
+            add_link(
+                line,
+                input,
+                acc,
+                scratch.link(s, k, 1, behind.0, behind.1),
+                record,
+            );
+        }
+    }
+    for &(k, which, position, share) in &scratch.extra {
+        let link = scratch.link(s, k as usize, which, position, share);
+        unsafe { add_link(line, input, acc, link, record) };
     }
 }
 
@@ -1269,11 +1290,12 @@ pub unsafe fn gather_line(
 /// # Safety
 /// As for [`gather_line`].
 #[inline(always)]
-unsafe fn add_link(
+unsafe fn add_link<R: Record>(
     line: &[u32],
     input: &DirectionInput,
     acc: *mut [[f64; 3]; 2],
     link: Option<Link>,
+    record: &mut R,
 ) {
     let Some(link) = link else {
         return;
@@ -1281,13 +1303,15 @@ unsafe fn add_link(
     if link.cosine == 0.0 {
         return;
     }
-    let from = input.radiosity[line[link.partner] as usize][link.from_side];
+    let (receiver, partner) = (line[link.receiver], line[link.partner]);
+    let from = input.radiosity[partner as usize][link.from_side];
     // SAFETY: see the function's contract.
-    let to = unsafe { &mut (*acc.add(line[link.receiver] as usize))[link.to_side] };
+    let to = unsafe { &mut (*acc.add(receiver as usize))[link.to_side] };
     let f = link.cosine * input.weight * link.share as f64;
     for (t, b) in to.iter_mut().zip(from).take(input.channels) {
         *t += b as f64 * f;
     }
+    record.link(receiver, link.to_side, partner, link.from_side, f);
 }
 
 /// One partner link of a line: receiver `receiver`'s side `to_side` gathers `share` of its ray

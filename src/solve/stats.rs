@@ -48,6 +48,21 @@ pub struct SolveStats {
     pub resumed_from_iteration: Option<usize>,
     /// The direct-light pass, where it ran (see `direct`).
     pub direct: Option<direct::DirectStats>,
+    /// The partner links kept between iterations (the in-memory solver's; `None` where every
+    /// iteration searches again).
+    pub links: Option<LinkStats>,
+}
+
+/// The partner links kept between iterations (see `links`).
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct LinkStats {
+    /// Directions (of this rank) whose links were kept.
+    pub kept_directions: usize,
+    pub directions: usize,
+    /// Bytes the kept links hold.
+    pub bytes: u64,
+    /// Those bytes per surfel and kept direction.
+    pub bytes_per_surfel_direction: f64,
 }
 
 /// What the data distribution did, for the report.

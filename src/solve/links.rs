@@ -1,0 +1,161 @@
+//! Partner links kept between iterations: which surfel side gathers from which, with its
+//! factor, for one direction. Which partner a surfel has along a line does not depend on the
+//! radiosity, so the dispatch and the partner search of a direction need to run only once; the
+//! iterations after the first replay the links, a streaming gather.
+//!
+//! A link is written down in the order the first gather applies it (`propagate::Record`), with
+//! the very factor it used (`cos W / pi` times the open-edge share, in f64), so a replay adds
+//! the same terms to each surfel side in the same order: the same bits as a search again. The
+//! links of one direction are kept in the pieces the lines were dealt to the threads in (a
+//! surfel lies on one line of a direction, so a surfel's links are all in one piece); the pieces
+//! replay in parallel, each touching only its own surfels, whatever the thread count.
+//!
+//! What is kept is bounded by a budget ([`LinkBudget`]): a direction whose links do not fit is
+//! searched again in every iteration, as before.
+
+use super::dispatch::Lines;
+use super::propagate::{gather_lines, DirectionInput, LineScratch, Record};
+use super::update::{Gathered, Radiosity};
+use rayon::prelude::*;
+
+/// Bytes of one kept link.
+pub const LINK_BYTES: u64 = std::mem::size_of::<Link>() as u64;
+
+/// One kept link: side `to & 1` of surfel `to >> 1` gathers `factor` times side `from & 1` of
+/// surfel `from >> 1`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Link {
+    to: u32,
+    from: u32,
+    factor: f64,
+}
+
+impl Record for Vec<Link> {
+    #[inline(always)]
+    fn link(&mut self, receiver: u32, to_side: usize, partner: u32, from_side: usize, factor: f64) {
+        self.push(Link {
+            to: receiver << 1 | to_side as u32,
+            from: partner << 1 | from_side as u32,
+            factor,
+        });
+    }
+}
+
+/// The links of one direction, in the pieces of lines its first gather dealt to the threads.
+#[derive(Clone, Debug, Default)]
+pub struct DirectionLinks {
+    links: Vec<Link>,
+    /// Piece `p` is `links[pieces[p]..pieces[p + 1]]`.
+    pieces: Vec<usize>,
+}
+
+impl DirectionLinks {
+    /// Bytes held.
+    pub fn bytes(&self) -> u64 {
+        self.links.len() as u64 * LINK_BYTES + self.pieces.len() as u64 * 8
+    }
+
+    /// Adds to `acc` what the links bring from `radiosity` (the first `channels` channels).
+    pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
+        let acc_ptr = AccPtr(acc.as_mut_ptr());
+        let len = acc.len();
+        self.pieces.par_windows(2).for_each(|w| {
+            for link in &self.links[w[0]..w[1]] {
+                let (receiver, partner) = ((link.to >> 1) as usize, (link.from >> 1) as usize);
+                assert!(receiver < len, "a link names a surfel of the scene");
+                let from = radiosity[partner][(link.from & 1) as usize];
+                // SAFETY: `receiver` is in bounds (checked), and the surfels of one piece's
+                // links are no other piece's (see the module header).
+                let to = unsafe { &mut (*acc_ptr.get().add(receiver))[(link.to & 1) as usize] };
+                for (t, b) in to.iter_mut().zip(from).take(channels) {
+                    *t += b as f64 * link.factor;
+                }
+            }
+        });
+    }
+}
+
+/// Gathers direction `input` along `lines` into `acc`, as `jacobi::gather_all_lines` does (its
+/// pieces, its order), and returns the links it applied.
+pub fn gather_and_record(
+    lines: &Lines,
+    input: &DirectionInput,
+    acc: &mut [Gathered],
+    threads: usize,
+) -> DirectionLinks {
+    let bounds = super::jacobi::line_pieces(lines, threads);
+    let acc_ptr = AccPtr(acc.as_mut_ptr());
+    let pieces: Vec<Vec<Link>> = bounds
+        .par_windows(2)
+        .map(|w| {
+            let mut scratch = LineScratch::default();
+            let mut links = Vec::new();
+            // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of
+            // this direction and line ranges are disjoint, so no entry is touched by two
+            // threads.
+            unsafe {
+                gather_lines(
+                    lines,
+                    w[0]..w[1],
+                    input,
+                    &mut scratch,
+                    acc_ptr.get(),
+                    &mut links,
+                )
+            };
+            links
+        })
+        .collect();
+    let mut kept = DirectionLinks {
+        links: Vec::with_capacity(pieces.iter().map(Vec::len).sum()),
+        pieces: vec![0],
+    };
+    for piece in pieces {
+        kept.links.extend_from_slice(&piece);
+        kept.pieces.push(kept.links.len());
+    }
+    kept
+}
+
+/// The default budget of the links: 1 GiB, at most a quarter of the memory available now
+/// (`MemAvailable`; all of 1 GiB where it cannot be read).
+pub fn default_budget() -> u64 {
+    let available = std::fs::read_to_string("/proc/meminfo")
+        .ok()
+        .and_then(|text| {
+            let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            Some(kib * 1024)
+        })
+        .unwrap_or(u64::MAX);
+    super::jacobi::DEFAULT_LINKS_MEMORY.min(available / 4)
+}
+
+/// How many bytes of links may still be kept.
+#[derive(Clone, Copy, Debug)]
+pub struct LinkBudget {
+    pub left: u64,
+}
+
+impl LinkBudget {
+    /// Takes `bytes` from the budget if they fit.
+    pub fn take(&mut self, bytes: u64) -> bool {
+        let fits = bytes <= self.left;
+        if fits {
+            self.left -= bytes;
+        }
+        fits
+    }
+}
+
+#[derive(Clone, Copy)]
+struct AccPtr(*mut Gathered);
+// SAFETY: shared only for writes at disjoint indices (see `DirectionLinks::replay` and
+// `gather_and_record`).
+unsafe impl Send for AccPtr {}
+unsafe impl Sync for AccPtr {}
+impl AccPtr {
+    fn get(self) -> *mut Gathered {
+        self.0
+    }
+}
