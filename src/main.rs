@@ -92,8 +92,8 @@ enum Command {
         memory: Option<u64>,
         /// In memory: keep each direction's partner links between iterations within this many
         /// bytes, so that iterations after the first only stream the light along them (0: find
-        /// them again in every iteration; default: 1 GiB, at most a quarter of the available
-        /// memory).
+        /// them again in every iteration; default: 1 GiB, at most a quarter of the memory
+        /// available once the scene is loaded).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         links_memory: Option<u64>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
@@ -458,7 +458,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                     Some(0) => DirectPass::Off,
                     Some(n) => DirectPass::On(n),
                 },
-                links_memory: links_memory.unwrap_or_else(voxrad::solve::links::default_budget),
+                links_memory,
                 ..Default::default()
             };
             let cmd = SolveCommand {

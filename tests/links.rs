@@ -20,7 +20,7 @@ fn options(threads: usize, links_memory: u64) -> SolveOptions {
         threads,
         accelerate: true,
         direct: DirectPass::On(200),
-        links_memory,
+        links_memory: Some(links_memory),
         ..Default::default()
     }
 }

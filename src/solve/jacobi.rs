@@ -43,8 +43,9 @@ pub struct SolveOptions {
     /// Gather the emitters' own light once with a dense direction set (see `direct`).
     pub direct: super::direct::DirectPass,
     /// Bytes of partner links that may be kept between iterations (see `links`); a direction
-    /// whose links do not fit is searched again in every iteration.
-    pub links_memory: u64,
+    /// whose links do not fit is searched again in every iteration. `None`: 1 GiB, at most a
+    /// quarter of the memory available once the solver's arrays are made.
+    pub links_memory: Option<u64>,
 }
 
 /// The default of [`SolveOptions::links_memory`]: 1 GiB.
@@ -60,7 +61,7 @@ impl Default for SolveOptions {
             grey: false,
             accelerate: false,
             direct: super::direct::DirectPass::Off,
-            links_memory: super::links::default_budget(),
+            links_memory: None,
         }
     }
 }
@@ -257,7 +258,13 @@ fn run(
         kept: vec![None; crate::comm::dealt(directions.len(), comm.rank(), comm.size()).len()],
         // A link names its surfel with one bit to spare for the side.
         link_budget: LinkBudget {
-            left: if n < 1 << 31 { options.links_memory } else { 0 },
+            left: if n < 1 << 31 {
+                options
+                    .links_memory
+                    .unwrap_or_else(super::links::default_budget)
+            } else {
+                0
+            },
         },
         link_tried: false,
     };

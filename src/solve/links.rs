@@ -118,7 +118,8 @@ pub fn gather_and_record(
 }
 
 /// The default budget of the links: 1 GiB, at most a quarter of the memory available now
-/// (`MemAvailable`; all of 1 GiB where it cannot be read).
+/// (`MemAvailable`, read when the solver's arrays are made; all of 1 GiB where it cannot be
+/// read).
 pub fn default_budget() -> u64 {
     let available = std::fs::read_to_string("/proc/meminfo")
         .ok()
