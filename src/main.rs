@@ -93,7 +93,7 @@ enum Command {
         /// In memory: keep each direction's partner links between iterations within this many
         /// bytes, so that iterations after the first only stream the light along them (0: find
         /// them again in every iteration; default: 1 GiB, at most a quarter of the memory
-        /// available once the scene is loaded).
+        /// available once the scene is loaded, the node's or a batch job's limit's).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         links_memory: Option<u64>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds

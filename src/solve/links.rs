@@ -117,17 +117,34 @@ pub fn gather_and_record(
     kept
 }
 
-/// The default budget of the links: 1 GiB, at most a quarter of the memory available now
-/// (`MemAvailable`, read when the solver's arrays are made; all of 1 GiB where it cannot be
-/// read).
+/// The default budget of the links: 1 GiB, at most a quarter of the memory available now (read
+/// when the solver's arrays are made): the node's `MemAvailable`, or less where a control group
+/// (a batch job's limit) leaves less; all of 1 GiB where neither can be read.
 pub fn default_budget() -> u64 {
-    let available = std::fs::read_to_string("/proc/meminfo")
-        .ok()
-        .and_then(|text| {
-            let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-            Some(kib * 1024)
-        })
+    let read = |path: &str| std::fs::read_to_string(path).ok();
+    let number = |text: Option<String>| text.and_then(|t| t.trim().parse::<u64>().ok());
+    let node = read("/proc/meminfo").and_then(|text| {
+        let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+        Some(kib * 1024)
+    });
+    // cgroup v2, then v1 ("max" or an absent file: no limit).
+    let group = [
+        ("/sys/fs/cgroup/memory.max", "/sys/fs/cgroup/memory.current"),
+        (
+            "/sys/fs/cgroup/memory/memory.limit_in_bytes",
+            "/sys/fs/cgroup/memory/memory.usage_in_bytes",
+        ),
+    ]
+    .iter()
+    .find_map(|(limit, used)| {
+        let limit = number(read(limit))?;
+        Some(limit.saturating_sub(number(read(used)).unwrap_or(0)))
+    });
+    let available = [node, group]
+        .into_iter()
+        .flatten()
+        .min()
         .unwrap_or(u64::MAX);
     super::jacobi::DEFAULT_LINKS_MEMORY.min(available / 4)
 }
@@ -158,5 +175,25 @@ unsafe impl Sync for AccPtr {}
 impl AccPtr {
     fn get(self) -> *mut Gathered {
         self.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_budget_is_at_most_a_gibibyte_and_not_nothing() {
+        let budget = default_budget();
+        assert!(budget > 0 && budget <= 1 << 30, "{budget}");
+    }
+
+    #[test]
+    fn a_budget_takes_what_fits_and_nothing_more() {
+        let mut budget = LinkBudget { left: 100 };
+        assert!(budget.take(60));
+        assert!(!budget.take(41));
+        assert!(budget.take(40));
+        assert_eq!(budget.left, 0);
     }
 }
