@@ -227,14 +227,16 @@ fn run(
     let any_light = emission
         .iter()
         .any(|e| e.iter().flatten().any(|&v| v > 0.0));
+    // This rank's directions (all of them on one process).
+    let mine = crate::comm::dealt(directions.len(), comm.rank(), comm.size());
+    let count = mine.len();
     let mut sweep = InMemory {
         set,
         directions,
         threads,
         pool,
         comm,
-        // This rank's directions (all of them on one process).
-        mine: crate::comm::dealt(directions.len(), comm.rank(), comm.size()),
+        mine,
         frames: directions
             .directions
             .iter()
@@ -255,7 +257,7 @@ fn run(
         previous: Vec::new(),
         lines: Lines::default(),
         seconds: [0.0; 3],
-        kept: vec![None; crate::comm::dealt(directions.len(), comm.rank(), comm.size()).len()],
+        kept: vec![None; count],
         // A link names its surfel with one bit to spare for the side.
         link_budget: LinkBudget {
             left: if n < 1 << 31 {
@@ -266,7 +268,10 @@ fn run(
                 0
             },
         },
-        link_tried: false,
+        link_tried: vec![
+            false;
+            crate::comm::dealt(directions.len(), comm.rank(), comm.size()).len()
+        ],
     };
     let mut start = Start::fresh();
     if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
@@ -385,8 +390,9 @@ struct InMemory<'a> {
     /// Each of this rank's directions' links, once its first gather kept them.
     kept: Vec<Option<DirectionLinks>>,
     link_budget: LinkBudget,
-    /// Every direction has been gathered once (with its links kept where they fit).
-    link_tried: bool,
+    /// Which of this rank's directions have had their links written down once (kept where
+    /// they fitted): the others are tried at their next gather.
+    link_tried: Vec<bool>,
 }
 
 impl Sweep for InMemory<'_> {
@@ -439,7 +445,7 @@ impl Sweep for InMemory<'_> {
             return Ok(true);
         }
         // The first gather of a direction writes its links down while they may still be kept.
-        let record = !self.link_tried && self.link_budget.left > 0;
+        let record = !self.link_tried[step] && self.link_budget.left > 0;
         let (t1, links) = self.pool.install(|| {
             dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
             let t1 = Instant::now();
@@ -450,11 +456,11 @@ impl Sweep for InMemory<'_> {
                 (t1, None)
             }
         });
-        if let Some(links) = links.filter(|l| self.link_budget.take(l.bytes())) {
-            self.kept[step] = Some(links);
-        }
-        if step + 1 == self.mine.len() {
-            self.link_tried = true;
+        if let Some(links) = links {
+            self.link_tried[step] = true;
+            if self.link_budget.take(links.bytes()) {
+                self.kept[step] = Some(links);
+            }
         }
         self.seconds[0] += (t1 - t0).as_secs_f64();
         self.seconds[1] += t1.elapsed().as_secs_f64();
