@@ -5,6 +5,8 @@
 //! its coloured walls and blocks) and in a furnished room lit by many small lamps with open
 //! edges (shares below 1 and extra links on the same line).
 
+mod common;
+
 use voxrad::scene::obj::load_obj;
 use voxrad::scene::Scene;
 use voxrad::solve::direct::DirectPass;
@@ -26,11 +28,7 @@ fn options(threads: usize, links_memory: u64) -> SolveOptions {
 }
 
 fn bits(solution: &Solution) -> Vec<u32> {
-    solution
-        .radiosity
-        .iter()
-        .flat_map(|sides| sides.iter().flat_map(|rgb| rgb.iter().map(|v| v.to_bits())))
-        .collect()
+    common::radiosity_bits(solution)
 }
 
 fn assert_links_change_no_bit(name: &str, set: &SurfelSet) {

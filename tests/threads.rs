@@ -9,6 +9,8 @@
 //! shows up here as a changed bit. Two scenes: the Cornell box (two blocks, coloured walls, a small
 //! lamp) and a furnished procedural room (many plane groups, edges and corners).
 
+mod common;
+
 use voxrad::scene::Scene;
 use voxrad::solve::{solve, Solution, SolveOptions};
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
@@ -27,11 +29,7 @@ fn solve_with_threads(scene: &Scene, resolution: u32, threads: usize) -> (Soluti
 }
 
 fn bits(solution: &Solution) -> Vec<u32> {
-    solution
-        .radiosity
-        .iter()
-        .flat_map(|sides| sides.iter().flat_map(|rgb| rgb.iter().map(|v| v.to_bits())))
-        .collect()
+    common::radiosity_bits(solution)
 }
 
 fn assert_thread_invariant(name: &str, scene: &Scene, resolution: u32) {

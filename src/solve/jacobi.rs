@@ -12,7 +12,9 @@ use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
 use super::links::{gather_and_record, DirectionLinks, LinkBudget};
 use super::normalize::cosine_sums;
-use super::propagate::{gather_lines, prop_surfels, DirectionInput, LineScratch, PropSurfel};
+use super::propagate::{
+    gather_lines, prop_surfels, DirectionInput, LineScratch, PropSurfel, Record,
+};
 use super::update::{Gathered, Radiosity};
 use super::{Solution, SolveStats};
 use crate::checkpoint::{CheckpointError, Interruption, Loaded, Saver, State};
@@ -529,23 +531,41 @@ pub(crate) fn gather_all_lines(
     acc: &mut [[[f64; 3]; 2]],
     threads: usize,
 ) {
+    gather_pieces::<()>(lines, input, acc, threads);
+}
+
+/// Gathers direction `input` along `lines` into `acc` in [`line_pieces`] spread over the
+/// threads; returns what each piece's `R` recorded, in piece order.
+pub(crate) fn gather_pieces<R: Record + Default + Send>(
+    lines: &Lines,
+    input: &DirectionInput,
+    acc: &mut [[[f64; 3]; 2]],
+    threads: usize,
+) -> Vec<R> {
     let bounds = line_pieces(lines, threads);
     let acc_ptr = AccPtr(acc.as_mut_ptr());
-    bounds.par_windows(2).for_each(|w| {
-        let mut scratch = LineScratch::default();
-        // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of this
-        // direction and line ranges are disjoint, so no entry is touched by two threads.
-        unsafe {
-            gather_lines(
-                lines,
-                w[0]..w[1],
-                input,
-                &mut scratch,
-                acc_ptr.get(),
-                &mut (),
-            )
-        };
-    });
+    bounds
+        .par_windows(2)
+        .map(|w| {
+            let mut scratch = LineScratch::default();
+            let mut record = R::default();
+            // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of
+            // this direction and line ranges are disjoint, so no entry is touched by two
+            // threads.
+            let range = w[0]..w[1];
+            unsafe {
+                gather_lines(
+                    lines,
+                    range,
+                    input,
+                    &mut scratch,
+                    acc_ptr.get(),
+                    &mut record,
+                )
+            };
+            record
+        })
+        .collect()
 }
 
 /// The lines of a direction cut into about `8 threads` pieces of about equal surfels, as
@@ -570,12 +590,13 @@ pub(crate) fn line_pieces(lines: &Lines, threads: usize) -> Vec<usize> {
 }
 
 #[derive(Clone, Copy)]
-struct AccPtr(*mut [[f64; 3]; 2]);
-// SAFETY: shared only for writes at disjoint indices (see `gather_all_lines`).
+pub(crate) struct AccPtr(pub(crate) *mut [[f64; 3]; 2]);
+// SAFETY: shared only for writes at disjoint indices (see `gather_pieces` and
+// `links::DirectionLinks::replay`).
 unsafe impl Send for AccPtr {}
 unsafe impl Sync for AccPtr {}
 impl AccPtr {
-    fn get(self) -> *mut [[f64; 3]; 2] {
+    pub(crate) fn get(self) -> *mut [[f64; 3]; 2] {
         self.0
     }
 }

@@ -14,7 +14,8 @@
 //! searched again in every iteration, as before.
 
 use super::dispatch::Lines;
-use super::propagate::{gather_lines, DirectionInput, LineScratch, Record};
+use super::jacobi::AccPtr;
+use super::propagate::{DirectionInput, Record};
 use super::update::{Gathered, Radiosity};
 use rayon::prelude::*;
 
@@ -65,7 +66,8 @@ impl DirectionLinks {
                 assert!(receiver < len, "a link names a surfel of the scene");
                 let from = radiosity[partner][(link.from & 1) as usize];
                 // SAFETY: `receiver` is in bounds (checked), and the surfels of one piece's
-                // links are no other piece's (see the module header).
+                // links are no other piece's (see the module header); `AccPtr` is shared for
+                // that.
                 let to = unsafe { &mut (*acc_ptr.get().add(receiver))[(link.to & 1) as usize] };
                 for (t, b) in to.iter_mut().zip(from).take(channels) {
                     *t += b as f64 * link.factor;
@@ -83,29 +85,7 @@ pub fn gather_and_record(
     acc: &mut [Gathered],
     threads: usize,
 ) -> DirectionLinks {
-    let bounds = super::jacobi::line_pieces(lines, threads);
-    let acc_ptr = AccPtr(acc.as_mut_ptr());
-    let pieces: Vec<Vec<Link>> = bounds
-        .par_windows(2)
-        .map(|w| {
-            let mut scratch = LineScratch::default();
-            let mut links = Vec::new();
-            // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of
-            // this direction and line ranges are disjoint, so no entry is touched by two
-            // threads.
-            unsafe {
-                gather_lines(
-                    lines,
-                    w[0]..w[1],
-                    input,
-                    &mut scratch,
-                    acc_ptr.get(),
-                    &mut links,
-                )
-            };
-            links
-        })
-        .collect();
+    let pieces: Vec<Vec<Link>> = super::jacobi::gather_pieces(lines, input, acc, threads);
     let mut kept = DirectionLinks {
         links: Vec::with_capacity(pieces.iter().map(Vec::len).sum()),
         pieces: vec![0],
@@ -163,18 +143,6 @@ impl LinkBudget {
             self.left -= bytes;
         }
         fits
-    }
-}
-
-#[derive(Clone, Copy)]
-struct AccPtr(*mut Gathered);
-// SAFETY: shared only for writes at disjoint indices (see `DirectionLinks::replay` and
-// `gather_and_record`).
-unsafe impl Send for AccPtr {}
-unsafe impl Sync for AccPtr {}
-impl AccPtr {
-    fn get(self) -> *mut Gathered {
-        self.0
     }
 }
 

@@ -90,3 +90,12 @@ pub fn worst_against_results(
     let expected: Vec<_> = expected.iter().map(|e| e.1).collect();
     worst_relative_difference(&got, &expected)
 }
+
+/// The bits of a solution's radiosity, for comparisons that must be exact.
+pub fn radiosity_bits(solution: &voxrad::solve::Solution) -> Vec<u32> {
+    solution
+        .radiosity
+        .iter()
+        .flat_map(|sides| sides.iter().flat_map(|rgb| rgb.iter().map(|v| v.to_bits())))
+        .collect()
+}
