@@ -512,7 +512,8 @@ fn data_mode_killed_inside_long_iterations_resumes_to_the_same_bytes() {
 }
 
 /// Kills `mpirun -n 2 voxrad solve ... --resume` (options `extra`) at random moments, up to
-/// `longest` of the uninterrupted run's time, `kills` times unless it finishes first, then lets
+/// `longest` of the uninterrupted run's time after its first checkpoint, `kills` times unless it
+/// finishes first, then lets
 /// it finish: the results must be the uninterrupted run's, byte for byte. Returns how many runs
 /// continued inside an iteration.
 fn killed_under_mpirun(extra: &[&str], seed: u64, kills: usize, longest: f64) -> usize {
@@ -534,52 +535,70 @@ fn killed_under_mpirun_in(
         mpirun_solve(&reference, extra),
         &tmp.path().join("reference.log"),
     );
+    // The kills fall in what follows the first checkpoint: the later iterations, which replay
+    // kept links, take a smaller share of the run than the first.
+    let reference_checkpoint = voxrad::checkpoint::path_in(&reference);
+    child.wait_for(HANG_LIMIT, || reference_checkpoint.exists());
+    let checkpointed = child.started.elapsed().as_secs_f64();
     let status = child.wait_at_most(HANG_LIMIT);
     assert!(status.success(), "{}:\n{}", describe(&status), child.log());
-    let seconds = child.started.elapsed().as_secs_f64();
+    let seconds = child.started.elapsed().as_secs_f64() - checkpointed;
     let out = tmp.path().join("out");
     let ckpt = voxrad::checkpoint::path_in(&out);
     let mut rng = Rng::seeded(seed);
     let (mut killed, mut resumed, mut inside) = (0, 0, 0);
     let mut finished = false;
     let resume = [extra, &["--resume"]].concat();
-    for run in 1..=kills {
-        let mut child = Child::spawn(
-            mpirun_solve(&out, &resume),
-            &tmp.path().join(format!("run{run}.log")),
-        );
-        // The first kill after a checkpoint exists, so the resume has one to start from.
-        if run == 1 {
-            child.wait_for(HANG_LIMIT, || ckpt.exists());
+    // A run that finishes before its first kill (a loaded machine's timing) proves nothing:
+    // the schedule starts again from scratch with shorter delays.
+    let mut scale = 1.0;
+    for attempt in 0..3 {
+        if attempt > 0 {
+            println!("the run finished before its first kill: again, with half the delays");
+            std::fs::remove_dir_all(&out).unwrap();
+            (finished, scale) = (false, scale / 2.0);
         }
-        let delay = Duration::from_secs_f64(rng.uniform(0.05, longest) * seconds);
-        std::thread::sleep(delay.saturating_sub(Duration::from_millis(50)));
-        let ranks = process::children_of(child.pid());
-        let ended = child.run_or_kill_after(Duration::from_millis(50));
-        let text = child.log();
-        assert!(!text.contains("panicked"), "{text}");
-        if text.contains("resumed from a checkpoint") {
-            resumed += 1;
-        }
-        if text.contains(CONTINUED_INSIDE) {
-            inside += 1;
-        }
-        match ended {
-            Ended::Killed => {
-                killed += 1;
-                ranks_end_with_their_launcher(&ranks);
-                println!(
-                    "run {run}: mpirun killed after {:.2} s; its {} ranks ended",
-                    child.started.elapsed().as_secs_f64(),
-                    ranks.len()
-                );
+        for run in 1..=kills {
+            let mut child = Child::spawn(
+                mpirun_solve(&out, &resume),
+                &tmp.path().join(format!("run{run}.log")),
+            );
+            // The first kill after a checkpoint exists, so the resume has one to start from.
+            if run == 1 {
+                child.wait_for(HANG_LIMIT, || ckpt.exists());
             }
-            Ended::Exited(status) => {
-                assert!(status.success(), "{}:\n{text}", describe(&status));
-                println!("run {run}: finished before its kill");
-                finished = true;
-                break;
+            let delay = Duration::from_secs_f64(rng.uniform(0.05, longest) * seconds * scale);
+            std::thread::sleep(delay.saturating_sub(Duration::from_millis(50)));
+            let ranks = process::children_of(child.pid());
+            let ended = child.run_or_kill_after(Duration::from_millis(50));
+            let text = child.log();
+            assert!(!text.contains("panicked"), "{text}");
+            if text.contains("resumed from a checkpoint") {
+                resumed += 1;
             }
+            if text.contains(CONTINUED_INSIDE) {
+                inside += 1;
+            }
+            match ended {
+                Ended::Killed => {
+                    killed += 1;
+                    ranks_end_with_their_launcher(&ranks);
+                    println!(
+                        "run {run}: mpirun killed after {:.2} s; its {} ranks ended",
+                        child.started.elapsed().as_secs_f64(),
+                        ranks.len()
+                    );
+                }
+                Ended::Exited(status) => {
+                    assert!(status.success(), "{}:\n{text}", describe(&status));
+                    println!("run {run}: finished before its kill");
+                    finished = true;
+                    break;
+                }
+            }
+        }
+        if killed > 0 || !finished {
+            break;
         }
     }
     if finished {
@@ -598,7 +617,7 @@ fn killed_under_mpirun_in(
     }
     println!(
         "{killed} kills of mpirun, {resumed} resumed runs ({inside} inside an iteration; \
-         uninterrupted run: {seconds:.1} s)"
+         uninterrupted run after its first checkpoint: {seconds:.1} s)"
     );
     assert!(killed >= 1 && resumed >= 1);
     inside
