@@ -6,7 +6,9 @@
 //! over all directions (accumulated in f64, in direction order), then sets
 //! `B = E + rho * H / S(n)` (see `normalize`). Radiosity is stored in f32 between iterations.
 //! The stopping rule, stop signals and checkpoints are the loop's (`iterate`); here a
-//! checkpoint inside an iteration holds each rank's sums by surfel id.
+//! checkpoint inside an iteration holds each rank's sums by surfel id. A direction's first
+//! gather writes its partner links down; where they fit the budget (`links`), later iterations
+//! replay them instead of dispatching and searching again, to the same bits.
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
