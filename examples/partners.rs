@@ -181,6 +181,7 @@ fn main() {
     // GROUP=g: wrong share by (direction, partner group); loss by (partner group, triangle).
     let mut wrong_by_direction: BTreeMap<([i64; 3], u32), f64> = BTreeMap::new();
     let mut loss_by_partner: BTreeMap<(u32, usize), f64> = BTreeMap::new();
+    let mut missing_shown = 0;
     for d in &directions.directions {
         let frame = LineFrame::new(d.vector, grid.dims);
         dispatch(&entries[order::order_of(d.vector)], &frame, 1, &mut lines);
@@ -266,7 +267,32 @@ fn main() {
                     t.right += weight * right;
                     t.wrong += weight * wrong;
                     if hit.is_some() {
-                        t.missing += weight * (1.0 - right - wrong).max(0.0);
+                        let gone = (1.0 - right - wrong).max(0.0);
+                        t.missing += weight * gone;
+                        if only_group == Some(r.group) && gone > 0.05 && missing_shown < 6 {
+                            missing_shown += 1;
+                            println!(
+                                "  missing {gone:.3}: receiver v{:?} point {:?} direction {:?} ({}); line:",
+                                r.voxel,
+                                r.point,
+                                d.vector,
+                                if which == 0 { "ahead" } else { "behind" }
+                            );
+                            let lo = k.saturating_sub(4);
+                            for (j, &q) in line.iter().enumerate().take(k + 5).skip(lo) {
+                                let s = &set.surfels[q as usize];
+                                println!(
+                                    "    {}{j}: v{:?} group {} point {:?} normal {:?} area {:.3} box {:?}",
+                                    if j == k { "*" } else { " " },
+                                    s.voxel,
+                                    s.group,
+                                    s.point,
+                                    s.normal,
+                                    s.area,
+                                    s.extent
+                                );
+                            }
+                        }
                     }
                     if only_group == Some(r.group) && wrong > 0.0 {
                         *wrong_by_direction

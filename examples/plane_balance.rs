@@ -12,11 +12,21 @@
 //!   senders' scales and the receivers' sums (Sinkhorn's method), the target of a side being the
 //!   share its own rays meet;
 //! - 2: as 1, the target being the side's whole projected area (light that met nothing sent on);
-//! - 3: one alternation per iteration, damped (what a solver could afford without kept links).
+//! - 3: one alternation per iteration, damped (what a solver could afford without kept links);
+//! - 4: one scale per receiver side and one per sender side over all directions (not per plane
+//!   and direction), settled by `STEPS` Sinkhorn alternations on the power matrix: each row keeps
+//!   the share of its side's hemisphere that meets a surface (a uniform field stays uniform),
+//!   each column is brought to the power its side's rays can deliver (light sent toward a piece
+//!   of no area, covered by a solid resting on it, is absorbed by nothing and not counted).
 //!
 //! It also prints the plane sides whose light goes missing most: what each sends over all
-//! directions against what receivers took from it. `TRACE=1` prints each iteration's relative
-//! change. Measured figures: docs/accuracy.md.
+//! directions against what receivers took from it, and the lost power split into the share of
+//! the senders' own rays that meets nothing ("unmet") and the difference between what receivers
+//! take from a side and what its own rays meet ("unreciprocal": the links are not mutual).
+//! `REF=DIR` compares the answer with a path-traced reference (`DIR/reference.csv`, errors as
+//! docs/accuracy.md measures them); `GROUP=g` (mode 4) lists the sides of plane group `g` whose
+//! rays meet least. `TRACE=1` prints each iteration's relative change. Measured figures:
+//! docs/accuracy.md.
 use std::collections::HashMap;
 use voxrad::geometry::directions::DirectionSet;
 use voxrad::geometry::lines::LineFrame;
@@ -112,7 +122,7 @@ fn main() {
         .map(|v| v.parse().unwrap())
         .unwrap_or(1);
     let mut rown = norm.iter().map(|&x| [x, x]).collect::<Vec<[f64; 2]>>();
-    for _ in 0..if mode == 0 || mode == 3 { 0 } else { steps } {
+    for _ in 0..if mode == 0 || mode >= 3 { 0 } else { steps } {
         scales.clear();
         for (d, links) in all.iter().enumerate() {
             let mut sent: HashMap<(u32, u8), f64> = HashMap::new();
@@ -149,8 +159,130 @@ fn main() {
             }
         }
     }
-    if mode == 0 || mode == 3 {
+    if mode == 0 || mode == 3 || mode == 4 {
         scales = vec![HashMap::new(); all.len()];
+    }
+    // Mode 4: one scale per receiver side (a) and per sender side (b) over all directions,
+    // Sinkhorn's alternation on the power matrix M_rp = A_r f_rp / S_r: rows keep A_r t_r,
+    // columns reach A_p t_p (t: the share of a side's hemisphere that meets a surface).
+    let mut sa = vec![[1f64; 2]; n];
+    let mut sb = vec![[1f64; 2]; n];
+    if mode == 4 {
+        let area = |k: usize| set.surfels[k].area as f64;
+        let mut target = vec![[0f64; 2]; n];
+        for links in &all {
+            for l in links {
+                let r = l.r as usize;
+                // Light sent toward a piece of no area (covered by a solid resting on it) is
+                // absorbed by nothing: it is not part of what the side's rays can deliver.
+                if area(l.p as usize) > 0.0 || std::env::var("ALL").is_ok() {
+                    target[r][l.to as usize] += area(r) * l.f / norm[r];
+                }
+            }
+        }
+        let mut share = vec![[0f64; 2]; n];
+        for links in &all {
+            for l in links {
+                let r = l.r as usize;
+                share[r][l.to as usize] += l.f / norm[r];
+            }
+        }
+        {
+            let mut t: Vec<f64> = (0..n)
+                .flat_map(|k| [target[k][0] / area(k), target[k][1] / area(k)])
+                .filter(|&v| v > 0.0)
+                .collect();
+            t.sort_by(f64::total_cmp);
+            let q = |f: f64| t[((t.len() - 1) as f64 * f) as usize];
+            eprintln!(
+                "share of a side's hemisphere met: min {:.4} 1% {:.4} 50% {:.4} 99% {:.4} max {:.4} ({} sides)",
+                q(0.0), q(0.01), q(0.5), q(0.99), q(1.0), t.len()
+            );
+        }
+        {
+            let mut by: HashMap<(u32, u8), (f64, f64)> = HashMap::new();
+            for k in 0..n {
+                for side in 0..2 {
+                    let t = share[k][side];
+                    if t > 0.0 {
+                        let e = by.entry((set.surfels[k].group, side as u8)).or_default();
+                        e.0 += area(k) * (1.0 - t);
+                        e.1 += area(k);
+                    }
+                }
+            }
+            let total: f64 = by.values().map(|v| v.1).sum();
+            let lost: f64 = by.values().map(|v| v.0).sum();
+            eprintln!("area-weighted share not met: {:.3} %", 100.0 * lost / total);
+            if let Ok(g) = std::env::var("GROUP") {
+                let g: u32 = g.parse().unwrap();
+                let mut list: Vec<(usize, usize)> = (0..n)
+                    .filter(|&k| set.surfels[k].group == g)
+                    .flat_map(|k| [(k, 0), (k, 1)])
+                    .filter(|&(k, side)| share[k][side] > 0.0 && share[k][side] < 0.999)
+                    .collect();
+                list.sort_by(|a, b| share[a.0][a.1].total_cmp(&share[b.0][b.1]));
+                for &(k, side) in list.iter().take(12) {
+                    let sf = &set.surfels[k];
+                    let p = set
+                        .grid
+                        .to_world(voxrad::voxel::absolute_position(sf.voxel, sf.point));
+                    eprintln!(
+                        "    surfel {k} side {side} voxel {:?} at {:.3?} area {:.3} met {:.4}",
+                        sf.voxel, p, sf.area, share[k][side]
+                    );
+                }
+            }
+            let mut v: Vec<_> = by.into_iter().collect();
+            v.sort_by(|a, b| b.1 .0.total_cmp(&a.1 .0));
+            for ((g, side), (l, a)) in v.iter().take(8) {
+                let k = set.surfels.iter().position(|s| s.group == *g).unwrap();
+                let sf = &set.surfels[k];
+                eprintln!(
+                    "  group {g} side {side} ({}, normal {:?}): {:.3} % of all, {:.2} % of its own",
+                    set.materials[sf.material[*side as usize] as usize].name,
+                    sf.normal.map(|x| (x * 100.0).round() / 100.0),
+                    100.0 * l / total,
+                    100.0 * l / a
+                );
+            }
+        }
+        for step in 0..steps {
+            let mut cols = vec![[0f64; 2]; n];
+            for links in &all {
+                for l in links {
+                    let r = l.r as usize;
+                    cols[l.p as usize][l.from as usize] +=
+                        sa[r][l.to as usize] * area(r) * l.f / norm[r];
+                }
+            }
+            let mut worst: f64 = 0.0;
+            for k in 0..n {
+                for side in 0..2 {
+                    if cols[k][side] > 0.0 && target[k][side] > 0.0 {
+                        let was = sb[k][side];
+                        sb[k][side] = target[k][side] / cols[k][side];
+                        let err = (cols[k][side] * was / target[k][side] - 1.0).abs();
+                        worst = worst.max(err);
+                    }
+                }
+            }
+            let mut rows = vec![[0f64; 2]; n];
+            for links in &all {
+                for l in links {
+                    let r = l.r as usize;
+                    rows[r][l.to as usize] += sb[l.p as usize][l.from as usize] * l.f / norm[r];
+                }
+            }
+            for k in 0..n {
+                for side in 0..2 {
+                    if rows[k][side] > 0.0 {
+                        sa[k][side] = share[k][side] / rows[k][side];
+                    }
+                }
+            }
+            eprintln!("sinkhorn step {step}: largest column error {worst:.3e}");
+        }
     }
     for k in 0..n {
         for side in 0..2 {
@@ -173,7 +305,9 @@ fn main() {
             let mut sent: HashMap<(u32, u8), f64> = HashMap::new();
             for l in links {
                 let g = set.surfels[l.p as usize].group;
-                let s = scales[d].get(&(g, l.from)).copied().unwrap_or(1.0);
+                let s = scales[d].get(&(g, l.from)).copied().unwrap_or(1.0)
+                    * sa[l.r as usize][l.to as usize]
+                    * sb[l.p as usize][l.from as usize];
                 let from = b[l.p as usize][l.from as usize];
                 let to = &mut h[l.r as usize][l.to as usize];
                 for c in 0..3 {
@@ -240,6 +374,40 @@ fn main() {
         }
     }
     println!("mode {mode}: balance {:+.3} %", 100.0 * (em - ab) / em);
+    {
+        // The power each side sends that reaches no receiver, split into the share of its own
+        // rays that meets nothing (lost by propagation) and the rest (what receivers take from
+        // it differs from what its own rays meet: the links are not reciprocal).
+        let mut own = vec![[0f64; 2]; n];
+        let mut col = vec![[0f64; 2]; n];
+        for links in &all {
+            for l in links {
+                let (r, p) = (l.r as usize, l.p as usize);
+                own[r][l.to as usize] += set.surfels[r].area as f64 * l.f / norm[r];
+                col[p][l.from as usize] += set.surfels[r].area as f64
+                    * l.f
+                    * sa[r][l.to as usize]
+                    * sb[p][l.from as usize]
+                    / norm[r];
+            }
+        }
+        let (mut unmet, mut unreciprocal) = (0.0, 0.0);
+        for k in 0..n {
+            for side in 0..2 {
+                let bp: f64 = b[k][side].iter().sum();
+                let a = set.surfels[k].area as f64;
+                if own[k][side] > 0.0 {
+                    unmet += (a - own[k][side]) * bp;
+                }
+                unreciprocal += (own[k][side] - col[k][side]) * bp;
+            }
+        }
+        println!(
+            "  of the emitted power: lost unmet {:+.3} %, lost unreciprocal {:+.3} %",
+            100.0 * unmet / em,
+            100.0 * unreciprocal / em
+        );
+    }
     // Where the power goes missing: by plane side, what it sends over all directions (its
     // projected area times its radiosity, channels summed) against what receivers took from it.
     let mut sends: HashMap<(u32, u8), f64> = HashMap::new();
@@ -258,7 +426,9 @@ fn main() {
         for l in links {
             let (r, p) = (l.r as usize, l.p as usize);
             let g = set.surfels[p].group;
-            let scale = scales[d].get(&(g, l.from)).copied().unwrap_or(1.0);
+            let scale = scales[d].get(&(g, l.from)).copied().unwrap_or(1.0)
+                * sa[r][l.to as usize]
+                * sb[p][l.from as usize];
             let bp: f64 = b[p][l.from as usize].iter().sum();
             *taken.entry((g, l.from)).or_default() +=
                 set.surfels[r].area as f64 * l.f * scale / (norm[r] + shift[r][l.to as usize]) * bp;
@@ -279,6 +449,53 @@ fn main() {
             set.materials[sf.material[*side as usize] as usize].name,
             sf.normal.map(|x| (x * 100.0).round() / 100.0),
             100.0 * v / sent_total
+        );
+    }
+    // REF=DIR: the error against a path-traced reference (DIR/reference.csv), as
+    // docs/accuracy.md measures it (channels summed, probes below 5 % of the median left out).
+    if let Ok(dir) = std::env::var("REF") {
+        let results = voxrad::output::results::Results {
+            grid: set.grid,
+            records: set
+                .surfels
+                .iter()
+                .zip(&b)
+                .map(|(s, v)| {
+                    voxrad::output::results::Record::from_surfel(
+                        s,
+                        v.map(|side| side.map(|c| c as f32)),
+                    )
+                })
+                .collect(),
+        };
+        let index = voxrad::output::ProbeIndex::new(&results);
+        let text = std::fs::read_to_string(format!("{dir}/reference.csv")).unwrap();
+        let mut rows: Vec<(f64, f64)> = Vec::new();
+        for line in text.lines().skip(1) {
+            let f: Vec<f64> = line.split(',').map(|x| x.parse().unwrap()).collect();
+            let got = index.lookup(
+                glam::DVec3::new(f[0], f[1], f[2]),
+                glam::DVec3::new(f[3], f[4], f[5]),
+            );
+            rows.push((got.radiosity.iter().sum(), f[6] + f[7] + f[8]));
+        }
+        let mut refs: Vec<f64> = rows.iter().map(|r| r.1).collect();
+        refs.sort_by(f64::total_cmp);
+        let median = refs[refs.len() / 2];
+        let kept: Vec<f64> = rows
+            .iter()
+            .filter(|r| r.1 >= 0.05 * median)
+            .map(|r| (r.0 - r.1) / r.1)
+            .collect();
+        let mean = kept.iter().map(|e| e.abs()).sum::<f64>() / kept.len() as f64;
+        let signed = kept.iter().sum::<f64>() / kept.len() as f64;
+        let max = kept.iter().fold(0f64, |m, e| m.max(e.abs()));
+        println!(
+            "  against the reference: mean {:.2} %, signed {:+.2} %, max {:.1} % ({} probes)",
+            100.0 * mean,
+            100.0 * signed,
+            100.0 * max,
+            kept.len()
         );
     }
     // Mean radiosity of front sides by region (corridor scene: z in [4, 6] is the corridor).
