@@ -14,6 +14,7 @@
 //! ```text
 //! cargo bench --bench kernel -- [SCENE.obj] [--resolution 128] [--directions 589]
 //!                               [--iterations 2] [--threads 1] [--repeat 1]
+//!                               [--links-memory BYTES]
 //! ```
 //! Without `--bench` (as under `cargo test --benches`) a tiny smoke run is done.
 
@@ -36,6 +37,9 @@ fn main() {
     } else {
         (16, 13, 1, 1, 1)
     };
+    // Bytes of partner links kept between iterations (`SolveOptions::links_memory`): 0 searches
+    // every iteration, as the first pass does; unset, the solver's default.
+    let mut links_memory = None;
     let mut it = args.into_iter();
     while let Some(a) = it.next() {
         let mut value = |name: &str| -> usize {
@@ -49,6 +53,7 @@ fn main() {
             "--iterations" => iterations = value("--iterations"),
             "--threads" => threads = value("--threads"),
             "--repeat" => repeat = value("--repeat"),
+            "--links-memory" => links_memory = Some(value("--links-memory") as u64),
             _ if !a.starts_with("--") => scene = PathBuf::from(a),
             _ => panic!("unknown option {a}"),
         }
@@ -60,6 +65,7 @@ fn main() {
         max_iterations: iterations,
         tolerance: None,
         threads,
+        links_memory,
         ..Default::default()
     };
     for _ in 0..repeat {

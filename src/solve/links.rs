@@ -15,12 +15,15 @@
 
 use super::dispatch::Lines;
 use super::jacobi::AccPtr;
-use super::propagate::{DirectionInput, Record};
+use super::propagate::{prefetch, DirectionInput, Record};
 use super::update::{Gathered, Radiosity};
 use rayon::prelude::*;
 
 /// Bytes of one kept link.
 pub const LINK_BYTES: u64 = std::mem::size_of::<Link>() as u64;
+
+/// How many links ahead a replay asks for the surfels a link names.
+const PREFETCH_AHEAD: usize = 16;
 
 /// One kept link: side `to & 1` of surfel `to >> 1` gathers `factor` times side `from & 1` of
 /// surfel `from >> 1`.
@@ -60,20 +63,60 @@ impl DirectionLinks {
     pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
         let acc_ptr = AccPtr(acc.as_mut_ptr());
         let len = acc.len();
+        assert!(
+            radiosity.len() >= len,
+            "the radiosity holds every surfel the links name"
+        );
         self.pieces.par_windows(2).for_each(|w| {
-            for link in &self.links[w[0]..w[1]] {
-                let (receiver, partner) = ((link.to >> 1) as usize, (link.from >> 1) as usize);
-                assert!(receiver < len, "a link names a surfel of the scene");
-                let from = radiosity[partner][(link.from & 1) as usize];
-                // SAFETY: `receiver` is in bounds (checked), and the surfels of one piece's
-                // links are no other piece's (see the module header); `AccPtr` is shared for
-                // that.
-                let to = unsafe { &mut (*acc_ptr.get().add(receiver))[(link.to & 1) as usize] };
-                for (t, b) in to.iter_mut().zip(from).take(channels) {
-                    *t += b as f64 * link.factor;
+            let piece = &self.links[w[0]..w[1]];
+            // SAFETY: the surfels of one piece's links are no other piece's (see the module
+            // header), so the pieces write disjoint parts of `acc`; `AccPtr` is shared for that.
+            unsafe {
+                if channels == 1 {
+                    replay_piece::<1>(piece, radiosity, acc_ptr.get(), len)
+                } else {
+                    replay_piece::<3>(piece, radiosity, acc_ptr.get(), len)
                 }
             }
         });
+    }
+}
+
+/// Adds to `acc` (of `len` surfels) the first `CHANNELS` channels of what the links of `piece`
+/// bring from `radiosity`, in their order.
+///
+/// # Safety
+/// `acc` points to `len` surfels, no other thread touches those the links of `piece` receive
+/// on, and `radiosity` holds at least `len` surfels.
+#[inline(never)]
+unsafe fn replay_piece<const CHANNELS: usize>(
+    piece: &[Link],
+    radiosity: &[Radiosity],
+    acc: *mut Gathered,
+    len: usize,
+) {
+    for (k, link) in piece.iter().enumerate() {
+        // The surfels a link names lie scattered over arrays far larger than the caches: ask
+        // for those of a link a little ahead.
+        if let Some(ahead) = piece.get(k + PREFETCH_AHEAD) {
+            prefetch(radiosity.as_ptr(), (ahead.from >> 1) as usize);
+            prefetch(acc as *const Gathered, (ahead.to >> 1) as usize);
+        }
+        let (receiver, partner) = ((link.to >> 1) as usize, (link.from >> 1) as usize);
+        assert!(
+            receiver < len && partner < len,
+            "a link names a surfel of the scene"
+        );
+        // SAFETY: both indices are in bounds (checked above); see the function's contract.
+        let (from, to) = unsafe {
+            (
+                &radiosity.get_unchecked(partner)[(link.from & 1) as usize],
+                &mut (*acc.add(receiver))[(link.to & 1) as usize],
+            )
+        };
+        for c in 0..CHANNELS {
+            to[c] += from[c] as f64 * link.factor;
+        }
     }
 }
 

@@ -1177,7 +1177,7 @@ const PREFETCH_SURFELS: usize = 40;
 
 /// Asks the memory for the cache lines of `base[index]` without waiting for them.
 #[inline(always)]
-fn prefetch<T>(base: *const T, index: usize) {
+pub(crate) fn prefetch<T>(base: *const T, index: usize) {
     #[cfg(target_arch = "x86_64")]
     {
         use std::arch::x86_64::{_mm_prefetch, _MM_HINT_T0};
