@@ -201,9 +201,8 @@ fn main() {
         }
         {
             let mut by: HashMap<(u32, u8), (f64, f64)> = HashMap::new();
-            for k in 0..n {
-                for side in 0..2 {
-                    let t = share[k][side];
+            for (k, sides) in share.iter().enumerate() {
+                for (side, &t) in sides.iter().enumerate() {
                     if t > 0.0 {
                         let e = by.entry((set.surfels[k].group, side as u8)).or_default();
                         e.0 += area(k) * (1.0 - t);

@@ -54,6 +54,7 @@
 //! returning its receivers' contributions, which are then added in direction order: the result
 //! does not depend on the thread count, and a resumed solve recomputes it bit for bit.
 
+use super::mix_hash::MixMap;
 use super::normalize::cosine;
 use super::normalize::cosine_sums;
 use super::propagate::{find_partners, for_each_link, LineScratch, PropSurfel};
@@ -64,7 +65,6 @@ use crate::voxel::SurfelSet;
 use crate::voxel::{BACK, FRONT};
 use rayon::prelude::*;
 use std::collections::HashMap;
-use std::hash::{BuildHasherDefault, Hasher};
 use std::time::Instant;
 
 /// Light per surfel side and channel, as the solver accumulates it.
@@ -574,14 +574,14 @@ pub(crate) const MAX_BITMAP_VOXELS: u64 = 1 << 28;
 /// line crosses are empty (the air of a room): an occupancy bitmap answers those without a hash
 /// look-up, where the grid is small enough for one.
 pub(crate) struct VoxelTable {
-    map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>>,
+    map: MixMap<(u32, u32)>,
     dims: [u64; 3],
     occupied: Option<Vec<u64>>,
 }
 
 impl VoxelTable {
     fn new(set: &SurfelSet, bitmap: bool) -> Self {
-        let mut map: HashMap<u64, (u32, u32), BuildHasherDefault<MixHasher>> = HashMap::default();
+        let mut map: MixMap<(u32, u32)> = MixMap::default();
         let dims = set.grid.dims.map(u64::from);
         let voxels = dims[0] * dims[1] * dims[2];
         let mut occupied = (bitmap && voxels <= MAX_BITMAP_VOXELS)
@@ -627,27 +627,6 @@ impl VoxelTable {
     pub(crate) fn key(voxel: [i32; 3]) -> u64 {
         const _: () = assert!(crate::voxel::voxelize::MAX_GRID_EDGE <= 1 << 21);
         voxel[0] as u64 | (voxel[1] as u64) << 21 | (voxel[2] as u64) << 42
-    }
-}
-
-/// A hasher for integer keys that are already spread (the voxel keys above): one multiply.
-#[derive(Default)]
-struct MixHasher(u64);
-
-impl Hasher for MixHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = (self.0.rotate_left(8) ^ b as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-        }
-    }
-
-    fn write_u64(&mut self, v: u64) {
-        let x = (v ^ (v >> 29)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        self.0 = x ^ (x >> 32);
     }
 }
 

@@ -10,11 +10,18 @@
 //! surfel lies on one line of a direction, so a surfel's links are all in one piece); the pieces
 //! replay in parallel, each touching only its own surfels, whatever the thread count.
 //!
+//! **Compact.** A replay is bound by reading the links (a gibibyte per iteration for the
+//! Cornell box at resolution 128, far beyond the caches), so a link is 12 bytes: its two sides
+//! and the index of its factor in its piece's table of distinct factors. A direction has few of
+//! them (the factor is the receiver's `cos W / pi`, the same for every surfel of one normal,
+//! times a share that is 1 but at open edges), so the table stays in the cache.
+//!
 //! What is kept is bounded by a budget ([`LinkBudget`]): a direction whose links do not fit is
 //! searched again in every iteration, as before.
 
 use super::dispatch::Lines;
 use super::jacobi::AccPtr;
+use super::mix_hash::MixMap;
 use super::propagate::{prefetch, DirectionInput, Record};
 use super::update::{Gathered, Radiosity};
 use rayon::prelude::*;
@@ -25,22 +32,46 @@ pub const LINK_BYTES: u64 = std::mem::size_of::<Link>() as u64;
 /// How many links ahead a replay asks for the surfels a link names.
 const PREFETCH_AHEAD: usize = 16;
 
-/// One kept link: side `to & 1` of surfel `to >> 1` gathers `factor` times side `from & 1` of
-/// surfel `from >> 1`.
+/// One kept link: side `to & 1` of surfel `to >> 1` gathers side `from & 1` of surfel
+/// `from >> 1`, times factor `factor` of its piece's table.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Link {
+struct Link {
     to: u32,
     from: u32,
-    factor: f64,
+    factor: u32,
 }
 
-impl Record for Vec<Link> {
+/// What the first gather of one piece of lines writes down: its links, and its distinct factors
+/// (by their bits, so that a replay multiplies by the very same value).
+#[derive(Default)]
+pub(crate) struct PieceRecorder {
+    links: Vec<Link>,
+    factors: Vec<f64>,
+    index: MixMap<u32>,
+    /// The last factor's bits and index: consecutive links of a line often share it.
+    last: Option<(u64, u32)>,
+}
+
+impl Record for PieceRecorder {
     #[inline(always)]
     fn link(&mut self, receiver: u32, to_side: usize, partner: u32, from_side: usize, factor: f64) {
-        self.push(Link {
+        let bits = factor.to_bits();
+        let index = match self.last {
+            Some((last, index)) if last == bits => index,
+            _ => {
+                let next = self.factors.len() as u32;
+                let index = *self.index.entry(bits).or_insert(next);
+                if index == next {
+                    self.factors.push(factor);
+                }
+                self.last = Some((bits, index));
+                index
+            }
+        };
+        self.links.push(Link {
             to: receiver << 1 | to_side as u32,
             from: partner << 1 | from_side as u32,
-            factor,
+            factor: index,
         });
     }
 }
@@ -49,6 +80,8 @@ impl Record for Vec<Link> {
 #[derive(Clone, Debug, Default)]
 pub struct DirectionLinks {
     links: Vec<Link>,
+    /// The distinct factors of every recorded piece, one table after the other.
+    factors: Vec<f64>,
     /// Piece `p` is `links[pieces[p]..pieces[p + 1]]`.
     pieces: Vec<usize>,
 }
@@ -56,7 +89,9 @@ pub struct DirectionLinks {
 impl DirectionLinks {
     /// Bytes held.
     pub fn bytes(&self) -> u64 {
-        self.links.len() as u64 * LINK_BYTES + self.pieces.len() as u64 * 8
+        self.links.len() as u64 * LINK_BYTES
+            + self.factors.len() as u64 * 8
+            + self.pieces.len() as u64 * 8
     }
 
     /// Adds to `acc` what the links bring from `radiosity` (the first `channels` channels).
@@ -68,14 +103,14 @@ impl DirectionLinks {
             "the radiosity holds every surfel the links name"
         );
         self.pieces.par_windows(2).for_each(|w| {
-            let piece = &self.links[w[0]..w[1]];
+            let (piece, factors) = (&self.links[w[0]..w[1]], &self.factors[..]);
             // SAFETY: the surfels of one piece's links are no other piece's (see the module
             // header), so the pieces write disjoint parts of `acc`; `AccPtr` is shared for that.
             unsafe {
                 if channels == 1 {
-                    replay_piece::<1>(piece, radiosity, acc_ptr.get(), len)
+                    replay_piece::<1>(piece, factors, radiosity, acc_ptr.get(), len)
                 } else {
-                    replay_piece::<3>(piece, radiosity, acc_ptr.get(), len)
+                    replay_piece::<3>(piece, factors, radiosity, acc_ptr.get(), len)
                 }
             }
         });
@@ -83,7 +118,7 @@ impl DirectionLinks {
 }
 
 /// Adds to `acc` (of `len` surfels) the first `CHANNELS` channels of what the links of `piece`
-/// bring from `radiosity`, in their order.
+/// (whose factors are `factors`) bring from `radiosity`, in their order.
 ///
 /// # Safety
 /// `acc` points to `len` surfels, no other thread touches those the links of `piece` receive
@@ -91,6 +126,7 @@ impl DirectionLinks {
 #[inline(never)]
 unsafe fn replay_piece<const CHANNELS: usize>(
     piece: &[Link],
+    factors: &[f64],
     radiosity: &[Radiosity],
     acc: *mut Gathered,
     len: usize,
@@ -114,8 +150,9 @@ unsafe fn replay_piece<const CHANNELS: usize>(
                 &mut (*acc.add(receiver))[(link.to & 1) as usize],
             )
         };
+        let factor = factors[link.factor as usize];
         for c in 0..CHANNELS {
-            to[c] += from[c] as f64 * link.factor;
+            to[c] += from[c] as f64 * factor;
         }
     }
 }
@@ -128,13 +165,20 @@ pub fn gather_and_record(
     acc: &mut [Gathered],
     threads: usize,
 ) -> DirectionLinks {
-    let pieces: Vec<Vec<Link>> = super::jacobi::gather_pieces(lines, input, acc, threads);
+    let pieces: Vec<PieceRecorder> = super::jacobi::gather_pieces(lines, input, acc, threads);
     let mut kept = DirectionLinks {
-        links: Vec::with_capacity(pieces.iter().map(Vec::len).sum()),
+        links: Vec::with_capacity(pieces.iter().map(|p| p.links.len()).sum()),
+        factors: Vec::with_capacity(pieces.iter().map(|p| p.factors.len()).sum()),
         pieces: vec![0],
     };
     for piece in pieces {
-        kept.links.extend_from_slice(&piece);
+        // The piece's factor indices, moved into the one table of the direction.
+        let offset = kept.factors.len() as u32;
+        kept.factors.extend_from_slice(&piece.factors);
+        kept.links.extend(piece.links.iter().map(|link| Link {
+            factor: link.factor + offset,
+            ..*link
+        }));
         kept.pieces.push(kept.links.len());
     }
     kept
