@@ -92,7 +92,7 @@ enum Command {
         memory: Option<u64>,
         /// In memory: keep each direction's partner links between iterations within this many
         /// bytes, so that iterations after the first only stream the light along them (0: find
-        /// them again in every iteration; default: 1 GiB, at most a quarter of the memory
+        /// them again in every iteration; default: 4 GiB, at most a quarter of the memory
         /// available once the scene is loaded, the node's or a batch job's limit's).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         links_memory: Option<u64>,

@@ -10,7 +10,7 @@
 //! surfel lies on one line of a direction, so a surfel's links are all in one piece); the pieces
 //! replay in parallel, each touching only its own surfels, whatever the thread count.
 //!
-//! **Compact.** A replay is bound by reading the links (a gibibyte per iteration for the
+//! **Compact.** A replay streams the links (0.8 GB per iteration for the
 //! Cornell box at resolution 128, far beyond the caches), so a link is 12 bytes: its two sides
 //! and the index of its factor in its piece's table of distinct factors. A direction has few of
 //! them (the factor is the receiver's `cos W / pi`, the same for every surfel of one normal,
@@ -184,9 +184,9 @@ pub fn gather_and_record(
     kept
 }
 
-/// The default budget of the links: 1 GiB, at most a quarter of the memory available now (read
+/// The default budget of the links: 4 GiB, at most a quarter of the memory available now (read
 /// when the solver's arrays are made): the node's `MemAvailable`, or less where a control group
-/// (a batch job's limit) leaves less; all of 1 GiB where neither can be read.
+/// (a batch job's limit) leaves less; all of 4 GiB where neither can be read.
 pub fn default_budget() -> u64 {
     let read = |path: &str| std::fs::read_to_string(path).ok();
     let number = |text: Option<String>| text.and_then(|t| t.trim().parse::<u64>().ok());
@@ -238,9 +238,9 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_default_budget_is_at_most_a_gibibyte_and_not_nothing() {
+    fn the_default_budget_is_at_most_four_gibibytes_and_not_nothing() {
         let budget = default_budget();
-        assert!(budget > 0 && budget <= 1 << 30, "{budget}");
+        assert!(budget > 0 && budget <= 4 << 30, "{budget}");
     }
 
     #[test]
