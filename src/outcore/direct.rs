@@ -171,8 +171,9 @@ pub fn gather_direct_out_of_core(
         .working
         .saturating_sub(fixed + 2 * plan.io_bytes as u64);
     // The gathering's voxel table may keep a bit per voxel where that takes a small share.
-    let bitmap = voxels <= crate::solve::direct::MAX_BITMAP_VOXELS && voxels / 8 <= room / 8;
-    let room = room - if bitmap { voxels / 8 } else { 0 };
+    let bitmap_bytes = crate::solve::direct::bitmap_bytes(voxels);
+    let bitmap = voxels <= crate::solve::direct::MAX_BITMAP_VOXELS && bitmap_bytes <= room / 8;
+    let room = room - if bitmap { bitmap_bytes } else { 0 };
     // A part's surfels and its listed voxels' keys (8 bytes each).
     let part_bytes = |keys: usize, surfels: f64| {
         keys as u64 * 8 + (surfels * PART_BYTES_PER_SURFEL as f64) as u64
