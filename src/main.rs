@@ -91,10 +91,11 @@ enum Command {
         #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
         memory: Option<u64>,
         /// In memory: keep each direction's partner links between iterations within this many
-        /// bytes, so that iterations after the first only stream the light along them (0: find
-        /// them again in every iteration; default: 4 GiB, at most a quarter of the memory
-        /// available once the scene is loaded, the node's or a batch job's limit's).
-        #[arg(long, value_parser = voxrad::outcore::parse_bytes)]
+        /// bytes per rank, so that iterations after the first only stream the light along them
+        /// (0: find them again in every iteration; default: 4 GiB, at most a quarter of the
+        /// memory available once the scene is loaded, the node's or a batch job's limit's,
+        /// shared by the ranks on one node).
+        #[arg(long, value_parser = voxrad::outcore::parse_bytes_or_zero)]
         links_memory: Option<u64>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
         /// the scene and takes a share of the directions; `data`: ranks own whole lines and

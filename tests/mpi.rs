@@ -233,7 +233,27 @@ fn data_and_hybrid_modes_match_one_process_for_1_to_4_ranks() {
             for r in per_rank {
                 assert!(r["propagate"].as_f64().unwrap() > 0.0, "{report}");
             }
+            // Every rank kept the links of its lines: iterations 2 to 4 replayed them.
+            assert_eq!(report["links"]["kept_directions"], 49, "{report}");
         }
+    }
+    // Kept links give the bits of searching again in every iteration, whatever the slots the
+    // surfels sit in after each exchange.
+    for (mode, ranks) in [("data", 3), ("hybrid", 4)] {
+        let kept = tmp.path().join(format!("{mode}{ranks}"));
+        let searched = tmp.path().join(format!("{mode}{ranks}-searched"));
+        let mut args = small_solve(&searched, "1", mode);
+        args.extend(["--links-memory", "0"].map(String::from));
+        let o = mpirun(ranks, &as_strs(&args));
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(searched.join("report.json")).unwrap()).unwrap();
+        assert_eq!(report["links"]["kept_directions"], 0, "{report}");
+        assert_eq!(
+            std::fs::read(kept.join("surfels.bin")).unwrap(),
+            std::fs::read(searched.join("surfels.bin")).unwrap(),
+            "{mode}, {ranks} ranks"
+        );
     }
 }
 

@@ -36,6 +36,17 @@ pub fn parse_bytes(text: &str) -> Result<u64, String> {
     Ok(bytes as u64)
 }
 
+/// As [`parse_bytes`], also taking a zero size (`--links-memory 0`: keep nothing).
+pub fn parse_bytes_or_zero(text: &str) -> Result<u64, String> {
+    match text
+        .trim()
+        .trim_end_matches(|c: char| c.is_ascii_alphabetic())
+    {
+        number if !number.is_empty() && number.parse::<f64>() == Ok(0.0) => Ok(0),
+        _ => parse_bytes(text),
+    }
+}
+
 /// A byte count for messages (`64.0 MiB`).
 pub fn format_bytes(bytes: u64) -> String {
     let units = ["B", "KiB", "MiB", "GiB", "TiB"];
@@ -142,6 +153,16 @@ mod tests {
         assert!(parse_bytes("12 parsecs").is_err());
         assert!(parse_bytes("0").is_err());
         assert_eq!(format_bytes(64 << 20), "64.0 MiB");
+    }
+
+    #[test]
+    fn a_zero_size_parses_where_it_is_allowed() {
+        assert_eq!(parse_bytes_or_zero("0"), Ok(0));
+        assert_eq!(parse_bytes_or_zero("0MiB"), Ok(0));
+        assert_eq!(parse_bytes_or_zero("2G"), Ok(2 << 30));
+        assert!(parse_bytes_or_zero("0 parsecs").is_err());
+        assert!(parse_bytes_or_zero("-1").is_err());
+        assert!(parse_bytes_or_zero("").is_err());
     }
 
     #[test]

@@ -40,7 +40,7 @@ pub mod solver;
 pub mod source;
 pub mod workset;
 
-pub use budget::{parse_bytes, MemoryPlan};
+pub use budget::{parse_bytes, parse_bytes_or_zero, MemoryPlan};
 pub use solver::{
     solve_out_of_core, solve_out_of_core_checkpointed, OocCheckpoints, OocSolution, OocStats,
 };

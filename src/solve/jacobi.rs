@@ -263,15 +263,8 @@ fn run(
         lines: Lines::default(),
         seconds: [0.0; 3],
         kept: vec![None; count],
-        // A link names its surfel with one bit to spare for the side.
         link_budget: LinkBudget {
-            left: if n < 1 << 31 {
-                options
-                    .links_memory
-                    .unwrap_or_else(super::links::default_budget)
-            } else {
-                0
-            },
+            left: super::links::rank_budget(options.links_memory, n, comm),
         },
         link_tried: vec![
             false;

@@ -96,6 +96,20 @@ impl DirectionLinks {
 
     /// Adds to `acc` what the links bring from `radiosity` (the first `channels` channels).
     pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
+        self.replay_through(radiosity, channels, acc, None);
+    }
+
+    /// As [`Self::replay`], for links whose surfel numbers are places in `slots`: surfel `k` of
+    /// a link is `slots[k]` of `radiosity` and `acc` (the data mode keeps its surfels in slots
+    /// that change from one iteration to the next, while their order along a direction does
+    /// not; see [`Self::renumbered`]).
+    pub fn replay_through(
+        &self,
+        radiosity: &[Radiosity],
+        channels: usize,
+        acc: &mut [Gathered],
+        slots: Option<&[u32]>,
+    ) {
         let acc_ptr = AccPtr(acc.as_mut_ptr());
         let len = acc.len();
         assert!(
@@ -103,54 +117,87 @@ impl DirectionLinks {
             "the radiosity holds every surfel the links name"
         );
         self.pieces.par_windows(2).for_each(|w| {
-            let (piece, factors) = (&self.links[w[0]..w[1]], &self.factors[..]);
+            let piece = &self.links[w[0]..w[1]];
+            let at = Arrays {
+                factors: &self.factors,
+                radiosity,
+                acc: acc_ptr.get(),
+                len,
+            };
             // SAFETY: the surfels of one piece's links are no other piece's (see the module
-            // header), so the pieces write disjoint parts of `acc`; `AccPtr` is shared for that.
+            // header; `slots` numbers every surfel once), so the pieces write disjoint parts of
+            // `acc`; `AccPtr` is shared for that.
             unsafe {
-                if channels == 1 {
-                    replay_piece::<1>(piece, factors, radiosity, acc_ptr.get(), len)
-                } else {
-                    replay_piece::<3>(piece, factors, radiosity, acc_ptr.get(), len)
+                match (channels, slots) {
+                    (1, None) => replay_piece::<1, false>(piece, &at, &[]),
+                    (_, None) => replay_piece::<3, false>(piece, &at, &[]),
+                    (1, Some(slots)) => replay_piece::<1, true>(piece, &at, slots),
+                    (_, Some(slots)) => replay_piece::<3, true>(piece, &at, slots),
                 }
             }
         });
     }
+
+    /// The same links with every surfel number `k` replaced by `number[k]` (sides kept).
+    pub fn renumbered(mut self, number: &[u32]) -> Self {
+        let renumber = |side: u32| number[(side >> 1) as usize] << 1 | (side & 1);
+        for link in &mut self.links {
+            link.to = renumber(link.to);
+            link.from = renumber(link.from);
+        }
+        self
+    }
 }
 
-/// Adds to `acc` (of `len` surfels) the first `CHANNELS` channels of what the links of `piece`
-/// (whose factors are `factors`) bring from `radiosity`, in their order.
+/// What a replay reads and writes besides the links.
+struct Arrays<'a> {
+    factors: &'a [f64],
+    radiosity: &'a [Radiosity],
+    acc: *mut Gathered,
+    /// Surfels of `acc`.
+    len: usize,
+}
+
+/// Adds to `at.acc` the first `CHANNELS` channels of what the links of `piece` bring from
+/// `at.radiosity`, in their order; with `MAPPED`, a link's surfel `k` is `slots[k]`.
 ///
 /// # Safety
-/// `acc` points to `len` surfels, no other thread touches those the links of `piece` receive
-/// on, and `radiosity` holds at least `len` surfels.
+/// `at.acc` points to `at.len` surfels, no other thread touches those the links of `piece`
+/// receive on, and `at.radiosity` holds at least `at.len` surfels.
 #[inline(never)]
-unsafe fn replay_piece<const CHANNELS: usize>(
+unsafe fn replay_piece<const CHANNELS: usize, const MAPPED: bool>(
     piece: &[Link],
-    factors: &[f64],
-    radiosity: &[Radiosity],
-    acc: *mut Gathered,
-    len: usize,
+    at: &Arrays,
+    slots: &[u32],
 ) {
+    let slot = |side: u32| {
+        let k = (side >> 1) as usize;
+        if MAPPED {
+            slots[k] as usize
+        } else {
+            k
+        }
+    };
     for (k, link) in piece.iter().enumerate() {
         // The surfels a link names lie scattered over arrays far larger than the caches: ask
         // for those of a link a little ahead.
         if let Some(ahead) = piece.get(k + PREFETCH_AHEAD) {
-            prefetch(radiosity.as_ptr(), (ahead.from >> 1) as usize);
-            prefetch(acc as *const Gathered, (ahead.to >> 1) as usize);
+            prefetch(at.radiosity.as_ptr(), slot(ahead.from));
+            prefetch(at.acc as *const Gathered, slot(ahead.to));
         }
-        let (receiver, partner) = ((link.to >> 1) as usize, (link.from >> 1) as usize);
+        let (receiver, partner) = (slot(link.to), slot(link.from));
         assert!(
-            receiver < len && partner < len,
+            receiver < at.len && partner < at.len,
             "a link names a surfel of the scene"
         );
         // SAFETY: both indices are in bounds (checked above); see the function's contract.
         let (from, to) = unsafe {
             (
-                &radiosity.get_unchecked(partner)[(link.from & 1) as usize],
-                &mut (*acc.add(receiver))[(link.to & 1) as usize],
+                &at.radiosity.get_unchecked(partner)[(link.from & 1) as usize],
+                &mut (*at.acc.add(receiver))[(link.to & 1) as usize],
             )
         };
-        let factor = factors[link.factor as usize];
+        let factor = at.factors[link.factor as usize];
         for c in 0..CHANNELS {
             to[c] += from[c] as f64 * factor;
         }
@@ -214,6 +261,37 @@ pub fn default_budget() -> u64 {
         .min()
         .unwrap_or(u64::MAX);
     super::jacobi::DEFAULT_LINKS_MEMORY.min(available / 4)
+}
+
+/// The links budget of this rank of `comm` for a scene of `surfels`: `asked` if given, else
+/// [`default_budget`] shared by the ranks of `comm` on this node (each would see the same
+/// available memory and take its quarter); nothing where a surfel number would not leave a bit
+/// for the side. Collective on `comm`.
+pub fn rank_budget(asked: Option<u64>, surfels: usize, comm: &dyn crate::comm::Comm) -> u64 {
+    if surfels >= 1 << 31 {
+        return 0;
+    }
+    match asked {
+        Some(bytes) => bytes,
+        None => default_budget() / ranks_on_this_node(comm) as u64,
+    }
+}
+
+/// How many ranks of `comm` run on this rank's node, by host name (every rank counts as one
+/// node's where the name cannot be read: the smaller share). Collective on `comm`.
+fn ranks_on_this_node(comm: &dyn crate::comm::Comm) -> usize {
+    if comm.size() == 1 {
+        return 1;
+    }
+    let name = std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|n| n.trim().as_bytes().to_vec())
+        .unwrap_or_default();
+    let received = comm.exchange(vec![name.clone(); comm.size()]);
+    received
+        .iter()
+        .filter(|other| name.is_empty() || **other == name)
+        .count()
+        .max(1)
 }
 
 /// How many bytes of links may still be kept.

@@ -15,7 +15,9 @@
 //! 4. **merge**: the kept surfels and the received packs, each sorted, are merged k-way into the
 //!    octant order (a full sort only when the octant order changes, four times per iteration);
 //! 5. **dispatch and propagate**: the in-memory solver's, on the held surfels, which now hold
-//!    every line they touch whole.
+//!    every line they touch whole. The first time, the partner links are written down
+//!    ([`HeldLinks`], within the links budget); later iterations replay them instead (the
+//!    held surfels and their order are the same each time, only their slots differ).
 //!
 //! **The direct-light pass** (`solve::direct`) runs once before the iterations, as on one
 //! process: every rank holds the scene, so its dense directions are dealt over the world and its
@@ -63,8 +65,10 @@ use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::jacobi::{
     gather_all_lines, material_tables, worker_pool, Checkpoints, SolveError, SolveOptions,
 };
+use crate::solve::links::{gather_and_record, rank_budget, DirectionLinks, LinkBudget};
 use crate::solve::normalize::cosine_sums;
 use crate::solve::propagate::{prop_surfels, DirectionInput, PropSurfel};
+use crate::solve::stats::LinkStats;
 use crate::solve::{Solution, SolveStats};
 use crate::voxel::SurfelSet;
 use held::{Held, RECORD_BYTES};
@@ -249,6 +253,10 @@ impl<'a> DataSolver<'a> {
             lines: Lines::default(),
             reflected: Vec::new(),
             previous: Vec::new(),
+            links: HeldLinks::new(
+                d_count,
+                rank_budget(self.options.links_memory, self.set.surfels.len(), world),
+            ),
         };
         for id in self.block(me, ranks) {
             let prop = self.surfels[id];
@@ -319,6 +327,7 @@ impl<'a> DataSolver<'a> {
             any_light,
             &mut stats,
         )?;
+        stats.links = Some(sweep.links.stats(d_count, self.set.surfels.len(), world));
         let DataSweep {
             held,
             remembered,
@@ -342,6 +351,7 @@ impl<'a> DataSolver<'a> {
         held: &mut Held,
         lines: &mut Lines,
         reflected: &mut Vec<Radiosity>,
+        links: &mut HeldLinks,
         tally: &mut Tally,
     ) {
         let d = &self.directions.directions[k];
@@ -365,21 +375,29 @@ impl<'a> DataSolver<'a> {
                 );
             }
         }
+        let input = DirectionInput {
+            unit: d.unit,
+            weight: d.solid_angle / std::f64::consts::PI,
+            surfels: prop,
+            radiosity: if self.direct.is_some() {
+                reflected
+            } else {
+                radiosity
+            },
+            channels: self.channels,
+        };
         let t1 = self.pool.install(|| {
+            if links.replay(k, order, ids, &input, acc) {
+                return Instant::now();
+            }
             dispatch(order, &self.frames[k], self.threads, lines);
             let t1 = Instant::now();
-            let input = DirectionInput {
-                unit: d.unit,
-                weight: d.solid_angle / std::f64::consts::PI,
-                surfels: prop,
-                radiosity: if self.direct.is_some() {
-                    reflected
-                } else {
-                    radiosity
-                },
-                channels: self.channels,
-            };
-            gather_all_lines(lines, &input, acc, self.threads);
+            if links.tried[k] {
+                gather_all_lines(lines, &input, acc, self.threads);
+            } else {
+                let recorded = gather_and_record(lines, &input, acc, self.threads);
+                links.keep(k, recorded, order, ids);
+            }
             t1
         });
         tally.seconds.dispatch += (t1 - t0).as_secs_f64();
@@ -544,6 +562,112 @@ struct DataSweep<'s, 'a> {
     reflected: Vec<Radiosity>,
     /// The held radiosity the last update replaced, by slot (for the tail extrapolation).
     previous: Vec<Radiosity>,
+    links: HeldLinks,
+}
+
+/// The partner links of this rank's lines, kept between iterations (`solve::links`). After a
+/// direction's exchange a rank holds the same surfels in the same order in every iteration (the
+/// direction's remembered distribution decides which, the octant order how they are listed),
+/// but in other slots: so the links number surfels by their place in `Held::order`, and a
+/// replay looks their slots up there.
+struct HeldLinks {
+    /// By direction: the links, and a hash of the ids in order they were recorded with.
+    kept: Vec<Option<(DirectionLinks, u64)>>,
+    /// By direction: whether its links were written down once (kept or not).
+    tried: Vec<bool>,
+    budget: LinkBudget,
+    /// Scratch: `Held::order`'s slots, and each slot's place there.
+    slots: Vec<u32>,
+    places: Vec<u32>,
+}
+
+impl HeldLinks {
+    fn new(directions: usize, budget: u64) -> Self {
+        HeldLinks {
+            kept: vec![None; directions],
+            tried: vec![false; directions],
+            budget: LinkBudget { left: budget },
+            slots: Vec::new(),
+            places: Vec::new(),
+        }
+    }
+
+    /// The ids of the held surfels in order, hashed: what a replay must find again.
+    fn hash(order: &[OrderedEntry], ids: &[u32]) -> u64 {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        for e in order {
+            ids[e.index as usize].hash(&mut h);
+        }
+        h.finish()
+    }
+
+    /// Replays direction `k`'s links into `acc` if they are kept; false (nothing done) if not.
+    fn replay(
+        &mut self,
+        k: usize,
+        order: &[OrderedEntry],
+        ids: &[u32],
+        input: &DirectionInput,
+        acc: &mut [[[f64; 3]; 2]],
+    ) -> bool {
+        let Some((links, hash)) = &self.kept[k] else {
+            return false;
+        };
+        if *hash != Self::hash(order, ids) {
+            // Cannot happen while the distribution and the order are remembered; if it did,
+            // searching again gives the right light.
+            tracing::warn!(direction = k, "the held surfels changed: links dropped");
+            self.budget.left += links.bytes();
+            self.kept[k] = None;
+            self.tried[k] = false;
+            return false;
+        }
+        self.slots.clear();
+        self.slots.extend(order.iter().map(|e| e.index));
+        links.replay_through(input.radiosity, input.channels, acc, Some(&self.slots));
+        true
+    }
+
+    /// Keeps `recorded` (numbered by slot) as direction `k`'s links, numbered by place in
+    /// `order`, if the budget allows.
+    fn keep(&mut self, k: usize, recorded: DirectionLinks, order: &[OrderedEntry], ids: &[u32]) {
+        self.tried[k] = true;
+        if !self.budget.take(recorded.bytes()) {
+            return;
+        }
+        self.places.clear();
+        self.places.resize(ids.len(), u32::MAX);
+        for (place, e) in order.iter().enumerate() {
+            self.places[e.index as usize] = place as u32;
+        }
+        let links = recorded.renumbered(&self.places);
+        self.kept[k] = Some((links, Self::hash(order, ids)));
+    }
+
+    /// What the report says of the links: the directions whose links every rank kept, and
+    /// the bytes of all ranks' links. Collective on `world`.
+    fn stats(&self, directions: usize, surfels: usize, world: &dyn Comm) -> LinkStats {
+        let kept = self.kept.iter().flatten();
+        let mut bytes = [kept.clone().map(|(l, _)| l.bytes()).sum::<u64>() as f64];
+        world.sum_in_place(&mut bytes);
+        // Each rank keeps its lines of its group's directions; a direction that some rank did
+        // not keep (or never reached) is searched again there.
+        let mut missing: Vec<f64> = (0..directions)
+            .map(|k| (self.tried[k] && self.kept[k].is_none()) as u8 as f64)
+            .chain((0..directions).map(|k| self.tried[k] as u8 as f64))
+            .collect();
+        world.sum_in_place(&mut missing);
+        let kept_directions = (0..directions)
+            .filter(|&k| missing[k] == 0.0 && missing[directions + k] > 0.0)
+            .count();
+        LinkStats {
+            kept_directions,
+            directions,
+            bytes: bytes[0] as u64,
+            bytes_per_surfel_direction: bytes[0] / (surfels * kept_directions).max(1) as f64,
+        }
+    }
 }
 
 impl Sweep for DataSweep<'_, '_> {
@@ -608,6 +732,7 @@ impl Sweep for DataSweep<'_, '_> {
             &mut self.held,
             &mut self.lines,
             &mut self.reflected,
+            &mut self.links,
             &mut self.tally,
         );
         Ok(true)
