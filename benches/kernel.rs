@@ -8,6 +8,10 @@
 //!
 //! **Measured:** `dispatch + propagate` seconds as the solver times them, summed over
 //! directions and iterations, times the thread count, over `surfels x directions x iterations`.
+//! With more than one iteration it also solves the first iteration alone and reports the two
+//! kinds apart: the first pass (dispatch, partner search, gather, and writing the links down
+//! where they are kept) and each later iteration (replaying kept links, or searching again
+//! without them), the difference of the two solves over the iterations between.
 //! **Left out:** loading, voxelization, the solver's set-up, the `B` update after each
 //! iteration, and the direct-light pass (switched off here: it is a different kernel).
 //!
@@ -69,6 +73,28 @@ fn main() {
         ..Default::default()
     };
     for _ in 0..repeat {
+        if iterations > 1 {
+            let first = solve(
+                &set,
+                &SolveOptions {
+                    max_iterations: 1,
+                    ..options.clone()
+                },
+            )
+            .expect("solve");
+            let all = solve(&set, &options).expect("solve");
+            let seconds = |s: &voxrad::solve::SolveStats| s.dispatch_seconds + s.propagate_seconds;
+            let per = (set.surfels.len() * all.stats.directions) as f64 / 1e9 / threads as f64;
+            let first_ns = seconds(&first.stats) / per;
+            let later_ns =
+                (seconds(&all.stats) - seconds(&first.stats)) / per / (iterations - 1) as f64;
+            println!(
+                "first pass {first_ns:.1} ns per surfel-direction per core, later iterations                  {later_ns:.1} ns ({:.3e} updates/s/core); links kept for {} of {} directions",
+                1e9 / later_ns,
+                all.stats.links.as_ref().map_or(0, |l| l.kept_directions),
+                all.stats.directions
+            );
+        }
         let solution = solve(&set, &options).expect("solve");
         let st = &solution.stats;
         let timed = st.dispatch_seconds + st.propagate_seconds;
