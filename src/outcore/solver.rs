@@ -251,6 +251,7 @@ fn run(
     stats.solve.normalize_seconds = t.elapsed().as_secs_f64();
     stats.solve.directions = directions.len();
     stats.solve.threads = threads;
+    stats.solve.links = Some(crate::solve::stats::LinkStats::none(directions.len()));
 
     // B = E to start with; tells whether anything emits.
     let t = Instant::now();

@@ -102,7 +102,8 @@ pub struct Report {
     /// reduction across ranks.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub per_rank: Vec<RankSeconds>,
-    /// The partner links kept between iterations (in memory; see `solve::links`).
+    /// The partner links kept between iterations (see `solve::links`; out of core none are kept:
+    /// `kept_directions` 0, every iteration searches again).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub links: Option<crate::solve::stats::LinkStats>,
     /// Present when the solve ran out of core (a shard set, or `--memory`).

@@ -65,6 +65,16 @@ pub struct LinkStats {
     pub bytes_per_surfel_direction: f64,
 }
 
+impl LinkStats {
+    /// A solve that keeps no links (out of core: every iteration searches again).
+    pub fn none(directions: usize) -> Self {
+        LinkStats {
+            directions,
+            ..Default::default()
+        }
+    }
+}
+
 /// What the data distribution did, for the report.
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
 pub struct DataStats {

@@ -277,6 +277,7 @@ impl Solver<'_> {
             threads: self.threads,
             channels: self.channels(),
             normalize_seconds,
+            links: Some(crate::solve::stats::LinkStats::none(self.directions.len())),
             ..Default::default()
         };
         // The direct light, once, before a checkpoint's radiosity is put in (the lines then
