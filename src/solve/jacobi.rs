@@ -545,6 +545,7 @@ pub(crate) fn gather_pieces<R: Record + Default + Send>(
         .map(|w| {
             let mut scratch = LineScratch::default();
             let mut record = R::default();
+            record.expect((lines.starts[w[1]] - lines.starts[w[0]]) as usize);
             // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of
             // this direction and line ranges are disjoint, so no entry is touched by two
             // threads.

@@ -43,28 +43,50 @@ struct Link {
 
 /// What the first gather of one piece of lines writes down: its links, and its distinct factors
 /// (by their bits, so that a replay multiplies by the very same value).
-#[derive(Default)]
 pub(crate) struct PieceRecorder {
     links: Vec<Link>,
     factors: Vec<f64>,
     index: MixMap<u32>,
-    /// The last factor's bits and index: consecutive links of a line often share it.
-    last: Option<(u64, u32)>,
+    /// A small cache in front of `index`, by a hash of the factor's bits: (bits, index), or
+    /// `u64::MAX` bits for an empty entry (not the bits of any factor, which is finite).
+    recent: [(u64, u32); RECENT],
+}
+
+/// Entries of [`PieceRecorder::recent`]: a direction's distinct factors are few (one per normal
+/// met, times the rare open-edge shares), and consecutive links of a line alternate between
+/// the surfaces it crosses, so a cache of the last one missed most of the time.
+const RECENT: usize = 64;
+
+impl Default for PieceRecorder {
+    fn default() -> Self {
+        PieceRecorder {
+            links: Vec::new(),
+            factors: Vec::new(),
+            index: MixMap::default(),
+            recent: [(u64::MAX, 0); RECENT],
+        }
+    }
 }
 
 impl Record for PieceRecorder {
+    fn expect(&mut self, surfels: usize) {
+        // About one link per surfel (a side facing nothing has none, open edges add a few).
+        self.links.reserve(surfels + surfels / 8);
+    }
+
     #[inline(always)]
     fn link(&mut self, receiver: u32, to_side: usize, partner: u32, from_side: usize, factor: f64) {
         let bits = factor.to_bits();
-        let index = match self.last {
-            Some((last, index)) if last == bits => index,
+        let slot = ((bits ^ bits >> 29).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize;
+        let index = match self.recent[slot] {
+            (cached, index) if cached == bits => index,
             _ => {
                 let next = self.factors.len() as u32;
                 let index = *self.index.entry(bits).or_insert(next);
                 if index == next {
                     self.factors.push(factor);
                 }
-                self.last = Some((bits, index));
+                self.recent[slot] = (bits, index);
                 index
             }
         };

@@ -1236,6 +1236,10 @@ pub trait Record {
     /// Side `to_side` of surfel `receiver` gathered `factor` times side `from_side` of surfel
     /// `partner` (surfel indices).
     fn link(&mut self, receiver: u32, to_side: usize, partner: u32, from_side: usize, factor: f64);
+
+    /// The lines about to be gathered hold `surfels` surfels (a recorder can make room for
+    /// their links at once instead of growing by steps, each a copy).
+    fn expect(&mut self, _surfels: usize) {}
 }
 
 impl Record for () {
