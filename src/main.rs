@@ -225,9 +225,9 @@ enum Distribute {
 enum QualityArg {
     /// A first look in seconds (resolution 32, 109 directions, tolerance 1e-2).
     Draft,
-    /// Balanced (resolution 32, 193 directions, tolerance 1e-4).
+    /// Balanced (resolution 64, 193 directions, tolerance 1e-4).
     Default,
-    /// Slow and accurate (resolution 64, 589 directions, tolerance 1e-5).
+    /// Slow and accurate (resolution 128, 589 directions, tolerance 1e-5).
     High,
 }
 

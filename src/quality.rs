@@ -4,10 +4,14 @@
 //! error dominated by direction aliasing, then resolution, with truncated iterations far below
 //! both once the tolerance is 1e-3 or less; extrapolation costs nothing and never hurts, so every
 //! preset uses it. The direction aliasing is the lamp's direct light: where the emitters are small
-//! the direct-light pass (`solve::direct`) gathers it along 5,000 (`draft`), 20,000 (`default`)
-//! or 80,000 (`high`) dense directions from the emitters' lines only, which lets the bounces use
-//! fewer directions (193 instead of 589 for `default`, 589 instead of 1201 for `high`) at a lower
-//! error. Measured error and time of each preset: `docs/study.md`, "Quality presets".
+//! the direct-light pass (`solve::direct`) gathers it along 5,000 (`draft`) or 20,000 (`default`,
+//! `high`) dense directions from the emitters' lines only, which lets the bounces use fewer
+//! directions (193 instead of 589 for `default`, 589 instead of 1201 for `high`) at a lower
+//! error. On the realistic scenes (an office, a corridor, a furnished room: `tests/data/reference`)
+//! the resolution matters most, as their partitions, lamps and furniture are a fraction of a
+//! voxel at 32: since the links kept between iterations and the direct pass's bundled walks made
+//! solves several times faster, `default` runs at 64 and `high` at 128 (2026-12-02). Measured
+//! error and time of each preset: `docs/study.md`, "Quality presets".
 //!
 //! Options given explicitly on the command line override the preset's.
 
@@ -52,18 +56,18 @@ impl Quality {
                 direct: 5_000,
             },
             Quality::Default => Preset {
-                resolution: 32,
+                resolution: 64,
                 directions: 193,
                 tolerance: 1e-4,
                 accelerate: true,
                 direct: 20_000,
             },
             Quality::High => Preset {
-                resolution: 64,
+                resolution: 128,
                 directions: 589,
                 tolerance: 1e-5,
                 accelerate: true,
-                direct: 80_000,
+                direct: 20_000,
             },
         }
     }
