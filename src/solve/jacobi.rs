@@ -315,12 +315,19 @@ fn run(
         stats.propagate_seconds,
         stats.reduce_seconds,
     ] = sweep.seconds;
+    // Over every rank (the directions mode deals the directions): each keeps its own.
     let kept = sweep.kept.iter().flatten();
-    let (kept_directions, bytes) = (kept.clone().count(), kept.map(DirectionLinks::bytes).sum());
+    let mut sums = [
+        kept.clone().count() as f64,
+        sweep.kept.len() as f64,
+        kept.map(DirectionLinks::bytes).sum::<u64>() as f64,
+    ];
+    comm.sum_in_place(&mut sums);
+    let [kept_directions, directions, bytes] = sums.map(|v| v as usize);
     stats.links = Some(super::stats::LinkStats {
         kept_directions,
-        directions: sweep.kept.len(),
-        bytes,
+        directions,
+        bytes: bytes as u64,
         bytes_per_surfel_direction: bytes as f64 / (n * kept_directions).max(1) as f64,
     });
     let InMemory {

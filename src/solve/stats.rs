@@ -56,10 +56,10 @@ pub struct SolveStats {
 /// The partner links kept between iterations (see `links`).
 #[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
 pub struct LinkStats {
-    /// Directions (of this rank) whose links were kept.
+    /// Directions whose links were kept (on every rank that gathers them).
     pub kept_directions: usize,
     pub directions: usize,
-    /// Bytes the kept links hold.
+    /// Bytes the kept links hold, summed over the ranks.
     pub bytes: u64,
     /// Those bytes per surfel and kept direction.
     pub bytes_per_surfel_direction: f64,
