@@ -89,7 +89,8 @@ fn main() {
             let later_ns =
                 (seconds(&all.stats) - seconds(&first.stats)) / per / (iterations - 1) as f64;
             println!(
-                "first pass {first_ns:.1} ns per surfel-direction per core, later iterations                  {later_ns:.1} ns ({:.3e} updates/s/core); links kept for {} of {} directions",
+                "first pass {first_ns:.1} ns per surfel-direction per core, later iterations \
+                 {later_ns:.1} ns ({:.3e} updates/s/core); links kept for {} of {} directions",
                 1e9 / later_ns,
                 all.stats.links.as_ref().map_or(0, |l| l.kept_directions),
                 all.stats.directions
