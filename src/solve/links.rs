@@ -12,8 +12,8 @@
 //!
 //! **Compact.** A replay streams the links (0.8 GB per iteration for the
 //! Cornell box at resolution 128, far beyond the caches), so a link is 12 bytes: its two sides
-//! and the index of its factor in its piece's table of distinct factors. A direction has few of
-//! them (the factor is the receiver's `cos W / pi`, the same for every surfel of one normal,
+//! and the index of its factor in its direction's table of distinct factors. A direction has few
+//! of them (the factor is the receiver's `cos W / pi`, the same for every surfel of one normal,
 //! times a share that is 1 but at open edges), so the table stays in the cache.
 //!
 //! What is kept is bounded by a budget ([`LinkBudget`]): a direction whose links do not fit is
@@ -33,7 +33,8 @@ pub const LINK_BYTES: u64 = std::mem::size_of::<Link>() as u64;
 const PREFETCH_AHEAD: usize = 16;
 
 /// One kept link: side `to & 1` of surfel `to >> 1` gathers side `from & 1` of surfel
-/// `from >> 1`, times factor `factor` of its piece's table.
+/// `from >> 1`, times factor `factor` of its table (its piece's while recorded, its
+/// direction's once kept).
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct Link {
     to: u32,
@@ -56,6 +57,7 @@ pub(crate) struct PieceRecorder {
 /// met, times the rare open-edge shares), and consecutive links of a line alternate between
 /// the surfaces it crosses, so a cache of the last one missed most of the time.
 const RECENT: usize = 64;
+const _: () = assert!(RECENT.is_power_of_two());
 
 impl Default for PieceRecorder {
     fn default() -> Self {
@@ -77,7 +79,8 @@ impl Record for PieceRecorder {
     #[inline(always)]
     fn link(&mut self, receiver: u32, to_side: usize, partner: u32, from_side: usize, factor: f64) {
         let bits = factor.to_bits();
-        let slot = ((bits ^ bits >> 29).wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize;
+        let mixed = (bits ^ bits >> 29).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        let slot = (mixed >> (64 - RECENT.trailing_zeros())) as usize;
         let index = match self.recent[slot] {
             (cached, index) if cached == bits => index,
             _ => {
