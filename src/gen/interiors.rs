@@ -1044,10 +1044,11 @@ pub mod hard_twin_constants {
     /// The boxes' lamp: `[x0, x1] x [y0, y1]` in the ceiling z = 1, facing down: 2 x 2 voxels
     /// at resolution 13 (voxel 1/12), its edges on voxel boundaries there (and at resolutions 37
     /// and 61). A lamp that fills an opening shares its rim voxels with the wall around it, and
-    /// such a voxel's one surfel takes the material covering most of it (see `voxel::voxelize`):
-    /// off the boundaries the lamp's area would come out in whole voxels (a 0.2 x 0.2 lamp at
-    /// x 0.15 to 0.35, y 0.4 to 0.6 emits 50 % of its power at resolution 11, 83 % at 12, 67 % at
-    /// 16, 108.5 % at 25).
+    /// such a voxel's one surfel takes one material, drawn by area share (see
+    /// `voxel::voxelize`): off the boundaries the lamp's area would come out in whole voxels, right
+    /// only on average over its rim (with the material covering most of each voxel, as first
+    /// done, a 0.2 x 0.2 lamp at x 0.15 to 0.35, y 0.4 to 0.6 emitted 50 % of its power at
+    /// resolution 11, 83 % at 12, 67 % at 16, 108.5 % at 25).
     pub const CEILING_LAMP: [f64; 4] = [3.0 / 24.0, 7.0 / 24.0, 9.0 / 24.0, 13.0 / 24.0];
     /// The slab boxes' lamp: `[y0, y1] x [z0, z1]` in the wall x = 0, facing +x, all of it above
     /// the slab's plane: 13 x 10 voxels at resolution 25, its edges on voxel boundaries there.
