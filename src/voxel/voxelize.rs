@@ -862,8 +862,14 @@ mod tests {
         assert!(voxels.iter().all(|&v| draw(v) == draw(v)));
         // One material, or a piece without area: nothing to draw.
         let v = [1, 2, 3];
-        assert_eq!(drawn_material(&[piece(v, 4, 0.2), piece(v, 4, 0.5)], 0.7), 4);
-        assert_eq!(drawn_material(&[piece(v, 4, 0.0), piece(v, 5, 0.0)], 0.0), 4);
+        assert_eq!(
+            drawn_material(&[piece(v, 4, 0.2), piece(v, 4, 0.5)], 0.7),
+            4
+        );
+        assert_eq!(
+            drawn_material(&[piece(v, 4, 0.0), piece(v, 5, 0.0)], 0.0),
+            4
+        );
         // A material with no area there is never drawn.
         assert!(voxels
             .iter()
