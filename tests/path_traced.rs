@@ -145,9 +145,12 @@ fn realistic_rooms_and_the_cornell_box_against_the_reference() {
     // out of the floor, 4.90 % before the box rule of `propagate::side_of`), office 7.67 % and
     // -0.22 % (its 6 cm lamp housings are a sixth of a voxel tall here; 14.0 % and -10.5 %
     // before the senders' balance of the direct pass, 30.7 % and -25 % before the rim test of
-    // `propagate::off_the_run`).
-    let cases: [(&str, u32, f64, Option<f64>); 4] = [
+    // `propagate::off_the_run`). The window room at 128: 0.99 % and +0.13 % since its window's
+    // rim voxels take their material by area share (3.20 % before, the whole room 3 % dark:
+    // the window came out with 3.1 % too little emitting area, `voxelize::drawn_material`).
+    let cases: [(&str, u32, f64, Option<f64>); 5] = [
         ("window-room", 64, 0.03, Some(0.005)),
+        ("window-room", 128, 0.015, Some(0.005)),
         ("corridor", 64, 0.06, Some(0.015)),
         ("cornell", 64, 0.03, None),
         ("office", 64, 0.09, Some(0.005)),
