@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::process::{self, describe, Child, Ended, Rng, HANG_LIMIT};
+use common::process::{self, describe, Child, Ended, Rng, CONTINUED_INSIDE, HANG_LIMIT};
 use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
@@ -447,9 +447,6 @@ fn solve_args(out: &Path, extra: &[&str]) -> Vec<String> {
 /// A scene whose single iteration is long: 2,000 directions on the Cornell box at resolution 16.
 const LONG_ITERATIONS: [&str; 4] = ["--resolution", "16", "--directions", "2000"];
 
-/// What a resumed run's log says when it continues inside an iteration.
-const CONTINUED_INSIDE: &str = "continuing inside an iteration";
-
 /// Runs an uninterrupted 2-rank solve into `out`; returns its wall time in seconds.
 fn mpi_reference(out: &Path, log: &Path) -> f64 {
     let mut child = Child::spawn(mpirun_solve(out, &[]), log);
@@ -593,13 +590,9 @@ fn killed_under_mpirun_in(
             let ranks = process::children_of(child.pid());
             let ended = child.run_or_kill_after(Duration::from_millis(50));
             let text = child.log();
-            assert!(!text.contains("panicked"), "{text}");
-            if text.contains("resumed from a checkpoint") {
-                resumed += 1;
-            }
-            if text.contains(CONTINUED_INSIDE) {
-                inside += 1;
-            }
+            let (was_resumed, was_inside) = process::resumed_and_inside(&text);
+            resumed += was_resumed as usize;
+            inside += was_inside as usize;
             match ended {
                 Ended::Killed => {
                     killed += 1;

@@ -6,7 +6,9 @@
 
 mod common;
 
-use common::process::{describe, Child, Ended, Rng, HANG_LIMIT};
+use common::process::{
+    describe, resumed_and_inside, Child, Ended, Rng, CONTINUED_INSIDE, HANG_LIMIT,
+};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -82,9 +84,6 @@ fn assert_clean(out: &Path) {
 /// (1,777 surfels, about 0.25 s an iteration on two threads).
 const LONG_ITERATIONS: [&str; 4] = ["--resolution", "16", "--directions", "2000"];
 
-/// What a resumed run's log says when it continues inside an iteration.
-const CONTINUED_INSIDE: &str = "continuing inside an iteration";
-
 /// Kills `voxrad solve --resume` with SIGKILL at random moments (the first after a checkpoint
 /// exists, so at least one run really resumes), `kills` times unless it finishes first, then lets
 /// it finish; the results must be the uninterrupted run's, byte for byte. A run is killed after
@@ -118,19 +117,15 @@ fn killed_and_resumed(extra: &[&str], seed: u64, kills: usize, longest: f64) -> 
             Ended::Exited(child.wait_at_most(HANG_LIMIT))
         };
         let text = child.log();
-        assert!(!text.contains("panicked"), "{text}");
+        let (was_resumed, was_inside) = resumed_and_inside(&text);
         if runs == 1 {
             assert!(
                 text.contains("no checkpoint") && text.contains("starting from the beginning"),
                 "{text}"
             );
         }
-        if text.contains("resumed from a checkpoint") {
-            resumed += 1;
-        }
-        if text.contains(CONTINUED_INSIDE) {
-            inside += 1;
-        }
+        resumed += was_resumed as usize;
+        inside += was_inside as usize;
         match ended {
             Ended::Killed => {
                 killed += 1;

@@ -203,3 +203,16 @@ pub fn kill_and_reap(pids: &[i32]) {
         std::thread::sleep(Duration::from_millis(10));
     }
 }
+
+/// What a resumed run's log says when it continues inside an iteration.
+pub const CONTINUED_INSIDE: &str = "continuing inside an iteration";
+
+/// Reads the log of one run of a kill schedule, which must not have panicked: whether it resumed
+/// from a checkpoint, and whether it continued inside an iteration.
+pub fn resumed_and_inside(text: &str) -> (bool, bool) {
+    assert!(!text.contains("panicked"), "{text}");
+    (
+        text.contains("resumed from a checkpoint"),
+        text.contains(CONTINUED_INSIDE),
+    )
+}
