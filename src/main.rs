@@ -97,6 +97,12 @@ enum Command {
         /// shared by the ranks on one node).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes_or_zero)]
         links_memory: Option<u64>,
+        /// Out of core: keep each direction's partner links in work files taking at most this
+        /// much disk (per rank), so that iterations after the first read the light and the
+        /// links instead of searching again (0: search in every iteration; default: half of the
+        /// disk left free once the work files are made, shared by the ranks on one node).
+        #[arg(long, value_parser = voxrad::outcore::parse_bytes_or_zero)]
+        links_disk: Option<u64>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
         /// the scene and takes a share of the directions; `data`: ranks own whole lines and
         /// surfels move between them; `hybrid`: groups of ranks share the directions, the data
@@ -391,6 +397,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             image_size,
             memory,
             links_memory,
+            links_disk,
             distribute,
             groups,
             compress_exchange,
@@ -460,6 +467,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                     Some(n) => DirectPass::On(n),
                 },
                 links_memory,
+                links_disk,
                 ..Default::default()
             };
             let cmd = SolveCommand {

@@ -3,7 +3,9 @@
 //! iteration, with every link kept, some, or none, at 1 and 2 threads, with the direct-light
 //! pass and the tail extrapolation on, under the non-uniform light of the Cornell box (its lamp,
 //! its coloured walls and blocks) and in a furnished room lit by many small lamps with open
-//! edges (shares below 1 and extra links on the same line).
+//! edges (shares below 1 and extra links on the same line). Out of core (one process and the
+//! data mode), links kept in work files, band by band, give the bits of searching again too, with
+//! every direction's file kept, some, or none.
 
 mod common;
 
@@ -77,4 +79,96 @@ fn kept_links_give_the_bits_of_searching_again_in_a_room_of_small_lamps() {
     let scene = voxrad::gen::office().scene;
     let set = voxelize(&scene, GridSpec::Resolution(40)).expect("voxelize");
     assert_links_change_no_bit("office", &set);
+}
+
+/// The out-of-core radiosity (canonical order) and link figures of `set`, one process or the
+/// data mode on one rank, with `links_disk` bytes of links files, at a budget of many bands.
+fn out_of_core(
+    set: &SurfelSet,
+    data_mode: bool,
+    links_disk: u64,
+    threads: usize,
+) -> (Vec<u32>, voxrad::solve::stats::LinkStats, u64) {
+    let options = SolveOptions {
+        links_disk: Some(links_disk),
+        ..options(threads, 0)
+    };
+    let directions = voxrad::geometry::directions::DirectionSet::with_count(options.directions);
+    let source = voxrad::outcore::InMemorySource::new(set);
+    let work = tempfile::tempdir().expect("tempdir");
+    let budget = 6 << 20;
+    let mut radiosity = Vec::new();
+    let (stats, read) = if data_mode {
+        let solution = voxrad::distribute::ooc::solve_data_out_of_core(
+            &source,
+            &directions,
+            &options,
+            &voxrad::distribute::SingleProcess,
+            1,
+            budget,
+            work.path(),
+            None,
+        )
+        .expect("data mode out of core");
+        solution
+            .for_each(&source, |_, b| {
+                radiosity.push(*b);
+                Ok(())
+            })
+            .expect("results");
+        (solution.stats.clone(), solution.bytes_read)
+    } else {
+        let solution =
+            voxrad::outcore::solve_out_of_core(&source, &directions, &options, budget, work.path())
+                .expect("out of core");
+        assert!(
+            solution.stats.bands > 2 * 120,
+            "{} bands",
+            solution.stats.bands
+        );
+        radiosity = solution.radiosity().expect("radiosity");
+        (solution.stats.solve.clone(), solution.stats.bytes_read)
+    };
+    assert_eq!(radiosity.len(), set.surfels.len());
+    let bits = radiosity
+        .iter()
+        .flatten()
+        .flatten()
+        .map(|v| v.to_bits())
+        .collect();
+    (bits, stats.links.expect("link figures out of core"), read)
+}
+
+#[test]
+fn links_kept_in_files_out_of_core_give_the_bits_of_searching_again() {
+    let scene = voxrad::gen::office().scene;
+    let set = voxelize(&scene, GridSpec::Resolution(40)).expect("voxelize");
+    for data_mode in [false, true] {
+        let name = if data_mode {
+            "data mode"
+        } else {
+            "one process"
+        };
+        let (searched, none, read_searching) = out_of_core(&set, data_mode, 0, 1);
+        assert_eq!((none.kept_directions, none.kept_in.as_str()), (0, "none"));
+        for threads in [1, 2] {
+            let (bits, all, read) = out_of_core(&set, data_mode, u64::MAX, threads);
+            assert_eq!(
+                (all.kept_directions, all.kept_in.as_str()),
+                (all.directions, "files"),
+                "{name}"
+            );
+            assert!(all.bytes_per_surfel_direction > 8.0, "{name}: {all:?}");
+            assert!(bits == searched, "{name}, {threads} threads");
+            // Replaying reads the light and the links, not the surfels' static records.
+            assert!(read < read_searching, "{name}: {read} >= {read_searching}");
+            // An allowance for about half of them: the others are searched again.
+            let (bits, some, _) = out_of_core(&set, data_mode, all.bytes / 2, threads);
+            assert!(
+                some.kept_directions > 0 && some.kept_directions < some.directions,
+                "{name}: {some:?}"
+            );
+            assert!(bits == searched, "{name}, half kept, {threads} threads");
+        }
+    }
 }

@@ -8,12 +8,14 @@ use super::files::{
     decode_gathered, decode_radiosity, decode_static, encode_gathered, Gathered, IoCounters,
     Radiosity, RecordFile, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
+use super::links::BandLinks;
 use super::workset::AxisCopy;
 use super::OocError;
 use crate::geometry::directions::Direction;
 use crate::geometry::lines::LineFrame;
 use crate::solve::dispatch::{dispatch, LineNumbering, Lines, OrderedEntry};
 use crate::solve::jacobi::gather_all_lines;
+use crate::solve::links::gather_and_record;
 use crate::solve::propagate::{DirectionInput, PropSurfel};
 use std::time::Instant;
 
@@ -132,10 +134,12 @@ pub struct DirectionPass<'a> {
 }
 
 impl DirectionPass<'_> {
-    /// Solves direction `d` over the whole copy.
+    /// Solves direction `d` over the whole copy, doing with its bands' partner links what
+    /// `links` says (see `super::links`).
     pub fn run(
         &self,
         d: &Direction,
+        links: &mut BandLinks,
         buffers: &mut BandBuffers,
         io: &mut IoCounters,
         times: &mut BandTimes,
@@ -198,7 +202,8 @@ impl DirectionPass<'_> {
             } else if surfels <= self.plan.band_surfels && frame.ni * width <= self.plan.band_lines
             {
                 self.take_rows(&frame, j0 + width, buffers, true);
-                self.process(&frame, unit, weight, block, surfels, buffers, io, times)?;
+                let band = Band { block, surfels };
+                self.process(&frame, unit, weight, band, links, buffers, io, times)?;
             } else {
                 // One column too big for a band (a floor seen along its own plane): cut it
                 // along i as well.
@@ -207,7 +212,7 @@ impl DirectionPass<'_> {
                     j0,
                     surfels,
                 };
-                self.tiled_column(&frame, unit, weight, column, buffers, io, times)?;
+                self.tiled_column(&frame, unit, weight, column, links, buffers, io, times)?;
             }
             j0 += width;
         }
@@ -256,6 +261,7 @@ impl DirectionPass<'_> {
         unit: glam::DVec3,
         weight: f64,
         column: Column,
+        links: &mut BandLinks,
         buffers: &mut BandBuffers,
         io: &mut IoCounters,
         times: &mut BandTimes,
@@ -328,7 +334,11 @@ impl DirectionPass<'_> {
                     j0,
                     width: 1,
                 };
-                self.process(frame, unit, weight, block, count, buffers, io, times)?;
+                let band = Band {
+                    block,
+                    surfels: count,
+                };
+                self.process(frame, unit, weight, band, links, buffers, io, times)?;
             }
             remaining -= count;
             i0 += rows;
@@ -336,22 +346,25 @@ impl DirectionPass<'_> {
         Ok(())
     }
 
-    /// Reads the records of `buffers.ranges` (`surfels` of them), solves their lines, which all
-    /// lie in `block`, and adds the light gathered to the copy's file.
+    /// Reads the records of `buffers.ranges` (`band.surfels` of them), solves their lines,
+    /// which all lie in `band.block`, and adds the light gathered to the copy's file. Replaying
+    /// links, it reads neither the static records nor the lines: only the light.
     #[allow(clippy::too_many_arguments)]
     fn process(
         &self,
         frame: &LineFrame,
         unit: glam::DVec3,
         weight: f64,
-        block: Block,
-        surfels: u64,
+        band: Band,
+        links: &mut BandLinks,
         buffers: &mut BandBuffers,
         io: &mut IoCounters,
         times: &mut BandTimes,
     ) -> Result<(), OocError> {
         let t0 = Instant::now();
+        let Band { block, surfels } = band;
         let n = surfels as usize;
+        let replay = matches!(links, BandLinks::Replay(_));
         buffers.props.clear();
         buffers.props.reserve_exact(n);
         buffers.radiosity.clear();
@@ -367,17 +380,19 @@ impl DirectionPass<'_> {
             while at < count {
                 let k = piece.min(count - at);
                 let first = start + at;
-                let bytes = &mut buffers.bytes[..k as usize * STATIC_LEN];
-                self.files
-                    .statics
-                    .read_at(first * STATIC_LEN as u64, bytes, io)?;
-                for rec in bytes.chunks_exact(STATIC_LEN) {
-                    let r = decode_static(rec);
-                    buffers.entries.push(OrderedEntry {
-                        voxel: r.prop.voxel,
-                        index: buffers.props.len() as u32,
-                    });
-                    buffers.props.push(r.prop);
+                if !replay {
+                    let bytes = &mut buffers.bytes[..k as usize * STATIC_LEN];
+                    self.files
+                        .statics
+                        .read_at(first * STATIC_LEN as u64, bytes, io)?;
+                    for rec in bytes.chunks_exact(STATIC_LEN) {
+                        let r = decode_static(rec);
+                        buffers.entries.push(OrderedEntry {
+                            voxel: r.prop.voxel,
+                            index: buffers.props.len() as u32,
+                        });
+                        buffers.props.push(r.prop);
+                    }
                 }
                 let bytes = &mut buffers.bytes[..k as usize * RADIOSITY_LEN];
                 self.files
@@ -405,24 +420,40 @@ impl DirectionPass<'_> {
                 at += k;
             }
         }
-        debug_assert_eq!(buffers.props.len(), n);
+        debug_assert_eq!(buffers.radiosity.len(), n);
         let t1 = Instant::now();
-        let numbering = BandNumbering { frame, block };
-        dispatch(
-            &buffers.entries,
-            &numbering,
-            self.threads,
-            &mut buffers.lines,
-        );
-        let t2 = Instant::now();
-        let input = DirectionInput {
-            unit,
-            weight,
-            surfels: &buffers.props,
-            radiosity: &buffers.radiosity,
-            channels: self.channels,
-        };
-        gather_all_lines(&buffers.lines, &input, &mut buffers.gathered, self.threads);
+        let t2;
+        match links {
+            BandLinks::Replay(replaying) => {
+                let kept = replaying.band(n, io)?;
+                t2 = Instant::now();
+                kept.replay(&buffers.radiosity, self.channels, &mut buffers.gathered);
+            }
+            BandLinks::Search | BandLinks::Record(_) => {
+                let numbering = BandNumbering { frame, block };
+                dispatch(
+                    &buffers.entries,
+                    &numbering,
+                    self.threads,
+                    &mut buffers.lines,
+                );
+                t2 = Instant::now();
+                let input = DirectionInput {
+                    unit,
+                    weight,
+                    surfels: &buffers.props,
+                    radiosity: &buffers.radiosity,
+                    channels: self.channels,
+                };
+                let (lines, acc) = (&buffers.lines, &mut buffers.gathered);
+                if let BandLinks::Record(recording) = links {
+                    let kept = gather_and_record(lines, &input, acc, self.threads);
+                    recording.band(n, &kept, io)?;
+                } else {
+                    gather_all_lines(lines, &input, acc, self.threads);
+                }
+            }
+        }
         let t3 = Instant::now();
         let mut done = 0usize;
         for &(start, count) in &buffers.ranges {
@@ -450,6 +481,13 @@ impl DirectionPass<'_> {
         times.bands += 1;
         Ok(())
     }
+}
+
+/// The lines of one band and the surfels they hold.
+#[derive(Clone, Copy, Debug)]
+struct Band {
+    block: Block,
+    surfels: u64,
 }
 
 /// A column of lines too big for one band.

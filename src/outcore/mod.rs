@@ -35,6 +35,7 @@ pub mod band;
 pub mod budget;
 pub mod direct;
 pub mod files;
+pub mod links;
 pub mod scatter;
 pub mod solver;
 pub mod source;

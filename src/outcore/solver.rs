@@ -36,6 +36,7 @@ use super::files::{
     decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, Gathered, IoCounters,
     Radiosity, RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN,
 };
+use super::links::LinkStore;
 use super::scatter::{ChunkReader, Scatter};
 use super::source::SurfelSource;
 use super::workset::{self, AxisCopy, WorkSet};
@@ -251,7 +252,6 @@ fn run(
     stats.solve.normalize_seconds = t.elapsed().as_secs_f64();
     stats.solve.directions = directions.len();
     stats.solve.threads = threads;
-    stats.solve.links = Some(crate::solve::stats::LinkStats::none(directions.len()));
 
     // B = E to start with; tells whether anything emits.
     let t = Instant::now();
@@ -315,6 +315,15 @@ fn run(
         })
         .collect::<Result<_, OocError>>()?;
     let axes = AxisSpans::new(&by_axis);
+    let links = LinkStore::new(
+        work.dir.path(),
+        directions.len(),
+        options
+            .links_disk
+            .unwrap_or_else(|| super::links::default_allowance(work.dir.path())),
+        work.count,
+        plan.io_bytes,
+    );
     let mut start = Start::fresh();
     // Where the iteration resumed from a mid-iteration checkpoint stands.
     let mut resume_at = Position::default();
@@ -357,6 +366,7 @@ fn run(
         summed: false,
         histogram: None,
         buffers: BandBuffers::default(),
+        links,
         times: BandTimes::default(),
         io,
         last: first,
@@ -378,8 +388,10 @@ fn run(
         io,
         last,
         update_seconds,
+        links,
         ..
     } = sweep;
+    stats.solve.links = Some(links.stats(&crate::comm::SingleProcess));
     stats.update_seconds += update_seconds;
     stats.solve.emitted_power = last.sums.emitted;
     stats.solve.absorbed_power = last.sums.absorbed;
@@ -435,6 +447,8 @@ struct OutOfCore<'a> {
     /// The row histogram of the axis in progress.
     histogram: Option<(usize, Vec<u32>)>,
     buffers: BandBuffers,
+    /// Each direction's partner links, kept in files (`super::links`).
+    links: LinkStore,
     times: BandTimes,
     io: IoCounters,
     /// The last update (its energy).
@@ -507,15 +521,19 @@ impl Sweep for OutOfCore<'_> {
             first: k == 0,
             stops_on_signal: true,
         };
+        self.links.begin(d)?;
         pass.run(
             &self.directions.directions[d],
+            &mut self.links.band_links(),
             &mut self.buffers,
             &mut self.io,
             &mut self.times,
         )?;
         // The pass may have stopped early on a signal: its light is incomplete, and the file it
         // read from holds the directions before it, whole.
-        if crate::interrupt::requested().is_some() {
+        let stopped = crate::interrupt::requested().is_some();
+        self.links.end(!stopped);
+        if stopped {
             return Ok(false);
         }
         self.at = Position {

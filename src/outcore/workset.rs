@@ -309,7 +309,7 @@ pub(crate) fn check_free_space(parent: &Path, needed: u64) -> Result<(), OocErro
 }
 
 /// Bytes available to this user on the filesystem of `dir` (`None` if the system will not say).
-fn free_bytes(dir: &Path) -> Option<u64> {
+pub(crate) fn free_bytes(dir: &Path) -> Option<u64> {
     use std::os::fd::AsRawFd;
     let file = std::fs::File::open(dir).ok()?;
     // SAFETY: a zeroed statvfs is a valid value for fstatvfs to fill; the descriptor is open for

@@ -50,6 +50,10 @@ pub struct SolveOptions {
     /// whose links do not fit is searched again in every iteration. `None`: 4 GiB, at most a
     /// quarter of the memory available once the solver's arrays are made.
     pub links_memory: Option<u64>,
+    /// Out of core: bytes of disk the partner links may take in work files (see
+    /// `outcore::links`); a direction whose links do not fit is searched again in every
+    /// iteration. `None`: half of what is free once the work files are made.
+    pub links_disk: Option<u64>,
 }
 
 /// The default of [`SolveOptions::links_memory`]: 4 GiB (the Cornell box at resolution 256 with
@@ -67,6 +71,7 @@ impl Default for SolveOptions {
             accelerate: false,
             direct: super::direct::DirectPass::Off,
             links_memory: None,
+            links_disk: None,
         }
     }
 }
@@ -329,6 +334,12 @@ fn run(
         directions,
         bytes: bytes as u64,
         bytes_per_surfel_direction: bytes as f64 / (n * kept_directions).max(1) as f64,
+        kept_in: if kept_directions > 0 {
+            "memory"
+        } else {
+            "none"
+        }
+        .to_string(),
     });
     let InMemory {
         mut radiosity,

@@ -163,6 +163,86 @@ impl DirectionLinks {
         });
     }
 
+    /// Appends the links to `out` as bytes (little-endian counts, then the factors, the piece
+    /// bounds and the links), for a file that [`Self::decode`] reads back.
+    pub fn encode(&self, out: &mut Vec<u8>) {
+        out.reserve(self.encoded_len());
+        for count in [self.factors.len(), self.pieces.len(), self.links.len()] {
+            out.extend_from_slice(&(count as u64).to_le_bytes());
+        }
+        for factor in &self.factors {
+            out.extend_from_slice(&factor.to_bits().to_le_bytes());
+        }
+        for &bound in &self.pieces {
+            out.extend_from_slice(&(bound as u64).to_le_bytes());
+        }
+        for link in &self.links {
+            for word in [link.to, link.from, link.factor] {
+                out.extend_from_slice(&word.to_le_bytes());
+            }
+        }
+    }
+
+    /// Bytes [`Self::encode`] appends.
+    pub fn encoded_len(&self) -> usize {
+        24 + 8 * (self.factors.len() + self.pieces.len()) + LINK_BYTES as usize * self.links.len()
+    }
+
+    /// Reads back into `self` what [`Self::encode`] wrote (the arrays' memory reused); `None`
+    /// when `bytes` are not such links (a piece bound or a factor index out of range included).
+    pub fn decode(&mut self, bytes: &[u8]) -> Option<()> {
+        let word = |at: usize| -> Option<u64> {
+            Some(u64::from_le_bytes(bytes.get(at..at + 8)?.try_into().ok()?))
+        };
+        let counts = [word(0)?, word(8)?, word(16)?].map(|c| c as usize);
+        let [factors, pieces, links] = counts;
+        let expected = 8usize
+            .checked_mul(factors.checked_add(pieces)?.checked_add(3)?)?
+            .checked_add(links.checked_mul(LINK_BYTES as usize)?)?;
+        if bytes.len() != expected {
+            return None;
+        }
+        let mut at = 24;
+        self.factors.clear();
+        for _ in 0..factors {
+            self.factors.push(f64::from_bits(word(at)?));
+            at += 8;
+        }
+        self.pieces.clear();
+        for _ in 0..pieces {
+            self.pieces.push(word(at)? as usize);
+            at += 8;
+        }
+        let bounds_ok = self.pieces.first().is_none_or(|&b| b == 0)
+            && self.pieces.windows(2).all(|w| w[0] <= w[1])
+            && self.pieces.last().is_none_or(|&b| b == links);
+        if !bounds_ok {
+            return None;
+        }
+        self.links.clear();
+        self.links
+            .extend(bytes[at..].chunks_exact(LINK_BYTES as usize).map(|c| {
+                let w =
+                    |k: usize| u32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes"));
+                Link {
+                    to: w(0),
+                    from: w(1),
+                    factor: w(2),
+                }
+            }));
+        let in_table = self.links.iter().all(|l| (l.factor as usize) < factors);
+        in_table.then_some(())
+    }
+
+    /// The largest surfel number the links name, plus one (0 for none).
+    pub fn surfels_named(&self) -> usize {
+        self.links
+            .iter()
+            .map(|l| (l.to.max(l.from) >> 1) as usize + 1)
+            .max()
+            .unwrap_or(0)
+    }
+
     /// The same links with every surfel number `k` replaced by `number[k]` (sides kept).
     pub fn renumbered(mut self, number: &[u32]) -> Self {
         let renumber = |side: u32| number[(side >> 1) as usize] << 1 | (side & 1);
@@ -304,7 +384,7 @@ pub fn rank_budget(asked: Option<u64>, surfels: usize, comm: &dyn crate::comm::C
 
 /// How many ranks of `comm` run on this rank's node, by host name (every rank counts as one
 /// node's where the name cannot be read: the smaller share). Collective on `comm`.
-fn ranks_on_this_node(comm: &dyn crate::comm::Comm) -> usize {
+pub(crate) fn ranks_on_this_node(comm: &dyn crate::comm::Comm) -> usize {
     if comm.size() == 1 {
         return 1;
     }
@@ -344,6 +424,34 @@ mod tests {
     fn the_default_budget_is_at_most_four_gibibytes_and_not_nothing() {
         let budget = default_budget();
         assert!(budget > 0 && budget <= 4 << 30, "{budget}");
+    }
+
+    #[test]
+    fn links_read_back_from_their_bytes_are_the_same_links() {
+        let mut recorder = PieceRecorder::default();
+        recorder.link(3, 1, 7, 0, 0.25);
+        recorder.link(7, 0, 3, 1, 0.125);
+        recorder.link(4, 0, 9, 1, 0.25);
+        let links = DirectionLinks {
+            links: recorder.links.clone(),
+            factors: recorder.factors.clone(),
+            pieces: vec![0, 2, 3],
+        };
+        let mut bytes = Vec::new();
+        links.encode(&mut bytes);
+        assert_eq!(bytes.len(), links.encoded_len());
+        let mut back = DirectionLinks::default();
+        assert_eq!(back.decode(&bytes), Some(()));
+        assert_eq!(back.links, links.links);
+        assert_eq!(back.factors, links.factors);
+        assert_eq!(back.pieces, links.pieces);
+        assert_eq!(back.surfels_named(), 10);
+        // Cut short, or a factor index beyond the table: refused.
+        assert_eq!(back.decode(&bytes[..bytes.len() - 1]), None);
+        let mut wrong = bytes.clone();
+        let last = wrong.len() - 4;
+        wrong[last..].copy_from_slice(&9u32.to_le_bytes());
+        assert_eq!(back.decode(&wrong), None);
     }
 
     #[test]

@@ -63,13 +63,18 @@ pub struct LinkStats {
     pub bytes: u64,
     /// Those bytes per surfel and kept direction.
     pub bytes_per_surfel_direction: f64,
+    /// Where they are kept: `memory` (in memory), `files` (out of core, in work files beside the
+    /// band data), or `none` (every iteration searches again).
+    #[serde(default)]
+    pub kept_in: String,
 }
 
 impl LinkStats {
-    /// A solve that keeps no links (out of core: every iteration searches again).
+    /// A solve that keeps no links: every iteration searches again.
     pub fn none(directions: usize) -> Self {
         LinkStats {
             directions,
+            kept_in: "none".to_string(),
             ..Default::default()
         }
     }

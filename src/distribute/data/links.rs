@@ -113,6 +113,12 @@ impl HeldLinks {
             directions,
             bytes: bytes[0] as u64,
             bytes_per_surfel_direction: bytes[0] / (surfels * kept_directions).max(1) as f64,
+            kept_in: if kept_directions > 0 {
+                "memory"
+            } else {
+                "none"
+            }
+            .to_string(),
         }
     }
 }

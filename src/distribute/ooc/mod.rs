@@ -72,6 +72,7 @@ use crate::outcore::files::{
     decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, IoCounters, SeqReader,
     GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
+use crate::outcore::links::{BandLinks, LinkStore};
 use crate::outcore::source::SurfelSource;
 use crate::outcore::workset::AxisCopy;
 use crate::outcore::OocError;
@@ -277,7 +278,6 @@ impl Solver<'_> {
             threads: self.threads,
             channels: self.channels(),
             normalize_seconds,
-            links: Some(crate::solve::stats::LinkStats::none(self.directions.len())),
             ..Default::default()
         };
         // The direct light, once, before a checkpoint's radiosity is put in (the lines then
@@ -356,6 +356,15 @@ impl Solver<'_> {
             })
             .collect();
         let starts = self.slice_starts(slice.first);
+        // The links files' allowance: the ranks of one node share its disk.
+        let links_allowance = match self.options.links_disk {
+            Some(bytes) => bytes,
+            None => {
+                crate::outcore::links::default_allowance(dir)
+                    / crate::solve::links::ranks_on_this_node(self.comm) as u64
+            }
+        };
+        let links = LinkStore::new(dir, d_count, links_allowance, surfels, plan.io_bytes);
         let mut sweep = DataOocSweep {
             solver: self,
             router: &router,
@@ -372,6 +381,7 @@ impl Solver<'_> {
             imbalance: vec![0.0; d_count],
             moved: vec![0.0; d_count],
             histogram: Vec::new(),
+            links,
             times: BandTimes::default(),
             seconds: PhaseSeconds::default(),
             io,
@@ -400,8 +410,10 @@ impl Solver<'_> {
             mut io,
             last,
             largest_share,
+            links,
             ..
         } = sweep;
+        stats.links = Some(links.stats(self.comm));
         let held = held.expect("held files between steps");
         // Group 0 speaks for every surfel once.
         let mut energy = [last.emitted, last.absorbed, last.absorbed_direct].concat();
@@ -497,7 +509,8 @@ impl Solver<'_> {
         Ok(load)
     }
 
-    /// Direction `d` over the held files, band by band (`outcore::band`).
+    /// Direction `d` over the held files, band by band (`outcore::band`), doing with its
+    /// partner links what `links` says.
     #[allow(clippy::too_many_arguments)]
     fn solve_direction(
         &self,
@@ -505,6 +518,7 @@ impl Solver<'_> {
         histogram: &[u32],
         key: AxisKey,
         d: usize,
+        links: &mut BandLinks,
         first: bool,
         plan: &MemoryPlan,
         io: &mut IoCounters,
@@ -546,8 +560,9 @@ impl Solver<'_> {
         };
         // Fresh band arrays: they must not hold their memory through the next merge.
         let mut buffers = BandBuffers::default();
+        let direction = &self.directions.directions[d];
         self.pool
-            .install(|| pass.run(&self.directions.directions[d], &mut buffers, io, times))
+            .install(|| pass.run(direction, links, &mut buffers, io, times))
     }
 
     /// `B = E + rho H / S(n)` on the held surfels, after adding the last axis's light to the
@@ -733,6 +748,10 @@ struct DataOocSweep<'s, 'a> {
     moved: Vec<f64>,
     /// The row histogram of the held files' order.
     histogram: Vec<u32>,
+    /// Each direction's partner links on this rank, in files (`outcore::links`): the rank's
+    /// held surfels of a direction, and their order, are the same in every iteration once its
+    /// column cuts are remembered.
+    links: LinkStore,
     times: BandTimes,
     seconds: PhaseSeconds,
     io: IoCounters,
@@ -842,16 +861,20 @@ impl Sweep for DataOocSweep<'_, '_> {
         self.held = Some(next);
         self.histogram = rows;
         self.moved[d] += sent as f64;
+        self.links.begin(d)?;
         solver.solve_direction(
             self.held.as_ref().expect("held files between steps"),
             &self.histogram,
             key,
             d,
+            &mut self.links.band_links(),
             first,
             self.plan,
             &mut self.io,
             &mut self.times,
         )?;
+        // The ranks stop between steps only: a direction is always gathered whole.
+        self.links.end(true);
         if last {
             self.pending = true;
         }
