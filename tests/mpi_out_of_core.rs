@@ -124,6 +124,7 @@ fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
     ok(&o, "one process out of core");
     let reference = radiosity(&single);
     assert_eq!(reference.len(), surfels);
+    assert_eq!(report(&single)["links"]["kept_in"], "files");
     // The in-memory data mode.
     let memory = tmp.path().join("memory");
     let o = mpirun(
@@ -191,7 +192,19 @@ fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
         }
         // The energy balance is that of one process (its sums added in another grouping).
         same_energy(&r, &report(&single), 1e-9);
+        // Each rank kept its lines' links in files and replayed them in iterations 2 and 3.
+        let links = &r["links"];
+        assert_eq!(links["kept_in"], "files", "{links}");
+        assert_eq!(links["kept_directions"], 49, "{links}");
     }
+    // Searching again in every iteration on each rank: the same bits as replaying.
+    let out = tmp.path().join("searched");
+    let mut args = solve(&out, "1");
+    args.extend(["--distribute", "data", "--links-disk", "0"].map(String::from));
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    ok(&mpirun(2, &args), "2 ranks searching again");
+    assert_eq!(report(&out)["links"]["kept_in"], "none");
+    assert!(radiosity(&out) == reference, "searching again changes bits");
 }
 
 /// With the direct-light pass (run by rank 0 on the whole source, its light sent to every
