@@ -5,8 +5,8 @@
 
 use super::budget::MemoryPlan;
 use super::files::{
-    decode_gathered, decode_radiosity, decode_static, encode_gathered, Gathered, IoCounters,
-    Radiosity, RecordFile, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
+    decode_static, Gathered, IoCounters, Radiosity, RecordFile, GATHER_LEN, RADIOSITY_LEN,
+    STATIC_LEN,
 };
 use super::links::BandLinks;
 use super::workset::AxisCopy;
@@ -376,15 +376,14 @@ impl DirectionPass<'_> {
         let piece = (self.plan.io_bytes / STATIC_LEN).max(1) as u64;
         buffers.bytes.resize(piece as usize * STATIC_LEN, 0);
         for &(start, count) in &buffers.ranges {
-            let mut at = 0;
-            while at < count {
-                let k = piece.min(count - at);
-                let first = start + at;
-                if !replay {
+            if !replay {
+                let mut at = 0;
+                while at < count {
+                    let k = piece.min(count - at);
                     let bytes = &mut buffers.bytes[..k as usize * STATIC_LEN];
                     self.files
                         .statics
-                        .read_at(first * STATIC_LEN as u64, bytes, io)?;
+                        .read_at((start + at) * STATIC_LEN as u64, bytes, io)?;
                     for rec in bytes.chunks_exact(STATIC_LEN) {
                         let r = decode_static(rec);
                         buffers.entries.push(OrderedEntry {
@@ -393,31 +392,31 @@ impl DirectionPass<'_> {
                         });
                         buffers.props.push(r.prop);
                     }
+                    at += k;
                 }
-                let bytes = &mut buffers.bytes[..k as usize * RADIOSITY_LEN];
-                self.files
-                    .radiosity
-                    .read_at(first * RADIOSITY_LEN as u64, bytes, io)?;
-                buffers
-                    .radiosity
-                    .extend(bytes.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
-                if self.first {
-                    buffers
-                        .gathered
-                        .extend(std::iter::repeat_n([[0.0; 3]; 2], k as usize));
-                } else {
-                    let bytes = &mut buffers.bytes[..k as usize * GATHER_LEN];
-                    let earlier = self.files.previous.as_ref();
-                    earlier.unwrap_or(&self.files.gathered).read_at(
-                        first * GATHER_LEN as u64,
-                        bytes,
-                        io,
-                    )?;
-                    buffers
-                        .gathered
-                        .extend(bytes.chunks_exact(GATHER_LEN).map(decode_gathered));
-                }
-                at += k;
+            }
+            // The light records are the arrays' own bytes (see `files`): read
+            // straight into them, one read per range.
+            let from = buffers.radiosity.len();
+            buffers
+                .radiosity
+                .resize(from + count as usize, [[0.0; 3]; 2]);
+            self.files.radiosity.read_at(
+                start * RADIOSITY_LEN as u64,
+                bytemuck::cast_slice_mut(&mut buffers.radiosity[from..]),
+                io,
+            )?;
+            let from = buffers.gathered.len();
+            buffers
+                .gathered
+                .resize(from + count as usize, [[0.0; 3]; 2]);
+            if !self.first {
+                let earlier = self.files.previous.as_ref();
+                earlier.unwrap_or(&self.files.gathered).read_at(
+                    start * GATHER_LEN as u64,
+                    bytemuck::cast_slice_mut(&mut buffers.gathered[from..]),
+                    io,
+                )?;
             }
         }
         debug_assert_eq!(buffers.radiosity.len(), n);
@@ -457,22 +456,13 @@ impl DirectionPass<'_> {
         let t3 = Instant::now();
         let mut done = 0usize;
         for &(start, count) in &buffers.ranges {
-            let mut at = 0;
-            while at < count {
-                let k = piece.min(count - at);
-                let bytes = &mut buffers.bytes[..k as usize * GATHER_LEN];
-                for (slot, h) in bytes
-                    .chunks_exact_mut(GATHER_LEN)
-                    .zip(&buffers.gathered[done..done + k as usize])
-                {
-                    encode_gathered(h, slot);
-                }
-                self.files
-                    .gathered
-                    .write_at((start + at) * GATHER_LEN as u64, bytes, io)?;
-                done += k as usize;
-                at += k;
-            }
+            let light = &buffers.gathered[done..done + count as usize];
+            self.files.gathered.write_at(
+                start * GATHER_LEN as u64,
+                bytemuck::cast_slice(light),
+                io,
+            )?;
+            done += count as usize;
         }
         times.read += (t1 - t0).as_secs_f64();
         times.dispatch += (t2 - t1).as_secs_f64();

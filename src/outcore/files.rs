@@ -92,6 +92,19 @@ pub fn decode_static(bytes: &[u8]) -> StaticRecord {
     }
 }
 
+// The light records (`Radiosity`, `Gathered`) are little-endian f32 and f64, the in-memory
+// layout of those arrays on the machines voxrad builds for, so a band reads and writes them as
+// the arrays' own bytes (`band`); a big-endian build is refused here rather than reading them
+// wrong.
+const _: () = {
+    assert!(
+        cfg!(target_endian = "little"),
+        "voxrad's work files are little-endian"
+    );
+    assert!(std::mem::size_of::<Radiosity>() == RADIOSITY_LEN);
+    assert!(std::mem::size_of::<Gathered>() == GATHER_LEN);
+};
+
 pub fn encode_radiosity(b: &Radiosity, out: &mut [u8]) {
     for (k, v) in b.iter().flatten().enumerate() {
         out[4 * k..4 * k + 4].copy_from_slice(&v.to_le_bytes());
