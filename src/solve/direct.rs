@@ -59,7 +59,7 @@
 use super::mix_hash::MixMap;
 use super::normalize::cosine;
 use super::normalize::cosine_sums;
-use super::propagate::{find_partners, for_each_link, LineScratch, PropSurfel};
+use super::propagate::{find_partners_toward, for_each_link, LineScratch, PropSurfel};
 use crate::comm::Comm;
 use crate::geometry::directions::{Direction, DirectionSet};
 use crate::geometry::lines::LineFrame;
@@ -289,11 +289,18 @@ pub(crate) fn gather_groups(
     sums: Sums,
 ) {
     let table = VoxelTable::new(set, bitmap);
+    // One bit per surfel: whether it emits on either side. A line through a lamp may hold
+    // thousands of surfels, scattered over the set; the bits stay in the cache.
+    let mut emitting_bits = vec![0u64; emission.len().div_ceil(64)];
+    for &e in emitters {
+        emitting_bits[e as usize / 64] |= 1 << (e % 64);
+    }
     let context = Context {
         dims: set.grid.dims,
         surfels,
         emission,
         emitters,
+        emitting: &emitting_bits,
         table: &table,
         set,
         cosine_sum,
@@ -426,10 +433,18 @@ struct Context<'a> {
     surfels: &'a [PropSurfel],
     emission: &'a [[[f32; 3]; 2]],
     emitters: &'a [u32],
+    /// Bit `m`: surfel `m` emits on either side.
+    emitting: &'a [u64],
     table: &'a VoxelTable,
 }
 
 impl Context<'_> {
+    /// Whether surfel `m` emits on either side.
+    #[inline]
+    fn emits(&self, m: u32) -> bool {
+        self.emitting[m as usize / 64] >> (m % 64) & 1 == 1
+    }
+
     fn direction(&self, d: &Direction, b: &mut Buffers) -> DirectionLight {
         let frame = LineFrame::new(d.vector, self.dims);
         b.line_ids.clear();
@@ -467,7 +482,24 @@ impl Context<'_> {
                 b.local_surfels.clear();
                 b.local_surfels
                     .extend(b.members.iter().map(|&m| self.surfels[m as usize]));
-                find_partners(&b.local_line, &b.local_surfels, d.unit, &mut b.scratch);
+                // Only links from emitters are used, and the emitters' own searches: a line
+                // through a lamp may cross a whole building, whose far parts need no search.
+                let emits = |&m: &u32| self.emits(m);
+                let span = b.members.iter().position(emits).map(|first| {
+                    let last =
+                        b.members.len() - 1 - b.members.iter().rev().position(emits).unwrap_or(0);
+                    (first, last)
+                });
+                let Some(span) = span else {
+                    continue;
+                };
+                find_partners_toward(
+                    &b.local_line,
+                    &b.local_surfels,
+                    d.unit,
+                    &mut b.scratch,
+                    Some(span),
+                );
                 self.balance_line(d, weight, b);
             }
         }
@@ -553,6 +585,9 @@ impl Context<'_> {
             }
         };
         for (k, total) in totals.iter().enumerate() {
+            if !self.emits(members[k]) {
+                continue;
+            }
             let c = surfel(k);
             for (which, side) in [(0, side_facing(k, 1.0)), (1, side_facing(k, -1.0))] {
                 if self.emission[members[k] as usize][side]

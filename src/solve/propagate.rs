@@ -316,6 +316,21 @@ impl Chain {
 /// Finds the partners of every surfel of one line (surfel indices in order along `s`); the result
 /// is in `scratch.partners`, by line position.
 pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &mut LineScratch) {
+    find_partners_toward(line, surfels, s, scratch, None);
+}
+
+/// As [`find_partners`], with `toward = Some((first, last))` searching only where a partner at
+/// line position `first..=last` or in its voxel could be found: ahead from the positions up to
+/// `last`'s voxel, behind from `first`'s voxel on (a search ahead walks only the voxels after
+/// its own, and its own). The other searches find nothing. The direct-light pass needs only
+/// links from its emitters (and its emitters' own searches, which lie in that span).
+pub fn find_partners_toward(
+    line: &[u32],
+    surfels: &[PropSurfel],
+    s: DVec3,
+    scratch: &mut LineScratch,
+    toward: Option<(usize, usize)>,
+) {
     let sf = s.as_vec3();
     // The line's cross-section across the direction, in voxel-size squared: a line is a tube of
     // unit section across its main axis.
@@ -425,12 +440,29 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             }
         },
     };
+    // The voxel groups whose searches ahead and behind may be needed.
+    let (ahead_to, behind_from) = match toward {
+        None => (group_count, 0),
+        Some((first, last)) => {
+            let group_of = |k: usize| groups.partition_point(|&start| start <= k) - 1;
+            (group_of(last) + 1, group_of(first))
+        }
+    };
     if !shared && open_ranges.is_empty() {
         // The common line: one surfel per voxel and no open edge (see `LineView::nearest_plain`).
+        let none = (u32::MAX, 0.0);
         partners.extend((0..locals.len()).map(|k| {
             [
-                view.nearest_plain::<true>(k, sf),
-                view.nearest_plain::<false>(k, -sf),
+                if k < ahead_to {
+                    view.nearest_plain::<true>(k, sf)
+                } else {
+                    none
+                },
+                if k >= behind_from {
+                    view.nearest_plain::<false>(k, -sf)
+                } else {
+                    none
+                },
             ]
         }));
         return;
@@ -441,8 +473,16 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
             // The chains are filled in place: returned by value, each was copied through the
             // stack with wide loads of narrower stores just written (a store-forwarding stall
             // that cost a tenth of the search).
-            view.nearest::<true>(g, k, sf, &mut ahead);
-            view.nearest::<false>(g, k, -sf, &mut behind);
+            if g < ahead_to {
+                view.nearest::<true>(g, k, sf, &mut ahead);
+            } else {
+                ahead.len = 0;
+            }
+            if g >= behind_from {
+                view.nearest::<false>(g, k, -sf, &mut behind);
+            } else {
+                behind.len = 0;
+            }
             let first = |c: &Chain| {
                 if c.len > 0 {
                     c.items[0]
