@@ -41,7 +41,10 @@
 //! table from voxel to surfels, and gathered exactly as `propagate` gathers any line. The pass
 //! costs about (emitter lines) x (line length) per direction instead of the whole surfel set;
 //! neighbouring lines of one row are walked together, 64 at a time through occupancy bitmaps
-//! ([`VoxelTable`]), so the air they cross costs little.
+//! ([`VoxelTable`]), so the air they cross costs little. On a line only the searches that can
+//! end at an emitter run (`propagate::find_partners_toward`: ahead from the voxels up to the
+//! line's last emitter, behind from its first), which halves the search on a line through a
+//! lamp in the middle of a building.
 //!
 //! **When** ([`DirectPass`]): asked for with a count, or automatically where the emitters are
 //! small ([`small_emitters`]: at most 5 % of the surfels emit), capped to what about
