@@ -301,7 +301,7 @@ fn grey_scene_solved_once_gives_the_three_channel_answer() {
 fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
     use voxrad::geometry::lines::LineFrame;
     use voxrad::geometry::order;
-    use voxrad::solve::dispatch::{dispatch, Lines, OrderedEntry};
+    use voxrad::solve::dispatch::{dispatch, lexicographic_orders, Lines};
     use voxrad::solve::propagate::{
         find_partners, find_partners_toward, for_each_link, prop_surfels, LineScratch,
     };
@@ -310,23 +310,14 @@ fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
     let key = |l: &voxrad::solve::propagate::Link| {
         (l.receiver, l.which, l.partner, l.share.to_bits(), l.to_side)
     };
+    let orders = lexicographic_orders(&set);
     let (mut full, mut part) = (LineScratch::default(), LineScratch::default());
     let mut checked = 0;
     for d in &voxrad::geometry::directions::DirectionSet::with_count(13).directions {
-        let o = order::order_of(d.vector);
-        let mut ordered: Vec<OrderedEntry> = set
-            .surfels
-            .iter()
-            .enumerate()
-            .map(|(i, s)| OrderedEntry {
-                voxel: s.voxel,
-                index: i as u32,
-            })
-            .collect();
-        ordered.sort_by_key(|e| (order::sort_key(o, e.voxel), e.index));
+        let ordered = &orders[order::order_of(d.vector)];
         let mut lines = Lines::default();
         dispatch(
-            &ordered,
+            ordered,
             &LineFrame::new(d.vector, set.grid.dims),
             1,
             &mut lines,
