@@ -1,7 +1,8 @@
 //! One direction, band by band (see the `outcore` module header): cutting the direction's line
 //! columns into bands that fit the budget, reading a band's ranges of its axis copy, running the
-//! in-memory dispatch and propagation on it, and adding the gathered light to the copy's file
-//! (in place, or read from one file and written to another, see [`CopyFiles::previous`]).
+//! in-memory dispatch and propagation on it (or, once its partner links are kept, replaying
+//! them: `super::links`), and adding the gathered light to the copy's file (in place, or read
+//! from one file and written to another, see [`CopyFiles::previous`]).
 
 use super::budget::MemoryPlan;
 use super::files::{
@@ -366,13 +367,15 @@ impl DirectionPass<'_> {
         let n = surfels as usize;
         let replay = matches!(links, BandLinks::Replay(_));
         buffers.props.clear();
-        buffers.props.reserve_exact(n);
+        // A replay needs neither the static records nor the lines.
+        let searched = if replay { 0 } else { n };
+        buffers.props.reserve_exact(searched);
         buffers.radiosity.clear();
         buffers.radiosity.reserve_exact(n);
         buffers.gathered.clear();
         buffers.gathered.reserve_exact(n);
         buffers.entries.clear();
-        buffers.entries.reserve_exact(n);
+        buffers.entries.reserve_exact(searched);
         let piece = (self.plan.io_bytes / STATIC_LEN).max(1) as u64;
         buffers.bytes.resize(piece as usize * STATIC_LEN, 0);
         for &(start, count) in &buffers.ranges {
