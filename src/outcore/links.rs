@@ -106,9 +106,14 @@ impl Replaying {
             .map_err(|e| OocError::io(&self.path, "read", e))?;
         let word = |k: usize| u64::from_le_bytes(head[8 * k..8 * k + 8].try_into().expect("8"));
         let (count, len) = (word(0), word(1));
-        let bad = |what: String| OocError::BadData {
-            source_name: self.path.display().to_string(),
-            what,
+        // A work file of this solve that does not read back as written: not the user's input
+        // (exit status 1, as any other failed read of a work file).
+        let bad = |what: String| {
+            OocError::io(
+                &self.path,
+                "read",
+                std::io::Error::new(std::io::ErrorKind::InvalidData, what),
+            )
         };
         if count != surfels as u64 || len > 1 << 40 {
             return Err(bad(format!(

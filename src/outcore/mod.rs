@@ -23,6 +23,10 @@
 //! three gather files back to canonical order ([`scatter`]), computes `B = E + rho H / S(n)`
 //! there, and sends the new radiosity back to the three copies.
 //!
+//! **Partner links** ([`links`]): a direction's first pass writes its bands' links to a work
+//! file of its own, within a disk allowance; later iterations replay them band by band instead
+//! of reading the static records, dispatching and searching (the same bits).
+//!
 //! **The direct-light pass** ([`direct`]) for small emitters runs before the iterations, on
 //! parts of the scene that hold its emitters' lines, within the same budget.
 //!
