@@ -466,6 +466,11 @@ fn main() {
                     )
                 })
                 .collect(),
+            materials: set
+                .materials
+                .iter()
+                .map(voxrad::output::results::SideMaterial::of)
+                .collect(),
         };
         let index = voxrad::output::ProbeIndex::new(&results);
         let text = std::fs::read_to_string(format!("{dir}/reference.csv")).unwrap();

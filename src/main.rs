@@ -204,7 +204,8 @@ enum Command {
         #[arg(long, default_value_t = 0)]
         threads: usize,
     },
-    /// Radiosity at given surface points: reads x,y,z,nx,ny,nz rows, prints x,y,z,nx,ny,nz,B_r,B_g,B_b.
+    /// Radiosity and irradiance at given surface points: reads x,y,z,nx,ny,nz rows, prints a
+    /// header and x,y,z,nx,ny,nz,B_r,B_g,B_b,H_r,H_g,H_b rows.
     Probe {
         /// A directory written by `voxrad solve`.
         dir: PathBuf,

@@ -2,7 +2,8 @@
 //!
 //! The brief fixes the command line as an interface other programs rely on: `solve` writes
 //! `report.json` (with a fixed set of keys), the per-voxel results, a coloured `.ply` and a
-//! `render.png`; `probe` prints `x,y,z,nx,ny,nz,B_r,B_g,B_b` rows; `render` writes a PNG; exit
+//! `render.png`; `probe` prints a header and `x,y,z,nx,ny,nz,B_r,B_g,B_b,H_r,H_g,H_b` rows (H the
+//! irradiance); `render` writes a PNG; exit
 //! status is 0 on success and 2 on bad input, with a message naming the file (and the line where
 //! there is one), never a panic; and a failed run loses nothing written before. This file checks
 //! each of those through `std::process::Command`, plus two physical facts seen only through the
@@ -199,10 +200,15 @@ fn furnace_report_balances_energy() {
     assert!((emitted[0] - 6.0).abs() < 0.3, "emitted {}", emitted[0]);
 }
 
-/// Parses probe output rows (9 numbers each).
-fn probe_rows(stdout: &str) -> Vec<[f64; 9]> {
-    stdout
-        .lines()
+/// Parses probe output: the header line, then rows of 12 numbers.
+fn probe_rows(stdout: &str) -> Vec<[f64; 12]> {
+    let mut lines = stdout.lines();
+    assert_eq!(
+        lines.next(),
+        Some("x,y,z,nx,ny,nz,B_r,B_g,B_b,H_r,H_g,H_b"),
+        "{stdout}"
+    );
+    lines
         .filter(|l| !l.trim().is_empty())
         .map(|l| {
             let v: Vec<f64> = l
@@ -213,8 +219,8 @@ fn probe_rows(stdout: &str) -> Vec<[f64; 9]> {
                         .unwrap_or_else(|_| panic!("not a number in {l:?}"))
                 })
                 .collect();
-            assert_eq!(v.len(), 9, "row {l:?}");
-            [v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7], v[8]]
+            assert_eq!(v.len(), 12, "row {l:?}");
+            std::array::from_fn(|i| v[i])
         })
         .collect()
 }
@@ -250,8 +256,17 @@ fn probe_shows_light_and_colour_bleeding_on_the_cornell_floor() {
             row[6..].iter().all(|&b| b > 0.0 && b.is_finite()),
             "floor at ({x}, {z}) is not lit: {row:?}"
         );
+        // The irradiance on the floor, which emits nothing, is its radiosity over its
+        // reflectance (the `white` of examples/cornell_box.mtl: Kd 0.725 0.71 0.68).
+        for (ch, kd) in [0.725, 0.71, 0.68].into_iter().enumerate() {
+            let (b, h) = (row[6 + ch], row[9 + ch]);
+            assert!(
+                (h * kd - b).abs() <= 1e-5 * b,
+                "floor at ({x}, {z}), channel {ch}: H {h} x Kd {kd} is not B {b}"
+            );
+        }
     }
-    let red_green = |r: &[f64; 9]| r[6] / r[7];
+    let red_green = |r: &[f64; 12]| r[6] / r[7];
     for (red, green) in [(1, 2), (3, 4)] {
         assert!(
             red_green(&rows[red]) > red_green(&rows[green]),
@@ -273,10 +288,7 @@ fn probe_shows_light_and_colour_bleeding_on_the_cornell_floor() {
     ]);
     assert_ok(&o, "probe --out");
     let written = std::fs::read_to_string(&csv_out).unwrap();
-    let mut lines = written.lines();
-    assert_eq!(lines.next(), Some("x,y,z,nx,ny,nz,B_r,B_g,B_b"));
-    let rest: String = lines.map(|l| format!("{l}\n")).collect();
-    assert_eq!(probe_rows(&rest), rows);
+    assert_eq!(probe_rows(&written), rows);
 }
 
 #[test]

@@ -5,7 +5,7 @@
 use libfuzzer_sys::fuzz_target;
 use std::path::Path;
 use voxrad::output::probe::{read_points_from, ProbeIndex};
-use voxrad::output::results::{Record, Results};
+use voxrad::output::results::{Record, Results, SideMaterial};
 use voxrad::voxel::Grid;
 
 fuzz_target!(|data: &[u8]| {
@@ -25,8 +25,13 @@ fuzz_target!(|data: &[u8]| {
                         normal: [0.0, 0.0, 1.0],
                         area: 1.0,
                         radiosity: [[1.0; 3], [0.5; 3]],
+                        material: [0, 0],
                     })
                     .collect(),
+                materials: vec![SideMaterial {
+                    reflectance: [0.5, 0.0, 0.25],
+                    emission: [0.0; 3],
+                }],
             };
             let index = ProbeIndex::new(&results);
             for (p, n) in points {

@@ -257,7 +257,8 @@ pub(super) fn write_streamed_outputs(
 ) -> Result<(), AppError> {
     let results_path = staged.path().join(crate::output::RESULTS_FILE);
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
-    let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count).map_err(fail)?;
+    let mut writer = ResultsWriter::create(&results_path, &info.grid, info.count, &info.materials)
+        .map_err(fail)?;
     each(&mut |s, b| {
         writer
             .push(&crate::output::results::Record::from_surfel(s, *b))

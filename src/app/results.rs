@@ -97,7 +97,7 @@ pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), Ap
         None => {
             let stdout = std::io::stdout();
             let mut lock = stdout.lock();
-            probe::write_rows(&mut lock, &rows, false)
+            probe::write_rows(&mut lock, &rows)
                 .map_err(|e| AppError::Failure(format!("cannot write to standard output: {e}")))
         }
     }

@@ -261,6 +261,7 @@ mod tests {
                         normal: [0.0, 0.0, 1.0],
                         area: if i % 3 == 0 { 0.0 } else { 1.0 },
                         radiosity: [[x as f32; 3], [0.0; 3]],
+                        material: [0; 2],
                     }
                 })
                 .collect();

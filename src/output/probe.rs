@@ -16,7 +16,12 @@
 //! A hash map from voxel coordinates to surfel indices makes each lookup touch only the 4x4x4
 //! voxels around the point, whatever the scene size.
 //!
-//! Output rows are `x,y,z,nx,ny,nz,B_r,B_g,B_b`, the point and normal echoed as given.
+//! The irradiance `H` (the light arriving on that side; a side reflects `rho H`) is averaged the
+//! same way from each side's `(B - E) / rho` (see [`Record::irradiance`]); it is NaN in a channel
+//! where a side averaged has no reflectance there, or where the results file predates materials.
+//!
+//! Output is a header line [`PROBE_HEADER`], then rows `x,y,z,nx,ny,nz,B_r,B_g,B_b,H_r,H_g,H_b`,
+//! the point and normal echoed as given.
 
 use super::results::{Record, Results};
 use super::{atomic, OutputError};
@@ -26,6 +31,9 @@ use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
+
+/// The first line of the probe output.
+pub const PROBE_HEADER: &str = "x,y,z,nx,ny,nz,B_r,B_g,B_b,H_r,H_g,H_b";
 
 /// Search radius around the probe point, in voxels.
 pub const PROBE_RADIUS_VOXELS: f64 = 1.5;
@@ -50,6 +58,8 @@ pub struct ProbeRow {
     pub normal: DVec3,
     /// Radiosity on the side facing `normal`, RGB.
     pub radiosity: [f64; 3],
+    /// Irradiance arriving on that side, RGB (NaN where unknown, see the module header).
+    pub irradiance: [f64; 3],
     /// False if no surfel side near the point faces `normal` (then `radiosity` is 0).
     pub found: bool,
     /// Number of surfel sides averaged.
@@ -120,6 +130,7 @@ impl<'a> ProbeIndex<'a> {
             point,
             normal,
             radiosity: [0.0; 3],
+            irradiance: [0.0; 3],
             found: false,
             samples: 0,
         };
@@ -140,7 +151,8 @@ impl<'a> ProbeIndex<'a> {
         }
         // (area, inverse distance, radiosity, height along n above the probe point) of every
         // matching side.
-        let mut matches: Vec<(f64, f64, [f32; 3], f64)> = Vec::new();
+        let materials = &self.results.materials;
+        let mut matches: Vec<Match> = Vec::new();
         for x in lo.x as i32..=hi.x as i32 {
             for y in lo.y as i32..=hi.y as i32 {
                 for z in lo.z as i32..=hi.z as i32 {
@@ -152,8 +164,15 @@ impl<'a> ProbeIndex<'a> {
                         let height = (rec.position() - q).dot(n);
                         for side in [FRONT, BACK] {
                             if rec.side_normal(side).dot(n) > MIN_NORMAL_DOT {
-                                let inv = 1.0 / d.max(1e-3);
-                                matches.push((rec.area as f64, inv, rec.radiosity[side], height));
+                                matches.push(Match {
+                                    area: rec.area as f64,
+                                    inverse_distance: 1.0 / d.max(1e-3),
+                                    radiosity: rec.radiosity[side],
+                                    irradiance: rec
+                                        .irradiance(side, materials)
+                                        .map(|h| h.unwrap_or(f64::NAN)),
+                                    height,
+                                });
                             }
                         }
                     }
@@ -165,17 +184,27 @@ impl<'a> ProbeIndex<'a> {
         }
         let nearest = matches
             .iter()
-            .map(|m| m.3)
+            .map(|m| m.height)
             .min_by(|a, b| a.abs().total_cmp(&b.abs()))
             .unwrap_or(0.0);
-        matches.retain(|m| (m.3 - nearest).abs() <= LAYER_VOXELS);
-        let total_area: f64 = matches.iter().map(|m| m.0).sum();
-        let weight = |m: &(f64, f64, [f32; 3], f64)| if total_area > 0.0 { m.0 } else { m.1 };
+        matches.retain(|m| (m.height - nearest).abs() <= LAYER_VOXELS);
+        let total_area: f64 = matches.iter().map(|m| m.area).sum();
+        let weight = |m: &Match| {
+            if total_area > 0.0 {
+                m.area
+            } else {
+                m.inverse_distance
+            }
+        };
         let total: f64 = matches.iter().map(weight).sum();
         for m in &matches {
             let w = weight(m) / total;
             for c in 0..3 {
-                row.radiosity[c] += w * m.2[c] as f64;
+                row.radiosity[c] += w * m.radiosity[c] as f64;
+                // A side of no weight (a voxel only touched) adds nothing, even an unknown.
+                if w > 0.0 {
+                    row.irradiance[c] += w * m.irradiance[c];
+                }
             }
         }
         row.found = true;
@@ -185,6 +214,16 @@ impl<'a> ProbeIndex<'a> {
 }
 
 /// Reads probe points `(point, normal)` from a CSV file (see the module header).
+/// A surfel side near a probe point that faces the probe's normal.
+struct Match {
+    area: f64,
+    inverse_distance: f64,
+    radiosity: [f32; 3],
+    irradiance: [f64; 3],
+    /// Height of the side's point above the probe point along the normal (voxels).
+    height: f64,
+}
+
 pub fn read_points(path: &Path) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {
     let file = File::open(path).map_err(|source| ProbeError::Io {
         path: path.to_path_buf(),
@@ -284,25 +323,24 @@ pub fn probe(results: &Results, points_csv: &Path) -> Result<Vec<ProbeRow>, Prob
         .collect())
 }
 
-/// Writes probe rows as CSV `x,y,z,nx,ny,nz,B_r,B_g,B_b`, after a header line if `header`.
-pub fn write_rows(out: &mut dyn Write, rows: &[ProbeRow], header: bool) -> std::io::Result<()> {
-    if header {
-        writeln!(out, "x,y,z,nx,ny,nz,B_r,B_g,B_b")?;
-    }
+/// Writes probe rows as CSV: the header line [`PROBE_HEADER`], then
+/// `x,y,z,nx,ny,nz,B_r,B_g,B_b,H_r,H_g,H_b` rows.
+pub fn write_rows(out: &mut dyn Write, rows: &[ProbeRow]) -> std::io::Result<()> {
+    writeln!(out, "{PROBE_HEADER}")?;
     for r in rows {
-        let (p, n, b) = (r.point, r.normal, r.radiosity);
+        let (p, n, b, h) = (r.point, r.normal, r.radiosity, r.irradiance);
         writeln!(
             out,
-            "{},{},{},{},{},{},{},{},{}",
-            p.x, p.y, p.z, n.x, n.y, n.z, b[0], b[1], b[2]
+            "{},{},{},{},{},{},{},{},{},{},{},{}",
+            p.x, p.y, p.z, n.x, n.y, n.z, b[0], b[1], b[2], h[0], h[1], h[2]
         )?;
     }
     Ok(())
 }
 
-/// Writes probe rows to a CSV file (with a header line), atomically.
+/// Writes probe rows to a CSV file, atomically.
 pub fn write_probe_csv(path: &Path, rows: &[ProbeRow]) -> Result<(), OutputError> {
-    atomic::write_atomically(path, |w| write_rows(w, rows, true))
+    atomic::write_atomically(path, |w| write_rows(w, rows))
 }
 
 #[cfg(test)]
@@ -374,11 +412,17 @@ mod tests {
             assert!(!r.found);
             assert_eq!(r.radiosity, [0.0; 3]);
         }
+        // Irradiance: the wall's material reflects half and emits nothing, so H = 2 B.
+        assert_eq!(rows[0].irradiance, [2.0, 4.0, 6.0]);
+        assert_eq!(rows[1].irradiance, [8.0, 10.0, 12.0]);
         let mut out = Vec::new();
-        write_rows(&mut out, &rows[..1], false).unwrap();
+        write_rows(&mut out, &rows[..1]).unwrap();
         assert_eq!(
             String::from_utf8(out).unwrap(),
-            format!("{},1,0,0,1,2,3\n", world(2.5, 3.0, 3.0))
+            format!(
+                "{PROBE_HEADER}\n{},1,0,0,1,2,3,2,4,6\n",
+                world(2.5, 3.0, 3.0)
+            )
         );
         let path = dir.path().join("probes.csv");
         write_probe_csv(&path, &rows).unwrap();

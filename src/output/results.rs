@@ -1,4 +1,6 @@
-//! The per-voxel results file, `surfels.bin`: every surfel with its radiosity on both sides.
+//! The per-voxel results file, `surfels.bin`: every surfel with its radiosity on both sides and
+//! the materials of its sides, so that a reader can tell the light arriving (irradiance) from the
+//! light leaving.
 //!
 //! Binary, little-endian, fixed-size records so a reader can check the length from the header
 //! alone and seek to record `k` at `HEADER_LEN + k * RECORD_LEN`.
@@ -6,14 +8,14 @@
 //! ```text
 //! header (72 bytes)
 //!   0  magic         8 bytes  "VXRSURF\0"
-//!   8  version       u32      1
-//!  12  record_len    u32      64
+//!   8  version       u32      2 (1: records of 64 bytes without materials, still read)
+//!  12  record_len    u32      72
 //!  16  count         u64      number of records
 //!  24  grid.origin   f64 x 3  world position of voxel (0,0,0)'s low corner
 //!  48  grid.voxel_size f64
 //!  56  grid.dims     u32 x 3
-//!  68  reserved      u32      0
-//! records (count x 64 bytes), in the solver's surfel order
+//!  68  materials     u32      number of entries of the material table (version 1: 0)
+//! records (count x 72 bytes), in the solver's surfel order
 //!   0  voxel         i32 x 3  integer voxel coordinates
 //!  12  point         f32 x 3  surface point inside the voxel, voxel units in [0, 1]
 //!                             (world = origin + (voxel + point) * voxel_size; kept relative so
@@ -22,6 +24,10 @@
 //!  36  area          f32      surface area inside the voxel, in voxel_size^2 (0: only touched)
 //!  40  B front       f32 x 3  radiosity of side 0 (facing along normal), RGB, units of Ke
 //!  52  B back        f32 x 3  radiosity of side 1 (facing along -normal)
+//!  64  material      u32 x 2  entry of the material table of the front and the back side
+//! material table (materials x 48 bytes)
+//!   0  reflectance   f64 x 3  rho, RGB (MTL Kd)
+//!  24  emission      f64 x 3  E, RGB (MTL Ke), leaving the side that has this material
 //! footer (20 bytes)
 //!   0  count         u64      the header's count again
 //!   8  crc32         u32      CRC-32 (IEEE) of every byte before the footer
@@ -31,7 +37,8 @@
 //! A file is written to a temporary name and renamed only by [`ResultsWriter::finish`], after
 //! the footer is written and synced, so a file under the real name is always complete. The reader
 //! checks, in order: magic, version (and record length), file length against the header's count
-//! (and the footer), checksum; each error names the file and what is wrong.
+//! and material count (and the footer), checksum, and that every record names a material of the
+//! table; each error names the file and what is wrong.
 
 use super::{atomic, check_pair, OutputError};
 use crate::solve::Solution;
@@ -44,10 +51,34 @@ use tempfile::NamedTempFile;
 
 pub const MAGIC: [u8; 8] = *b"VXRSURF\0";
 pub const END_MAGIC: [u8; 8] = *b"VXREND\0\0";
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 pub const HEADER_LEN: u64 = 72;
-pub const RECORD_LEN: u64 = 64;
+pub const RECORD_LEN: u64 = 72;
 pub const FOOTER_LEN: u64 = 20;
+/// Records of version 1 files (no materials).
+pub const RECORD_LEN_V1: u64 = 64;
+/// Bytes of one entry of the material table.
+pub const MATERIAL_LEN: u64 = 48;
+/// Material index of a record read from a version 1 file (no table).
+pub const NO_MATERIAL: u32 = u32::MAX;
+
+/// What the results file keeps of a material: enough to tell irradiance from radiosity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SideMaterial {
+    /// `rho` per channel.
+    pub reflectance: [f64; 3],
+    /// `E` per channel.
+    pub emission: [f64; 3],
+}
+
+impl SideMaterial {
+    pub fn of(m: &crate::scene::Material) -> Self {
+        SideMaterial {
+            reflectance: m.reflectance,
+            emission: m.emission,
+        }
+    }
+}
 
 /// One surfel and its radiosity, as stored.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -58,6 +89,9 @@ pub struct Record {
     pub area: f32,
     /// `radiosity[side][channel]`, side `FRONT` or `BACK`.
     pub radiosity: [[f32; 3]; 2],
+    /// Index into [`Results::materials`] of each side's material ([`NO_MATERIAL`] when read from
+    /// a version 1 file).
+    pub material: [u32; 2],
 }
 
 impl Record {
@@ -68,6 +102,7 @@ impl Record {
             normal: s.normal,
             area: s.area,
             radiosity,
+            material: s.material,
         }
     }
 
@@ -101,10 +136,12 @@ impl Record {
             .iter()
             .flatten()
             .for_each(|v| put(v.to_le_bytes()));
+        self.material.iter().for_each(|v| put(v.to_le_bytes()));
         b
     }
 
-    fn decode(b: &[u8; RECORD_LEN as usize]) -> Self {
+    /// A record of `b`, which holds 72 bytes (version 2) or 64 (version 1, no materials).
+    fn decode(b: &[u8]) -> Self {
         let word = |i: usize| [b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]];
         let f = |i: usize| f32::from_le_bytes(word(i));
         Record {
@@ -113,7 +150,28 @@ impl Record {
             normal: [f(6), f(7), f(8)],
             area: f(9),
             radiosity: [[f(10), f(11), f(12)], [f(13), f(14), f(15)]],
+            material: if b.len() >= RECORD_LEN as usize {
+                [16, 17].map(|i| u32::from_le_bytes(word(i)))
+            } else {
+                [NO_MATERIAL; 2]
+            },
         }
+    }
+
+    /// The irradiance `H` arriving on side `side` (the light it reflects is `rho H`, so
+    /// `H = (B - E) / rho`), by channel, from the side's material in `materials`; `None` for a
+    /// channel whose reflectance is 0 (nothing tells what arrives there) and for a record without
+    /// materials.
+    pub fn irradiance(&self, side: usize, materials: &[SideMaterial]) -> [Option<f64>; 3] {
+        let Some(m) = materials.get(self.material[side] as usize) else {
+            return [None; 3];
+        };
+        std::array::from_fn(|ch| {
+            let rho = m.reflectance[ch];
+            // `E` as the solver stored it (f32), so that a surface lit by nothing reads 0.
+            let e = m.emission[ch] as f32 as f64;
+            (rho > 0.0).then(|| (self.radiosity[side][ch] as f64 - e) / rho)
+        })
     }
 }
 
@@ -122,6 +180,8 @@ impl Record {
 pub struct Results {
     pub grid: Grid,
     pub records: Vec<Record>,
+    /// The materials the records' sides name (empty for a version 1 file).
+    pub materials: Vec<SideMaterial>,
 }
 
 impl Results {
@@ -136,6 +196,7 @@ impl Results {
                 .zip(&solution.radiosity)
                 .map(|(s, b)| Record::from_surfel(s, *b))
                 .collect(),
+            materials: set.materials.iter().map(SideMaterial::of).collect(),
         })
     }
 
@@ -145,7 +206,7 @@ impl Results {
     }
 }
 
-fn encode_header(grid: &Grid, count: u64) -> [u8; HEADER_LEN as usize] {
+fn encode_header(grid: &Grid, count: u64, materials: u32) -> [u8; HEADER_LEN as usize] {
     let mut h = Vec::with_capacity(HEADER_LEN as usize);
     h.extend_from_slice(&MAGIC);
     h.extend_from_slice(&VERSION.to_le_bytes());
@@ -158,7 +219,7 @@ fn encode_header(grid: &Grid, count: u64) -> [u8; HEADER_LEN as usize] {
     grid.dims
         .iter()
         .for_each(|v| h.extend_from_slice(&v.to_le_bytes()));
-    h.extend_from_slice(&0u32.to_le_bytes());
+    h.extend_from_slice(&materials.to_le_bytes());
     let mut out = [0u8; HEADER_LEN as usize];
     out.copy_from_slice(&h);
     out
@@ -172,11 +233,21 @@ pub struct ResultsWriter {
     hasher: crc32fast::Hasher,
     declared: u64,
     written: u64,
+    materials: Vec<SideMaterial>,
 }
 
 impl ResultsWriter {
-    /// Starts a file that will hold exactly `count` records.
-    pub fn create(path: &Path, grid: &Grid, count: u64) -> Result<Self, OutputError> {
+    /// Starts a file that will hold exactly `count` records whose sides name entries of
+    /// `materials`.
+    pub fn create(
+        path: &Path,
+        grid: &Grid,
+        count: u64,
+        materials: &[crate::scene::Material],
+    ) -> Result<Self, OutputError> {
+        let table_len = u32::try_from(materials.len()).map_err(|_| {
+            OutputError::invalid(path, format!("{} materials is too many", materials.len()))
+        })?;
         let tmp = atomic::temp_beside(path)?;
         let mut w = ResultsWriter {
             path: path.to_path_buf(),
@@ -184,8 +255,9 @@ impl ResultsWriter {
             hasher: crc32fast::Hasher::new(),
             declared: count,
             written: 0,
+            materials: materials.iter().map(SideMaterial::of).collect(),
         };
-        w.put(&encode_header(grid, count))?;
+        w.put(&encode_header(grid, count, table_len))?;
         Ok(w)
     }
 
@@ -201,6 +273,16 @@ impl ResultsWriter {
             return Err(OutputError::invalid(
                 &self.path,
                 format!("more records than the {} declared", self.declared),
+            ));
+        }
+        if let Some(&m) = record
+            .material
+            .iter()
+            .find(|&&m| m as usize >= self.materials.len())
+        {
+            return Err(OutputError::invalid(
+                &self.path,
+                format!("a surfel names material {m} of {}", self.materials.len()),
             ));
         }
         self.put(&record.encode())?;
@@ -219,6 +301,8 @@ impl ResultsWriter {
                 ),
             ));
         }
+        let table = encode_materials(&self.materials);
+        self.put(&table)?;
         let crc = self.hasher.clone().finalize();
         let mut footer = Vec::with_capacity(FOOTER_LEN as usize);
         footer.extend_from_slice(&self.written.to_le_bytes());
@@ -236,6 +320,33 @@ impl ResultsWriter {
     }
 }
 
+fn encode_materials(materials: &[SideMaterial]) -> Vec<u8> {
+    let mut table = Vec::with_capacity(materials.len() * MATERIAL_LEN as usize);
+    for m in materials {
+        for v in m.reflectance.iter().chain(&m.emission) {
+            table.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    table
+}
+
+fn decode_materials(bytes: &[u8]) -> Vec<SideMaterial> {
+    let f = |at: usize| {
+        let mut w = [0u8; 8];
+        w.copy_from_slice(&bytes[at..at + 8]);
+        f64::from_le_bytes(w)
+    };
+    (0..bytes.len() / MATERIAL_LEN as usize)
+        .map(|i| {
+            let at = i * MATERIAL_LEN as usize;
+            SideMaterial {
+                reflectance: [0, 1, 2].map(|c| f(at + 8 * c)),
+                emission: [3, 4, 5].map(|c| f(at + 8 * c)),
+            }
+        })
+        .collect()
+}
+
 /// Writes the results of a solve to `path` and returns the number of records.
 pub fn write_results(
     path: &Path,
@@ -244,7 +355,7 @@ pub fn write_results(
 ) -> Result<u64, OutputError> {
     check_pair(path, set, solution)?;
     let count = set.surfels.len() as u64;
-    let mut w = ResultsWriter::create(path, &set.grid, count)?;
+    let mut w = ResultsWriter::create(path, &set.grid, count, &set.materials)?;
     for (s, b) in set.surfels.iter().zip(&solution.radiosity) {
         w.push(&Record::from_surfel(s, *b))?;
     }
@@ -271,7 +382,7 @@ pub enum ResultsError {
         expected: Vec<u8>,
     },
     #[error(
-        "{} has results format version {found}; this build reads version {expected}",
+        "{} has results format version {found}; this build reads versions 1 to {expected}",
         path.display()
     )]
     UnsupportedVersion {
@@ -283,6 +394,12 @@ pub enum ResultsError {
     BadHeader { path: PathBuf, what: String },
     #[error("{} is truncated or has extra bytes: {what}", path.display())]
     BadLength { path: PathBuf, what: String },
+    #[error("{} has an invalid record {index}: {what}", path.display())]
+    BadRecord {
+        path: PathBuf,
+        index: u64,
+        what: String,
+    },
     #[error(
         "{} is corrupted: checksum {computed:#010x} of its contents does not match the stored \
          {stored:#010x}",
@@ -304,6 +421,7 @@ impl ResultsError {
             | ResultsError::UnsupportedVersion { path, .. }
             | ResultsError::BadHeader { path, .. }
             | ResultsError::BadLength { path, .. }
+            | ResultsError::BadRecord { path, .. }
             | ResultsError::ChecksumMismatch { path, .. } => path,
         }
     }
@@ -318,6 +436,7 @@ pub fn read_results(path: &Path) -> Result<Results, ResultsError> {
     Ok(Results {
         grid: reader.grid,
         records,
+        materials: reader.materials.clone(),
     })
 }
 
@@ -332,6 +451,11 @@ pub struct ResultsReader {
     count: u64,
     stored: u32,
     header: [u8; HEADER_LEN as usize],
+    /// Bytes of one record: [`RECORD_LEN`], or [`RECORD_LEN_V1`] in a version 1 file.
+    record_len: u64,
+    /// The material table as stored (hashed after the records) and decoded.
+    table: Vec<u8>,
+    materials: Vec<SideMaterial>,
 }
 
 impl ResultsReader {
@@ -374,7 +498,7 @@ impl ResultsReader {
         let u64_at = |b: &[u8], i: usize| u64::from_le_bytes(bytes8(b, i));
         let f64_at = |b: &[u8], i: usize| f64::from_le_bytes(bytes8(b, i));
         let version = u32_at(&header, 8);
-        if version != VERSION {
+        if version != VERSION && version != 1 {
             return Err(ResultsError::UnsupportedVersion {
                 path: path.to_path_buf(),
                 found: version,
@@ -387,25 +511,40 @@ impl ResultsReader {
             )));
         }
         let record_len = u32_at(&header, 12);
-        if record_len as u64 != RECORD_LEN {
+        let expected_record = if version == 1 {
+            RECORD_LEN_V1
+        } else {
+            RECORD_LEN
+        };
+        if record_len as u64 != expected_record {
             return Err(ResultsError::BadHeader {
                 path: path.to_path_buf(),
-                what: format!("record length {record_len}, expected {RECORD_LEN}"),
+                what: format!("record length {record_len}, expected {expected_record}"),
             });
         }
         let count = u64_at(&header, 16);
+        let material_count = if version == 1 {
+            0
+        } else {
+            u32_at(&header, 68) as u64
+        };
+        let table_len = material_count * MATERIAL_LEN;
         let expected = count
-            .checked_mul(RECORD_LEN)
-            .and_then(|r| r.checked_add(HEADER_LEN + FOOTER_LEN));
+            .checked_mul(expected_record)
+            .and_then(|r| r.checked_add(HEADER_LEN + FOOTER_LEN + table_len));
         if expected != Some(len) {
             return Err(bad_length(format!(
-                "the header announces {count} records ({} bytes in all) but the file has {len} \
-                 bytes",
+                "the header announces {count} records and {material_count} materials ({} \
+                 bytes in all) but the file has {len} bytes",
                 expected.map_or_else(|| "an impossible number of".to_string(), |e| e.to_string())
             )));
         }
         let body_len = len - FOOTER_LEN;
-        file.seek(SeekFrom::Start(body_len)).map_err(io)?;
+        // The table is small (48 bytes a material) and its length was checked above.
+        let mut table = vec![0u8; table_len as usize];
+        file.seek(SeekFrom::Start(body_len - table_len))
+            .map_err(io)?;
+        file.read_exact(&mut table).map_err(io)?;
         let mut footer = [0u8; FOOTER_LEN as usize];
         file.read_exact(&mut footer).map_err(io)?;
         let footer_count = u64_at(&footer, 0);
@@ -431,6 +570,9 @@ impl ResultsReader {
             count,
             stored,
             header,
+            record_len: expected_record,
+            materials: decode_materials(&table),
+            table,
         })
     }
 
@@ -447,6 +589,11 @@ impl ResultsReader {
         self.count
     }
 
+    /// The material table (empty for a version 1 file).
+    pub fn materials(&self) -> &[SideMaterial] {
+        &self.materials
+    }
+
     /// The records in file order through a buffer of `buffer_bytes`. After the last record,
     /// yields a [`ResultsError::ChecksumMismatch`] if the bytes read do not match the footer.
     pub fn records(&self, buffer_bytes: usize) -> Result<ResultsRecords, ResultsError> {
@@ -460,7 +607,7 @@ impl ResultsReader {
         hasher.update(&self.header);
         Ok(ResultsRecords {
             reader: self.clone(),
-            file: BufReader::with_capacity(buffer_bytes.max(RECORD_LEN as usize), file),
+            file: BufReader::with_capacity(buffer_bytes.max(self.record_len as usize), file),
             hasher,
             left: self.count,
             done: false,
@@ -494,6 +641,7 @@ impl Iterator for ResultsRecords {
         }
         if self.left == 0 {
             self.done = true;
+            self.hasher.update(&self.reader.table);
             let computed = self.hasher.clone().finalize();
             return (computed != self.reader.stored).then(|| {
                 Err(ResultsError::ChecksumMismatch {
@@ -504,16 +652,31 @@ impl Iterator for ResultsRecords {
             });
         }
         let mut buf = [0u8; RECORD_LEN as usize];
-        if let Err(source) = self.file.read_exact(&mut buf) {
+        let buf = &mut buf[..self.reader.record_len as usize];
+        if let Err(source) = self.file.read_exact(buf) {
             self.done = true;
             return Some(Err(ResultsError::Io {
                 path: self.reader.path.clone(),
                 source,
             }));
         }
-        self.hasher.update(&buf);
+        self.hasher.update(buf);
+        let index = self.reader.count - self.left;
         self.left -= 1;
-        Some(Ok(Record::decode(&buf)))
+        let record = Record::decode(buf);
+        let table = self.reader.materials.len();
+        let named = (self.reader.record_len == RECORD_LEN)
+            .then(|| record.material.iter().find(|&&m| m as usize >= table))
+            .flatten();
+        if let Some(&m) = named {
+            self.done = true;
+            return Some(Err(ResultsError::BadRecord {
+                path: self.reader.path.clone(),
+                index,
+                what: format!("its material {m} is not in the table of {table}"),
+            }));
+        }
+        Some(Ok(record))
     }
 
     fn size_hint(&self) -> (usize, Option<usize>) {
@@ -595,7 +758,10 @@ mod tests {
         let back = read_results(&path).unwrap();
         assert_eq!(back, expected);
         let len = std::fs::metadata(&path).unwrap().len();
-        assert_eq!(len, HEADER_LEN + 25 * RECORD_LEN + FOOTER_LEN);
+        assert_eq!(
+            len,
+            HEADER_LEN + 25 * RECORD_LEN + MATERIAL_LEN + FOOTER_LEN
+        );
         // Only the finished file is left: no temporary beside it.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
@@ -672,12 +838,85 @@ mod tests {
         names_file(&e, &path);
     }
 
+    /// A version 1 file (64-byte records, no material table), as solves before materials were
+    /// stored wrote it: read, with the irradiance unknown.
+    #[test]
+    fn version_1_files_are_read_without_materials() {
+        let (_dir, path, expected) = written();
+        let mut v1 = Vec::new();
+        let mut header = encode_header(&expected.grid, 25, 0);
+        header[8..12].copy_from_slice(&1u32.to_le_bytes());
+        header[12..16].copy_from_slice(&(RECORD_LEN_V1 as u32).to_le_bytes());
+        v1.extend_from_slice(&header);
+        for r in &expected.records {
+            v1.extend_from_slice(&r.encode()[..RECORD_LEN_V1 as usize]);
+        }
+        let crc = crc32fast::hash(&v1);
+        v1.extend_from_slice(&25u64.to_le_bytes());
+        v1.extend_from_slice(&crc.to_le_bytes());
+        v1.extend_from_slice(&END_MAGIC);
+        std::fs::write(&path, v1).unwrap();
+        let back = read_results(&path).unwrap();
+        assert!(back.materials.is_empty());
+        assert_eq!(back.records.len(), 25);
+        for (b, e) in back.records.iter().zip(&expected.records) {
+            assert_eq!((b.voxel, b.radiosity), (e.voxel, e.radiosity));
+            assert_eq!(b.material, [NO_MATERIAL; 2]);
+            assert_eq!(b.irradiance(FRONT, &back.materials), [None; 3]);
+        }
+    }
+
+    /// A record naming a material the table does not hold is refused, naming the record.
+    #[test]
+    fn a_material_outside_the_table_is_refused() {
+        let (_dir, path, _) = written();
+        corrupt(&path, |b| {
+            let at = (HEADER_LEN + 3 * RECORD_LEN + 68) as usize;
+            b[at..at + 4].copy_from_slice(&7u32.to_le_bytes());
+            // Keep the checksum right, so that the record check is what fails.
+            let body = b.len() - FOOTER_LEN as usize;
+            let crc = crc32fast::hash(&b[..body]);
+            b[body + 8..body + 12].copy_from_slice(&crc.to_le_bytes());
+        });
+        let e = read_results(&path).unwrap_err();
+        assert!(matches!(e, ResultsError::BadRecord { index: 3, .. }), "{e}");
+        names_file(&e, &path);
+    }
+
+    /// `H = (B - E) / rho` by channel; unknown where the reflectance is 0.
+    #[test]
+    fn irradiance_is_what_the_side_reflects_over_its_reflectance() {
+        let materials = [
+            SideMaterial {
+                reflectance: [0.5, 0.25, 0.0],
+                emission: [0.0; 3],
+            },
+            SideMaterial {
+                reflectance: [0.5; 3],
+                emission: [1.0, 2.0, 0.0],
+            },
+        ];
+        let mut r = Record::from_surfel(
+            &testutil::surfel([0; 3], [0.5; 3], [0.0, 0.0, 1.0], 1.0),
+            [[1.0, 1.0, 1.0], [3.0, 3.0, 3.0]],
+        );
+        r.material = [0, 1];
+        assert_eq!(
+            r.irradiance(FRONT, &materials),
+            [Some(2.0), Some(4.0), None]
+        );
+        assert_eq!(
+            r.irradiance(BACK, &materials),
+            [Some(4.0), Some(2.0), Some(6.0)]
+        );
+    }
+
     #[test]
     fn unfinished_writer_leaves_nothing() {
         let dir = tempfile::TempDir::new().unwrap();
         let path = dir.path().join("surfels.bin");
         let (set, solution) = testutil::lit_square(2);
-        let mut w = ResultsWriter::create(&path, &set.grid, 4).unwrap();
+        let mut w = ResultsWriter::create(&path, &set.grid, 4, &set.materials).unwrap();
         w.push(&Record::from_surfel(&set.surfels[0], solution.radiosity[0]))
             .unwrap();
         let e = w.finish().unwrap_err();

@@ -23,6 +23,9 @@ pub struct ReferenceProbe {
     pub standard_error: f64,
     /// The kind of surface the probe is on (`floor`, `slab -x`, ...); `"all"` without labels.
     pub surface: String,
+    /// `H_r + H_g + H_b`, the irradiance arriving on that side, and its standard error, where the
+    /// file has the columns `H_r,H_g,H_b,se_H_r,se_H_g,se_H_b`.
+    pub irradiance: Option<(f64, f64)>,
 }
 
 /// A scene's reference data.
@@ -53,6 +56,8 @@ pub enum ReferenceError {
 const COLUMNS: [&str; 12] = [
     "x", "y", "z", "nx", "ny", "nz", "B_r", "B_g", "B_b", "se_B_r", "se_B_g", "se_B_b",
 ];
+/// Columns of the irradiance, read where the header has them all.
+const IRRADIANCE_COLUMNS: [&str; 6] = ["H_r", "H_g", "H_b", "se_H_r", "se_H_g", "se_H_b"];
 
 impl Reference {
     /// Reads `dir/reference.csv` and, where it exists, `dir/surfaces.csv`.
@@ -116,14 +121,19 @@ impl Reference {
                     .ok_or_else(|| bad(1, format!("the header has no column '{name}'")))
             })
             .collect::<Result<_, _>>()?;
+        let irradiance_at: Option<Vec<usize>> = IRRADIANCE_COLUMNS
+            .iter()
+            .map(|name| header.iter().position(|h| h == name))
+            .collect();
         let mut probes = Vec::new();
         for (k, line) in lines {
             if line.trim().is_empty() {
                 continue;
             }
             let fields: Vec<&str> = line.split(',').map(str::trim).collect();
-            let mut v = [0.0f64; 12];
-            for (slot, &column) in v.iter_mut().zip(&at) {
+            let mut v = [0.0f64; 18];
+            let columns = at.iter().chain(irradiance_at.iter().flatten());
+            for (slot, &column) in v.iter_mut().zip(columns) {
                 let field = fields
                     .get(column)
                     .ok_or_else(|| bad(k + 1, format!("expected {} columns", header.len())))?;
@@ -139,6 +149,12 @@ impl Reference {
                 radiosity: v[6] + v[7] + v[8],
                 standard_error: (v[9] * v[9] + v[10] * v[10] + v[11] * v[11]).sqrt(),
                 surface: "all".to_string(),
+                irradiance: irradiance_at.is_some().then(|| {
+                    (
+                        v[12] + v[13] + v[14],
+                        (v[15] * v[15] + v[16] * v[16] + v[17] * v[17]).sqrt(),
+                    )
+                }),
             });
         }
         if probes.is_empty() {
@@ -182,6 +198,27 @@ impl Reference {
         }
         Ok(Reference {
             dir: dir.to_path_buf(),
+            probes,
+        })
+    }
+
+    /// The reference for the irradiance `H` in place of the radiosity (so that
+    /// [`Reference::compare`] compares irradiance), where the file has it for every probe.
+    pub fn irradiance(&self) -> Option<Reference> {
+        let probes = self
+            .probes
+            .iter()
+            .map(|p| {
+                p.irradiance.map(|(h, se)| ReferenceProbe {
+                    radiosity: h,
+                    standard_error: se,
+                    irradiance: None,
+                    ..p.clone()
+                })
+            })
+            .collect::<Option<Vec<_>>>()?;
+        Some(Reference {
+            dir: self.dir.clone(),
             probes,
         })
     }
@@ -305,6 +342,23 @@ mod tests {
         assert_eq!(c.compared, 2);
         assert!((c.mean - 0.05).abs() < 1e-12 && (c.max - 0.1).abs() < 1e-12);
         assert!((c.surfaces[0].1 - 0.1).abs() < 1e-12);
+        // No H columns: no irradiance reference.
+        assert!(r.irradiance().is_none());
+    }
+
+    #[test]
+    fn reads_the_irradiance_where_the_header_has_it() {
+        let header = "x,y,z,nx,ny,nz,B_r,B_g,B_b,se_B_r,se_B_g,se_B_b,H_r,H_g,H_b,se_H_r,\
+                      se_H_g,se_H_b,paths\n";
+        let dir = dir_with(&[(
+            "reference.csv",
+            &format!("{header}0,0,0,0,1,0,1,1,1,0,0,0,2,2,4,0.03,0.04,0,100\n"),
+        )]);
+        let r = Reference::load(dir.path()).unwrap();
+        assert_eq!(r.probes[0].irradiance, Some((8.0, 0.05)));
+        let h = r.irradiance().unwrap();
+        assert_eq!(h.probes[0].radiosity, 8.0);
+        assert!((h.compare(&[Some(8.8)]).max - 0.1).abs() < 1e-12);
     }
 
     #[test]
