@@ -5,8 +5,8 @@
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use voxrad::app::{
-    run_generate, run_probe, run_render, run_solve, run_study, AppError, CheckpointOptions,
-    GenerateScene, SolveCommand,
+    run_bake, run_generate, run_probe, run_render, run_solve, run_study, AppError,
+    CheckpointOptions, GenerateScene, SolveCommand,
 };
 use voxrad::distribute::Mode;
 use voxrad::output::report::Report;
@@ -144,6 +144,17 @@ enum Command {
         /// Image size, WIDTHxHEIGHT.
         #[arg(long, default_value = "800x600", value_parser = parse_size)]
         size: (u32, u32),
+    },
+    /// Bake a solve's radiosity onto its scene's triangles: glTF binary (.glb) or PLY mesh (.ply).
+    Bake {
+        /// A directory written by `voxrad solve`.
+        dir: PathBuf,
+        /// The OBJ scene (default: the scene `DIR/report.json` names).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// The file to write: FILE.glb or FILE.ply.
+        #[arg(long)]
+        out: PathBuf,
     },
     /// Write a generated scene (OBJ + MTL) for tests, examples and scale runs.
     Generate {
@@ -533,6 +544,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             size,
         } => run_render(&dir, &out, camera.as_deref(), size),
         Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
+        Command::Bake { dir, scene, out } => run_bake(&dir, scene.as_deref(), &out),
         Command::Study {
             scene,
             out,

@@ -12,11 +12,12 @@ pub(super) fn solve_in_memory_from_scene(
     mode: Mode,
     started: Instant,
 ) -> Result<Report, AppError> {
-    let (set, read_seconds, voxelize_seconds) = if cmd.scene.is_dir() {
+    // The scene's triangles are kept for the baked mesh (a shard set has none).
+    let (set, scene, read_seconds, voxelize_seconds) = if cmd.scene.is_dir() {
         // Distributed: every rank reads the whole shard set (its own copy, or a shared one)
         // into memory.
         let set = load_shard_set(&cmd.scene)?;
-        (set, started.elapsed().as_secs_f64(), 0.0)
+        (set, None, started.elapsed().as_secs_f64(), 0.0)
     } else {
         let scene = load_obj(&cmd.scene).map_err(|e| {
             if e.is_bad_input() {
@@ -35,7 +36,7 @@ pub(super) fn solve_in_memory_from_scene(
         let t = Instant::now();
         let set = voxelize(&scene, cmd.grid)
             .map_err(|e| AppError::BadInput(format!("{}: {e}", cmd.scene.display())))?;
-        (set, read_seconds, t.elapsed().as_secs_f64())
+        (set, Some(scene), read_seconds, t.elapsed().as_secs_f64())
     };
     tracing::info!(
         surfels = set.surfels.len(),
@@ -81,7 +82,13 @@ pub(super) fn solve_in_memory_from_scene(
     // Staged: the earlier outputs stay as they were unless every new one is written.
     let staged = if comm.rank() == 0 {
         let staging = stage(&cmd.out)?;
-        write_outputs(staging.path(), &set, &solution, cmd.image_size)?;
+        write_outputs(
+            staging.path(),
+            &set,
+            &solution,
+            scene.as_ref(),
+            cmd.image_size,
+        )?;
         Some(staging)
     } else {
         None
@@ -290,13 +297,28 @@ pub(super) fn available_memory_bytes() -> Option<u64> {
     Some(kib * 1024)
 }
 
+/// The results file, the previews and, from an OBJ scene, the baked meshes.
 pub(super) fn write_outputs(
     out: &Path,
     set: &SurfelSet,
     solution: &Solution,
+    scene: Option<&crate::scene::Scene>,
     size: (u32, u32),
 ) -> Result<(), AppError> {
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     write_results(&out.join(crate::output::RESULTS_FILE), set, solution).map_err(fail)?;
-    write_previews(out, set, solution, size)
+    let mesh = match scene {
+        Some(scene) => {
+            let results = Results::from_solution(set, solution).map_err(fail)?;
+            Some(write_baked(out, scene, &results)?)
+        }
+        None => {
+            tracing::info!(
+                "a shard set holds no triangles: no baked mesh (`voxrad bake DIR --scene \
+                 SCENE.obj` makes one)"
+            );
+            None
+        }
+    };
+    write_previews(out, set, solution, mesh.as_ref(), size)
 }

@@ -22,7 +22,7 @@ pub use generate::{run_generate, run_study, GenerateScene};
 use in_memory::*;
 use out_of_core::*;
 use results::*;
-pub use results::{run_probe, run_render};
+pub use results::{run_bake, run_probe, run_render};
 
 use crate::checkpoint::{self, CheckpointError, CheckpointFile, Identity, Saver};
 use crate::distribute::data::{solve_data, DataOptions};
@@ -31,11 +31,11 @@ use crate::geometry::directions::DirectionSet;
 use crate::outcore::{
     solve_out_of_core_checkpointed, OocCheckpoints, OocError, ShardSetSource, SurfelSource,
 };
-use crate::output::render::{auto_camera, render_png, Camera};
+use crate::output::render::{auto_camera, render_files, render_mesh_files, render_png, Camera};
 use crate::output::report::{Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results, ResultsWriter};
 use crate::output::staging::Staging;
-use crate::output::{ply, probe, RENDER_FILE};
+use crate::output::{bake, glb, mesh_ply, ply, probe, RENDER_FILE};
 use crate::scene::obj::load_obj;
 use crate::solve::jacobi::{solve_checkpointed, Checkpoints, SolveError};
 use crate::solve::{Solution, SolveOptions};

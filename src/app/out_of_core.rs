@@ -273,13 +273,26 @@ pub(super) fn write_streamed_outputs(
     let in_memory_bytes = info.count * 400;
     if in_memory_bytes <= budget {
         let results = read_results(&results_path).map_err(|e| AppError::Failure(e.to_string()))?;
+        let mesh = if cmd.scene.is_file() {
+            let scene = load_scene_for_baking(&cmd.scene)?;
+            Some(write_baked(staged.path(), &scene, &results)?)
+        } else {
+            None
+        };
         let (set, solution) = from_results(&results);
         drop(results);
-        write_previews(staged.path(), &set, &solution, cmd.image_size)?;
+        write_previews(
+            staged.path(),
+            &set,
+            &solution,
+            mesh.as_ref(),
+            cmd.image_size,
+        )?;
     } else {
         tracing::warn!(
-            "{} surfels: the PLY and the picture are not written within --memory {}; use \
-             `voxrad-shard export` and `voxrad render` with more memory",
+            "{} surfels: the PLY, the picture and the baked meshes are not written within \
+             --memory {}; use `voxrad-shard export`, `voxrad render` and `voxrad bake` with \
+             more memory",
             info.count,
             crate::outcore::budget::format_bytes(budget)
         );

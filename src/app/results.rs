@@ -1,28 +1,30 @@
-//! `voxrad render` and `voxrad probe`: read a solve's results and turn them into a picture or
-//! into values at given points; the previews a solve writes.
+//! `voxrad render`, `voxrad probe` and `voxrad bake`: read a solve's results and turn them into
+//! a picture, into values at given points, or into the scene's mesh with its light baked on; the
+//! previews and baked meshes a solve writes.
 
 use super::*;
 
-/// The PLY and the picture.
+/// The PLY and the pictures (`render.png`, `render.exr`): drawn from the baked mesh where there
+/// is one (smooth), else from the surfels.
 pub(super) fn write_previews(
     out: &Path,
     set: &SurfelSet,
     solution: &Solution,
+    mesh: Option<&bake::BakedMesh>,
     size: (u32, u32),
 ) -> Result<(), AppError> {
     let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
     ply::write_ply(&out.join(crate::output::PLY_FILE), set, solution).map_err(fail)?;
     let camera = auto_camera(set, solution);
-    render_png(
-        &out.join(RENDER_FILE),
-        set,
-        solution,
-        &camera,
-        size.0,
-        size.1,
-    )
-    .map_err(fail)?;
-    Ok(())
+    let (png, exr) = (
+        out.join(RENDER_FILE),
+        out.join(crate::output::RENDER_EXR_FILE),
+    );
+    match mesh {
+        Some(mesh) => render_mesh_files(&png, &exr, mesh, &camera, size.0, size.1),
+        None => render_files(&png, &exr, set, solution, &camera, size.0, size.1),
+    }
+    .map_err(fail)
 }
 
 /// Rebuilds a surfel set and solution from a results file, for rendering.
@@ -101,4 +103,93 @@ pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), Ap
                 .map_err(|e| AppError::Failure(format!("cannot write to standard output: {e}")))
         }
     }
+}
+
+/// Bakes `results` onto `scene`, writes `baked.glb` and `baked.ply` into `out` and returns the
+/// mesh.
+pub(super) fn write_baked(
+    out: &Path,
+    scene: &crate::scene::Scene,
+    results: &Results,
+) -> Result<bake::BakedMesh, AppError> {
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    let t = Instant::now();
+    let mesh = bake::bake(scene, results, &bake::BakeOptions::default());
+    glb::write_glb(&out.join(crate::output::BAKED_GLB_FILE), &mesh).map_err(fail)?;
+    mesh_ply::write_mesh_ply(&out.join(crate::output::BAKED_PLY_FILE), &mesh).map_err(fail)?;
+    tracing::info!(
+        triangles = mesh.triangle_count(),
+        vertices = mesh.positions.len(),
+        seconds = t.elapsed().as_secs_f64(),
+        "baked onto the scene's triangles"
+    );
+    Ok(mesh)
+}
+
+/// Reads the OBJ scene at `path` for baking.
+pub(super) fn load_scene_for_baking(path: &Path) -> Result<crate::scene::Scene, AppError> {
+    load_obj(path).map_err(|e| {
+        if e.is_bad_input() {
+            AppError::BadInput(e.to_string())
+        } else {
+            AppError::Failure(e.to_string())
+        }
+    })
+}
+
+/// `voxrad bake DIR [--scene SCENE.obj] --out FILE.glb|FILE.ply`: the results of a solve baked
+/// onto the triangles of its scene (by default the scene `report.json` names).
+pub fn run_bake(dir: &Path, scene: Option<&Path>, out: &Path) -> Result<(), AppError> {
+    let results = load_results(dir)?;
+    let scene_path = match scene {
+        Some(path) => path.to_path_buf(),
+        None => scene_of_report(dir)?,
+    };
+    if scene_path.is_dir() {
+        return Err(AppError::BadInput(format!(
+            "{}: a shard set holds voxels, not the scene's triangles; give the OBJ scene with \
+             --scene",
+            scene_path.display()
+        )));
+    }
+    let scene = load_scene_for_baking(&scene_path)?;
+    let mesh = bake::bake(&scene, &results, &bake::BakeOptions::default());
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    match out.extension().and_then(|e| e.to_str()) {
+        Some(e) if e.eq_ignore_ascii_case("glb") => {
+            glb::write_glb(out, &mesh).map_err(fail)?;
+        }
+        Some(e) if e.eq_ignore_ascii_case("ply") => {
+            mesh_ply::write_mesh_ply(out, &mesh).map_err(fail)?;
+        }
+        _ => {
+            return Err(AppError::BadInput(format!(
+                "{}: the baked mesh is written as .glb (glTF binary) or .ply",
+                out.display()
+            )))
+        }
+    }
+    Ok(())
+}
+
+/// The scene path `DIR/report.json` names.
+fn scene_of_report(dir: &Path) -> Result<PathBuf, AppError> {
+    let path = dir.join(crate::output::REPORT_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        AppError::BadInput(format!(
+            "{}: {e}; give the scene with --scene",
+            path.display()
+        ))
+    })?;
+    let json: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| AppError::BadInput(format!("{}: {e}", path.display())))?;
+    json.get("scene")
+        .and_then(|s| s.as_str())
+        .map(PathBuf::from)
+        .ok_or_else(|| {
+            AppError::BadInput(format!(
+                "{}: no \"scene\" key; give the scene with --scene",
+                path.display()
+            ))
+        })
 }

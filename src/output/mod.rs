@@ -5,6 +5,9 @@
 //! - [`results`]: the per-voxel results file (`surfels.bin`, checksummed binary) and its reader,
 //!   plus a CSV export for small scenes.
 //! - [`ply`]: surfel sides as coloured points in a binary PLY.
+//! - [`bake`]: the radiosity baked onto the scene's own triangles, cut where the light varies;
+//!   [`glb`] writes that mesh as glTF 2.0 binary (`baked.glb`), [`mesh_ply`] as a PLY mesh
+//!   (`baked.ply`).
 //! - [`render`]: a tone-mapped PNG preview from an automatic or given camera; the tone mapping is
 //!   shared with the PLY so both show the same colours.
 //! - [`probe`]: radiosity at given points and normals, looked up in a results file.
@@ -18,6 +21,9 @@
 //! (corruption vs. I/O, and which CSV line is bad).
 
 pub mod atomic;
+pub mod bake;
+pub mod glb;
+pub mod mesh_ply;
 pub mod ply;
 pub mod probe;
 pub mod render;
@@ -37,7 +43,10 @@ use std::path::{Path, PathBuf};
 pub const REPORT_FILE: &str = "report.json";
 pub const RESULTS_FILE: &str = "surfels.bin";
 pub const RENDER_FILE: &str = "render.png";
+pub const RENDER_EXR_FILE: &str = "render.exr";
 pub const PLY_FILE: &str = "surfels.ply";
+pub const BAKED_GLB_FILE: &str = "baked.glb";
+pub const BAKED_PLY_FILE: &str = "baked.ply";
 
 /// Why an output file could not be written. Every case names the file.
 #[derive(Debug, thiserror::Error)]

@@ -19,6 +19,7 @@
 //! `eye=X,Y,Z;target=X,Y,Z[;up=X,Y,Z][;fov=DEGREES]`, items in any order, world units, `up`
 //! defaulting to `0,1,0` and `fov` (vertical field of view) to 40 degrees.
 
+use super::bake::BakedMesh;
 use super::{atomic, check_pair, luminance, OutputError};
 use crate::solve::Solution;
 use crate::voxel::{SurfelSet, BACK, FRONT};
@@ -180,6 +181,33 @@ impl ToneMap {
         ToneMap::from_luminances(lums)
     }
 
+    /// The tone map of a results file: the same percentile as [`ToneMap::for_solution`], over
+    /// the records' sides that have area or light.
+    pub fn for_results(results: &super::Results) -> ToneMap {
+        let mut lums = Vec::new();
+        for r in &results.records {
+            for side in [FRONT, BACK] {
+                if r.side_is_present(side) {
+                    lums.push(luminance(r.radiosity[side]));
+                }
+            }
+        }
+        ToneMap::from_luminances(lums)
+    }
+
+    /// The display value of a linear radiosity before the sRGB encoding: exposed and clipped to
+    /// `[0, 1]` (0 for NaN).
+    pub fn linear(&self, rgb: [f32; 3]) -> [f32; 3] {
+        rgb.map(|c| {
+            let v = (c as f64 * self.exposure).clamp(0.0, 1.0);
+            if v.is_nan() {
+                0.0
+            } else {
+                v as f32
+            }
+        })
+    }
+
     /// 8-bit sRGB colour of a linear radiosity.
     pub fn map(&self, rgb: [f32; 3]) -> [u8; 3] {
         rgb.map(|c| {
@@ -314,6 +342,83 @@ fn rasterize_every(set: &SurfelSet, solution: &Solution, view: &View, every: usi
     frame
 }
 
+/// Draws the triangles of a baked mesh that face the camera (each side of a two-sided surface
+/// is a triangle of its own), interpolating the radiosity across each with perspective-correct
+/// barycentric weights: a smooth picture, without the voxel squares of [`rasterize`]. A triangle
+/// with a corner behind the near plane is left out (baked triangles are at most a few voxels
+/// across, so only what touches the eye goes).
+fn rasterize_mesh(mesh: &BakedMesh, view: &View, near: f64) -> Frame {
+    let (w, h) = (view.width, view.height);
+    let mut frame = Frame {
+        width: w,
+        depth: vec![f32::INFINITY; w * h],
+        color: vec![[0.0; 3]; w * h],
+    };
+    for t in mesh.indices.chunks_exact(3) {
+        let v = [t[0] as usize, t[1] as usize, t[2] as usize];
+        let p = v.map(|k| DVec3::from(mesh.positions[k].map(f64::from)));
+        let normal = DVec3::from(mesh.normals[v[0]].map(f64::from));
+        if normal.dot(view.eye - p[0]) <= 0.0 {
+            continue;
+        }
+        let d = p.map(|q| q - view.eye);
+        let z = d.map(|q| q.dot(view.forward));
+        if z.iter().any(|&z| z <= near) {
+            continue;
+        }
+        let sx: [f64; 3] =
+            std::array::from_fn(|k| 0.5 * w as f64 + d[k].dot(view.right) * view.focal_px / z[k]);
+        let sy: [f64; 3] =
+            std::array::from_fn(|k| 0.5 * h as f64 - d[k].dot(view.up) * view.focal_px / z[k]);
+        let area = (sx[1] - sx[0]) * (sy[2] - sy[0]) - (sx[2] - sx[0]) * (sy[1] - sy[0]);
+        if area == 0.0 || !area.is_finite() {
+            continue;
+        }
+        let x0 = (sx.iter().copied().fold(f64::INFINITY, f64::min) - 0.5)
+            .ceil()
+            .max(0.0);
+        let x1 = (sx.iter().copied().fold(f64::NEG_INFINITY, f64::max) - 0.5)
+            .floor()
+            .min(w as f64 - 1.0);
+        let y0 = (sy.iter().copied().fold(f64::INFINITY, f64::min) - 0.5)
+            .ceil()
+            .max(0.0);
+        let y1 = (sy.iter().copied().fold(f64::NEG_INFINITY, f64::max) - 0.5)
+            .floor()
+            .min(h as f64 - 1.0);
+        if !(x0 <= x1 && y0 <= y1) {
+            continue;
+        }
+        let inv_z = z.map(|z| 1.0 / z);
+        let b = v.map(|k| mesh.radiosity[k]);
+        for y in y0 as usize..=y1 as usize {
+            let py = y as f64 + 0.5;
+            for x in x0 as usize..=x1 as usize {
+                let px = x as f64 + 0.5;
+                // Screen-space barycentric weights, then perspective-correct ones.
+                let l0 = ((sx[1] - px) * (sy[2] - py) - (sx[2] - px) * (sy[1] - py)) / area;
+                let l1 = ((sx[2] - px) * (sy[0] - py) - (sx[0] - px) * (sy[2] - py)) / area;
+                let l2 = 1.0 - l0 - l1;
+                if l0 < 0.0 || l1 < 0.0 || l2 < 0.0 {
+                    continue;
+                }
+                let q = [l0 * inv_z[0], l1 * inv_z[1], l2 * inv_z[2]];
+                let one_over_z = q[0] + q[1] + q[2];
+                let depth = (1.0 / one_over_z) as f32;
+                let i = y * w + x;
+                if depth < frame.depth[i] {
+                    frame.depth[i] = depth;
+                    frame.color[i] = std::array::from_fn(|c| {
+                        ((q[0] * b[0][c] as f64 + q[1] * b[1][c] as f64 + q[2] * b[2][c] as f64)
+                            / one_over_z) as f32
+                    });
+                }
+            }
+        }
+    }
+    frame
+}
+
 /// A tone-mapped picture.
 pub struct Image {
     pub width: u32,
@@ -331,7 +436,15 @@ fn render_image(
     height: u32,
 ) -> Result<Image, String> {
     let view = View::new(camera, width, height)?;
-    let frame = rasterize(set, solution, &view);
+    Ok(tone_map_frame(
+        &rasterize(set, solution, &view),
+        width,
+        height,
+    ))
+}
+
+/// The frame tone-mapped by the percentile of what it shows, the background grey.
+fn tone_map_frame(frame: &Frame, width: u32, height: u32) -> Image {
     let tone = ToneMap::from_luminances(frame.covered().map(luminance).collect());
     let mut rgb = Vec::with_capacity(frame.color.len() * 3);
     for (d, c) in frame.depth.iter().zip(&frame.color) {
@@ -343,12 +456,12 @@ fn render_image(
         rgb.extend_from_slice(&px);
     }
     debug_assert_eq!(frame.width, width as usize);
-    Ok(Image {
+    Image {
         width,
         height,
         rgb,
         tone,
-    })
+    }
 }
 
 /// Renders the solution seen from `camera` into a `width` x `height` PNG at `path` (atomically).
@@ -363,6 +476,80 @@ pub fn render_png(
     check_pair(path, set, solution)?;
     let image = render_image(set, solution, camera, width, height)
         .map_err(|what| OutputError::invalid(path, what))?;
+    write_png(path, &image)
+}
+
+/// As [`render_png`], also writing the picture's linear radiosity to `exr` (see
+/// [`render_mesh_files`]).
+pub fn render_files(
+    png: &Path,
+    exr: &Path,
+    set: &SurfelSet,
+    solution: &Solution,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+) -> Result<(), OutputError> {
+    check_pair(png, set, solution)?;
+    let view = View::new(camera, width, height).map_err(|what| OutputError::invalid(png, what))?;
+    let frame = rasterize(set, solution, &view);
+    write_png(png, &tone_map_frame(&frame, width, height))?;
+    write_exr(exr, &frame, width as usize, height as usize)
+}
+
+/// Renders the baked mesh seen from `camera` (smooth, see [`rasterize_mesh`]) into a PNG at
+/// `png` and the same picture's linear radiosity into an OpenEXR file at `exr` (RGBA half
+/// floats, alpha 0 where nothing is drawn); both atomically.
+pub fn render_mesh_files(
+    png: &Path,
+    exr: &Path,
+    mesh: &BakedMesh,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+) -> Result<(), OutputError> {
+    let view = View::new(camera, width, height).map_err(|what| OutputError::invalid(png, what))?;
+    let near = 1e-6 * camera.eye.distance(camera.target).max(f64::MIN_POSITIVE);
+    let frame = rasterize_mesh(mesh, &view, near);
+    write_png(png, &tone_map_frame(&frame, width, height))?;
+    write_exr(exr, &frame, width as usize, height as usize)
+}
+
+/// The frame's linear radiosity as OpenEXR: RGBA, 16-bit floats (ZIP compressed), alpha 0 where
+/// nothing is drawn. Encoded in memory (the encoder needs to seek), then written atomically.
+fn write_exr(path: &Path, frame: &Frame, width: usize, height: usize) -> Result<(), OutputError> {
+    use exr::prelude::*;
+    let pixels = SpecificChannels::rgba(|Vec2(x, y): Vec2<usize>| {
+        let i = y * width + x;
+        if frame.depth[i].is_finite() {
+            let c = frame.color[i];
+            (
+                f16::from_f32(c[0]),
+                f16::from_f32(c[1]),
+                f16::from_f32(c[2]),
+                f16::ONE,
+            )
+        } else {
+            (f16::ZERO, f16::ZERO, f16::ZERO, f16::ZERO)
+        }
+    });
+    let mut layer = Layer::new(
+        (width, height),
+        LayerAttributes::named("radiosity"),
+        Encoding::SMALL_LOSSLESS,
+        pixels,
+    );
+    layer.attributes.comments = Some(Text::from("voxrad: linear radiosity B, units of Ke"));
+    let image = exr::prelude::Image::from_layer(layer);
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    image
+        .write()
+        .to_buffered(&mut bytes)
+        .map_err(|e| OutputError::invalid(path, format!("cannot encode OpenEXR: {e}")))?;
+    atomic::write_atomically(path, |w| w.write_all(bytes.get_ref()))
+}
+
+fn write_png(path: &Path, image: &Image) -> Result<(), OutputError> {
     atomic::write_atomically(path, |w| {
         let mut encoder = png::Encoder::new(w, image.width, image.height);
         encoder.set_color(png::ColorType::Rgb);
