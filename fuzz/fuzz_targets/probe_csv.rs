@@ -26,6 +26,7 @@ fuzz_target!(|data: &[u8]| {
                         area: 1.0,
                         radiosity: [[1.0; 3], [0.5; 3]],
                         material: [0, 0],
+                        extent: [[0.0; 3], [1.0; 3]],
                     })
                     .collect(),
                 materials: vec![SideMaterial {

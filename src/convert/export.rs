@@ -262,6 +262,7 @@ mod tests {
                         area: if i % 3 == 0 { 0.0 } else { 1.0 },
                         radiosity: [[x as f32; 3], [0.0; 3]],
                         material: [0; 2],
+                        extent: [[0.0; 3], [1.0; 3]],
                     }
                 })
                 .collect();

@@ -11,6 +11,8 @@
 //! - [`render`]: a tone-mapped PNG preview from an automatic or given camera; the tone mapping is
 //!   shared with the PLY so both show the same colours.
 //! - [`probe`]: radiosity at given points and normals, looked up in a results file.
+//! - [`sensor`]: irradiance at sensor points anywhere (a workplane grid), gathered from the
+//!   results by casting rays.
 //! - [`atomic`]: the temp-file, sync, rename discipline every writer here uses, so a crash or a
 //!   full disk never leaves a half-written file under a real name.
 //! - [`staging`]: a run's outputs written together into a hidden directory and moved into place
@@ -29,6 +31,7 @@ pub mod probe;
 pub mod render;
 pub mod report;
 pub mod results;
+pub mod sensor;
 pub mod staging;
 
 pub use ply::write_ply;

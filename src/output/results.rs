@@ -9,13 +9,13 @@
 //! header (72 bytes)
 //!   0  magic         8 bytes  "VXRSURF\0"
 //!   8  version       u32      2 (1: records of 64 bytes without materials, still read)
-//!  12  record_len    u32      72
+//!  12  record_len    u32      96
 //!  16  count         u64      number of records
 //!  24  grid.origin   f64 x 3  world position of voxel (0,0,0)'s low corner
 //!  48  grid.voxel_size f64
 //!  56  grid.dims     u32 x 3
 //!  68  materials     u32      number of entries of the material table (version 1: 0)
-//! records (count x 72 bytes), in the solver's surfel order
+//! records (count x 96 bytes), in the solver's surfel order
 //!   0  voxel         i32 x 3  integer voxel coordinates
 //!  12  point         f32 x 3  surface point inside the voxel, voxel units in [0, 1]
 //!                             (world = origin + (voxel + point) * voxel_size; kept relative so
@@ -25,6 +25,8 @@
 //!  40  B front       f32 x 3  radiosity of side 0 (facing along normal), RGB, units of Ke
 //!  52  B back        f32 x 3  radiosity of side 1 (facing along -normal)
 //!  64  material      u32 x 2  entry of the material table of the front and the back side
+//!  72  extent        f32 x 6  bounding box of the surface piece inside the voxel (low corner,
+//!                             high corner; voxel units relative to the voxel's low corner)
 //! material table (materials x 48 bytes)
 //!   0  reflectance   f64 x 3  rho, RGB (MTL Kd)
 //!  24  emission      f64 x 3  E, RGB (MTL Ke), leaving the side that has this material
@@ -53,7 +55,7 @@ pub const MAGIC: [u8; 8] = *b"VXRSURF\0";
 pub const END_MAGIC: [u8; 8] = *b"VXREND\0\0";
 pub const VERSION: u32 = 2;
 pub const HEADER_LEN: u64 = 72;
-pub const RECORD_LEN: u64 = 72;
+pub const RECORD_LEN: u64 = 96;
 pub const FOOTER_LEN: u64 = 20;
 /// Records of version 1 files (no materials).
 pub const RECORD_LEN_V1: u64 = 64;
@@ -92,6 +94,9 @@ pub struct Record {
     /// Index into [`Results::materials`] of each side's material ([`NO_MATERIAL`] when read from
     /// a version 1 file).
     pub material: [u32; 2],
+    /// Bounding box of the surface piece in its voxel (see `Surfel::extent`; the whole voxel
+    /// when read from a version 1 file).
+    pub extent: [[f32; 3]; 2],
 }
 
 impl Record {
@@ -103,6 +108,7 @@ impl Record {
             area: s.area,
             radiosity,
             material: s.material,
+            extent: s.extent,
         }
     }
 
@@ -137,10 +143,14 @@ impl Record {
             .flatten()
             .for_each(|v| put(v.to_le_bytes()));
         self.material.iter().for_each(|v| put(v.to_le_bytes()));
+        self.extent
+            .iter()
+            .flatten()
+            .for_each(|v| put(v.to_le_bytes()));
         b
     }
 
-    /// A record of `b`, which holds 72 bytes (version 2) or 64 (version 1, no materials).
+    /// A record of `b`, which holds 96 bytes (version 2) or 64 (version 1, no materials).
     fn decode(b: &[u8]) -> Self {
         let word = |i: usize| [b[4 * i], b[4 * i + 1], b[4 * i + 2], b[4 * i + 3]];
         let f = |i: usize| f32::from_le_bytes(word(i));
@@ -154,6 +164,11 @@ impl Record {
                 [16, 17].map(|i| u32::from_le_bytes(word(i)))
             } else {
                 [NO_MATERIAL; 2]
+            },
+            extent: if b.len() >= RECORD_LEN as usize {
+                [[f(18), f(19), f(20)], [f(21), f(22), f(23)]]
+            } else {
+                [[0.0; 3], [1.0; 3]]
             },
         }
     }
