@@ -160,8 +160,8 @@ impl<'a> SensorField<'a> {
                 continue;
             }
             let g = cos_sensor * cos_emitter / (PI * r2);
-            for ch in 0..3 {
-                h[ch] += e.power[ch] * g;
+            for (v, power) in h.iter_mut().zip(e.power) {
+                *v += power * g;
             }
         }
         h
