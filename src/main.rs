@@ -5,7 +5,7 @@
 use clap::{Parser, Subcommand};
 use std::path::PathBuf;
 use voxrad::app::{
-    run_bake, run_generate, run_probe, run_render, run_solve, run_study, AppError,
+    run_bake, run_generate, run_grid, run_probe, run_render, run_solve, run_study, AppError,
     CheckpointOptions, GenerateScene, SolveCommand,
 };
 use voxrad::distribute::Mode;
@@ -145,6 +145,36 @@ enum Command {
         #[arg(long, default_value = "800x600", value_parser = parse_size)]
         size: (u32, u32),
     },
+    /// Irradiance on a workplane: sensors on a horizontal grid gather the solved light; writes
+    /// PREFIX.csv and PREFIX.png (false colour, with min, mean, max and uniformity).
+    Grid {
+        /// A directory written by `voxrad solve`.
+        dir: PathBuf,
+        /// The plane's height along the up axis (scene units), e.g. 0.8 above a floor at 0.
+        #[arg(long, allow_hyphen_values = true)]
+        height: f64,
+        /// Distance between sensors (scene units).
+        #[arg(long)]
+        spacing: f64,
+        /// Output prefix: writes PREFIX.csv and PREFIX.png.
+        #[arg(long)]
+        out: PathBuf,
+        /// The up axis, which the sensors face.
+        #[arg(long, value_enum, default_value = "y")]
+        up: Axis,
+        /// The plane's extent along the first other axis (x, or y when up is x), LOW,HIGH
+        /// (default: the scene's).
+        #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
+        first: Option<[f64; 2]>,
+        /// The plane's extent along the second other axis (z, or y when up is z), LOW,HIGH
+        /// (default: the scene's).
+        #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
+        second: Option<[f64; 2]>,
+        /// Line directions each sensor gathers the reflected light along (emitters are summed
+        /// one by one besides).
+        #[arg(long, default_value_t = 2000)]
+        directions: usize,
+    },
     /// Bake a solve's radiosity onto its scene's triangles: glTF binary (.glb) or PLY mesh (.ply).
     Bake {
         /// A directory written by `voxrad solve`.
@@ -247,6 +277,14 @@ enum QualityArg {
     Default,
     /// Slow and accurate (resolution 128, 589 directions, tolerance 1e-5).
     High,
+}
+
+/// An axis of the scene.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum Axis {
+    X = 0,
+    Y = 1,
+    Z = 2,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -368,6 +406,17 @@ fn parse_triple(text: &str) -> Result<(usize, usize, usize), String> {
         _ => Err(format!(
             "'{text}' is not XxZxF with whole numbers of at least 1"
         )),
+    }
+}
+
+fn parse_range(text: &str) -> Result<[f64; 2], String> {
+    let (a, b) = text
+        .split_once(',')
+        .ok_or_else(|| format!("'{text}' is not LOW,HIGH"))?;
+    let parse = |s: &str| s.trim().parse::<f64>().ok().filter(|v| v.is_finite());
+    match (parse(a), parse(b)) {
+        (Some(a), Some(b)) if b > a => Ok([a, b]),
+        _ => Err(format!("'{text}' is not LOW,HIGH with LOW < HIGH")),
     }
 }
 
@@ -545,6 +594,25 @@ fn run(cli: Cli) -> Result<(), AppError> {
         } => run_render(&dir, &out, camera.as_deref(), size),
         Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
         Command::Bake { dir, scene, out } => run_bake(&dir, scene.as_deref(), &out),
+        Command::Grid {
+            dir,
+            height,
+            spacing,
+            out,
+            up,
+            first,
+            second,
+            directions,
+        } => {
+            let extent = [first, second];
+            let spec = voxrad::output::grid::GridSpec {
+                up: up as usize,
+                height,
+                spacing,
+                extent,
+            };
+            run_grid(&dir, &spec, directions, &out)
+        }
         Command::Study {
             scene,
             out,

@@ -22,7 +22,7 @@ pub use generate::{run_generate, run_study, GenerateScene};
 use in_memory::*;
 use out_of_core::*;
 use results::*;
-pub use results::{run_bake, run_probe, run_render};
+pub use results::{run_bake, run_grid, run_probe, run_render};
 
 use crate::checkpoint::{self, CheckpointError, CheckpointFile, Identity, Saver};
 use crate::distribute::data::{solve_data, DataOptions};

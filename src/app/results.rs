@@ -3,6 +3,7 @@
 //! previews and baked meshes a solve writes.
 
 use super::*;
+use glam::DVec3;
 
 /// The PLY and the pictures (`render.png`, `render.exr`): drawn from the baked mesh where there
 /// is one (smooth), else from the surfels.
@@ -192,4 +193,57 @@ fn scene_of_report(dir: &Path) -> Result<PathBuf, AppError> {
                 path.display()
             ))
         })
+}
+
+/// `voxrad grid DIR --height H --spacing S --out PREFIX`: irradiance sensors on a workplane,
+/// written to `PREFIX.csv` and `PREFIX.png`; the figures go to standard output.
+pub fn run_grid(
+    dir: &Path,
+    spec: &crate::output::grid::GridSpec,
+    directions: usize,
+    prefix: &Path,
+) -> Result<(), AppError> {
+    let results = load_results(dir)?;
+    if results.materials.is_empty() {
+        return Err(AppError::BadInput(format!(
+            "{}: results written before version 2 of the format do not say which surfaces \
+             emit; solve again to gather irradiance",
+            dir.join(crate::output::RESULTS_FILE).display()
+        )));
+    }
+    let (mut low, mut high) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for r in &results.records {
+        let p = results.world_position(r);
+        low = low.min(p);
+        high = high.max(p);
+    }
+    let t = Instant::now();
+    let field = crate::output::sensor::SensorField::new(&results, directions);
+    let grid = crate::output::grid::GridResult::gather(&field, spec, [low, high])
+        .map_err(AppError::BadInput)?;
+    let with = |ext: &str| {
+        let mut name = prefix.as_os_str().to_owned();
+        name.push(ext);
+        PathBuf::from(name)
+    };
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    grid.write_csv(&with(".csv")).map_err(fail)?;
+    grid.write_png(&with(".png")).map_err(fail)?;
+    let f = grid.figures();
+    println!(
+        "{} x {} sensors at {} = {} ({} directions and {} emitting sides each, {:.1} s): \
+         irradiance min {:.6}, mean {:.6}, max {:.6} (units of Ke), uniformity U0 = min/mean {:.4}",
+        grid.counts[0],
+        grid.counts[1],
+        ["x", "y", "z"][spec.up],
+        spec.height,
+        field.direction_count(),
+        field.emitter_count(),
+        t.elapsed().as_secs_f64(),
+        f.min,
+        f.mean,
+        f.max,
+        f.uniformity
+    );
+    Ok(())
 }

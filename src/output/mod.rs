@@ -11,8 +11,8 @@
 //! - [`render`]: a tone-mapped PNG preview from an automatic or given camera; the tone mapping is
 //!   shared with the PLY so both show the same colours.
 //! - [`probe`]: radiosity at given points and normals, looked up in a results file.
-//! - [`sensor`]: irradiance at sensor points anywhere (a workplane grid), gathered from the
-//!   results by casting rays.
+//! - [`sensor`]: irradiance at sensor points anywhere, gathered from the results by casting
+//!   rays; [`grid`] lays them out on a workplane and writes its CSV and false-colour picture.
 //! - [`atomic`]: the temp-file, sync, rename discipline every writer here uses, so a crash or a
 //!   full disk never leaves a half-written file under a real name.
 //! - [`staging`]: a run's outputs written together into a hidden directory and moved into place
@@ -25,6 +25,7 @@
 pub mod atomic;
 pub mod bake;
 pub mod glb;
+pub mod grid;
 pub mod mesh_ply;
 pub mod ply;
 pub mod probe;

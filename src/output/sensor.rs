@@ -110,6 +110,11 @@ impl<'a> SensorField<'a> {
         }
     }
 
+    /// Number of emitting surfel sides summed one by one.
+    pub fn emitter_count(&self) -> usize {
+        self.emitters.len()
+    }
+
     /// Number of bounce directions (both senses).
     pub fn direction_count(&self) -> usize {
         self.directions.len()
