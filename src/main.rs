@@ -256,6 +256,11 @@ enum Command {
         /// Write the rows to this CSV file instead of standard output.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Gather the light at each point (sensors as `voxrad grid`'s, along this many line
+        /// directions, and every emitter) instead of reading the surfels near it: slower,
+        /// several times closer to a path-traced answer (docs/formats.md).
+        #[arg(long, num_args = 0..=1, default_missing_value = "2000", value_name = "DIRECTIONS")]
+        gather: Option<usize>,
     },
 }
 
@@ -592,7 +597,12 @@ fn run(cli: Cli) -> Result<(), AppError> {
             camera,
             size,
         } => run_render(&dir, &out, camera.as_deref(), size),
-        Command::Probe { dir, points, out } => run_probe(&dir, &points, out.as_deref()),
+        Command::Probe {
+            dir,
+            points,
+            out,
+            gather,
+        } => run_probe(&dir, &points, out.as_deref(), gather),
         Command::Bake { dir, scene, out } => run_bake(&dir, scene.as_deref(), &out),
         Command::Grid {
             dir,

@@ -4,6 +4,7 @@
 
 use super::*;
 use glam::DVec3;
+use rayon::prelude::*;
 
 /// The PLY and the pictures (`render.png`, `render.exr`): drawn from the baked mesh where there
 /// is one (smooth), else from the surfels.
@@ -89,10 +90,27 @@ pub fn run_render(
         .map_err(|e| AppError::Failure(e.to_string()))
 }
 
-/// `voxrad probe DIR --points P.csv`: rows on standard output (or into `out`).
-pub fn run_probe(dir: &Path, points: &Path, out: Option<&Path>) -> Result<(), AppError> {
+/// `voxrad probe DIR --points P.csv [--gather [N]]`: rows on standard output (or into `out`);
+/// with `gather`, each answered by gathering along about that many directions.
+pub fn run_probe(
+    dir: &Path,
+    points: &Path,
+    out: Option<&Path>,
+    gather: Option<usize>,
+) -> Result<(), AppError> {
     let results = load_results(dir)?;
-    let rows = probe::probe(&results, points).map_err(|e| AppError::BadInput(e.to_string()))?;
+    let mut rows = probe::probe(&results, points).map_err(|e| AppError::BadInput(e.to_string()))?;
+    if let Some(directions) = gather {
+        if results.materials.is_empty() {
+            return Err(AppError::BadInput(format!(
+                "{}: results written before version 2 of the format do not say which surfaces \
+                 emit; solve again to gather",
+                dir.join(crate::output::RESULTS_FILE).display()
+            )));
+        }
+        let field = crate::output::sensor::SensorField::new(&results, directions);
+        rows = rows.par_iter().map(|row| field.gather_row(row)).collect();
+    }
     match out {
         Some(path) => {
             probe::write_probe_csv(path, &rows).map_err(|e| AppError::Failure(e.to_string()))

@@ -64,6 +64,8 @@ pub struct ProbeRow {
     pub found: bool,
     /// Number of surfel sides averaged.
     pub samples: usize,
+    /// The material (index into the results' table) of the side of most weight averaged.
+    pub material: Option<u32>,
 }
 
 /// Why probing failed. Every case names the CSV file; row errors also the line (1-based).
@@ -133,6 +135,7 @@ impl<'a> ProbeIndex<'a> {
             irradiance: [0.0; 3],
             found: false,
             samples: 0,
+            material: None,
         };
         let n = normal.normalize_or_zero();
         let q = self.results.grid.to_voxel_units(point);
@@ -172,6 +175,7 @@ impl<'a> ProbeIndex<'a> {
                                         .irradiance(side, materials)
                                         .map(|h| h.unwrap_or(f64::NAN)),
                                     height,
+                                    material: rec.material[side],
                                 });
                             }
                         }
@@ -209,6 +213,11 @@ impl<'a> ProbeIndex<'a> {
         }
         row.found = true;
         row.samples = matches.len();
+        row.material = matches
+            .iter()
+            .max_by(|a, b| weight(a).total_cmp(&weight(b)))
+            .map(|m| m.material)
+            .filter(|&m| (m as usize) < materials.len());
         row
     }
 }
@@ -222,6 +231,7 @@ struct Match {
     irradiance: [f64; 3],
     /// Height of the side's point above the probe point along the normal (voxels).
     height: f64,
+    material: u32,
 }
 
 pub fn read_points(path: &Path) -> Result<Vec<(DVec3, DVec3)>, ProbeError> {

@@ -110,6 +110,27 @@ impl<'a> SensorField<'a> {
         }
     }
 
+    /// `row` (a probe looked up in the same results) answered by gathering instead: the
+    /// irradiance a sensor a thousandth of a voxel off the surface receives, and the radiosity
+    /// `E + rho H` of the surface's side there (its material is the probe's). A row that found
+    /// no surface is returned as it is.
+    pub fn gather_row(&self, row: &super::ProbeRow) -> super::ProbeRow {
+        let Some(m) = row
+            .material
+            .and_then(|m| self.results.materials.get(m as usize))
+        else {
+            return *row;
+        };
+        let n = row.normal.normalize_or_zero();
+        let lift = 1e-3 * self.results.grid.voxel_size;
+        let h = self.irradiance(row.point + n * lift, n);
+        super::ProbeRow {
+            radiosity: std::array::from_fn(|c| m.emission[c] + m.reflectance[c] * h[c]),
+            irradiance: h,
+            ..*row
+        }
+    }
+
     /// Number of emitting surfel sides summed one by one.
     pub fn emitter_count(&self) -> usize {
         self.emitters.len()
