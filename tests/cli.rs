@@ -276,6 +276,30 @@ fn probe_shows_light_and_colour_bleeding_on_the_cornell_floor() {
         );
     }
 
+    // --gather answers the same points by gathering: the same surface, B = E + rho H again,
+    // near the surfels' own reading (this coarse solve's two readings differ by up to 15 %
+    // near the back corners), and the same colour bleeding.
+    let o = voxrad(&["probe", &s(&out), "--points", &s(&csv), "--gather", "400"]);
+    assert_ok(&o, "probe --gather");
+    let gathered = probe_rows(&text(&o.stdout));
+    for (g, row) in gathered.iter().zip(&rows) {
+        assert_eq!(&g[..6], &row[..6]);
+        for (ch, kd) in [0.725, 0.71, 0.68].into_iter().enumerate() {
+            let (b, h) = (g[6 + ch], g[9 + ch]);
+            assert!((h * kd - b).abs() <= 1e-9 * b, "gathered H {h} x Kd {kd} is not B {b}");
+            let near = row[6 + ch];
+            assert!(
+                (b - near).abs() <= 0.3 * near,
+                "gathered {b} vs nearby {near} at {:?}",
+                &row[..3]
+            );
+        }
+    }
+
+    for (red, green) in [(1, 2), (3, 4)] {
+        assert!(red_green(&gathered[red]) > red_green(&gathered[green]));
+    }
+
     // --out writes the same rows as a CSV file with a header.
     let csv_out = tmp.path().join("probed.csv");
     let o = voxrad(&[
