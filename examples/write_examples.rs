@@ -9,5 +9,8 @@ fn main() -> std::io::Result<()> {
     let obj = dir.join("cornell_box.obj");
     voxrad::gen::write_obj(&voxrad::gen::cornell_box(), &obj)?;
     println!("wrote {} and its .mtl", obj.display());
+    let obj = dir.join("office.obj");
+    voxrad::gen::write_obj(&voxrad::gen::office().scene, &obj)?;
+    println!("wrote {} and its .mtl", obj.display());
     Ok(())
 }

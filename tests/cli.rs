@@ -286,7 +286,10 @@ fn probe_shows_light_and_colour_bleeding_on_the_cornell_floor() {
         assert_eq!(&g[..6], &row[..6]);
         for (ch, kd) in [0.725, 0.71, 0.68].into_iter().enumerate() {
             let (b, h) = (g[6 + ch], g[9 + ch]);
-            assert!((h * kd - b).abs() <= 1e-9 * b, "gathered H {h} x Kd {kd} is not B {b}");
+            assert!(
+                (h * kd - b).abs() <= 1e-9 * b,
+                "gathered H {h} x Kd {kd} is not B {b}"
+            );
             let near = row[6 + ch];
             assert!(
                 (b - near).abs() <= 0.3 * near,

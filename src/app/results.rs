@@ -86,8 +86,18 @@ pub fn run_render(
         Some(text) => Camera::parse(text).map_err(|e| AppError::BadInput(e.to_string()))?,
         None => auto_camera(&set, &solution),
     };
-    render_png(out, &set, &solution, &camera, size.0, size.1)
-        .map_err(|e| AppError::Failure(e.to_string()))
+    let fail = |e: crate::output::OutputError| AppError::Failure(e.to_string());
+    // Smooth, from the baked mesh, where the scene the report names is still there (as the
+    // solve's own preview); else the surfels.
+    match scene_of_report(dir).ok().filter(|p| p.is_file()) {
+        Some(scene_path) => {
+            let scene = load_scene_for_baking(&scene_path)?;
+            let mesh = bake::bake(&scene, &results, &bake::BakeOptions::default());
+            crate::output::render::render_mesh_png(out, &mesh, &camera, size.0, size.1)
+                .map_err(fail)
+        }
+        None => render_png(out, &set, &solution, &camera, size.0, size.1).map_err(fail),
+    }
 }
 
 /// `voxrad probe DIR --points P.csv [--gather [N]]`: rows on standard output (or into `out`);

@@ -329,12 +329,17 @@ mod tests {
 
     /// The committed example files are exactly what the generator writes today.
     #[test]
-    fn committed_cornell_example_is_up_to_date() {
+    fn committed_examples_are_up_to_date() {
         let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples");
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("cornell_box.obj");
-        write_obj(&cornell_box(), &path).unwrap();
-        for name in ["cornell_box.obj", "cornell_box.mtl"] {
+        write_obj(&cornell_box(), &dir.path().join("cornell_box.obj")).unwrap();
+        write_obj(&crate::gen::office().scene, &dir.path().join("office.obj")).unwrap();
+        for name in [
+            "cornell_box.obj",
+            "cornell_box.mtl",
+            "office.obj",
+            "office.mtl",
+        ] {
             let fresh = std::fs::read_to_string(dir.path().join(name)).unwrap();
             let committed = std::fs::read_to_string(root.join(name)).unwrap_or_default();
             assert!(

@@ -515,6 +515,20 @@ pub fn render_mesh_files(
     write_exr(exr, &frame, width as usize, height as usize)
 }
 
+/// Renders the baked mesh seen from `camera` into a PNG at `path` (atomically).
+pub fn render_mesh_png(
+    path: &Path,
+    mesh: &BakedMesh,
+    camera: &Camera,
+    width: u32,
+    height: u32,
+) -> Result<(), OutputError> {
+    let view = View::new(camera, width, height).map_err(|what| OutputError::invalid(path, what))?;
+    let near = 1e-6 * camera.eye.distance(camera.target).max(f64::MIN_POSITIVE);
+    let frame = rasterize_mesh(mesh, &view, near);
+    write_png(path, &tone_map_frame(&frame, width, height))
+}
+
 /// The frame's linear radiosity as OpenEXR: RGBA, 16-bit floats (ZIP compressed), alpha 0 where
 /// nothing is drawn. Encoded in memory (the encoder needs to seek), then written atomically.
 fn write_exr(path: &Path, frame: &Frame, width: usize, height: usize) -> Result<(), OutputError> {
