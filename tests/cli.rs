@@ -134,7 +134,15 @@ fn solve_writes_every_output_and_a_complete_report() {
     let tmp = TempDir::new().unwrap();
     let out = tmp.path().join("cornell");
     solve_cornell(&out);
-    for f in ["report.json", "surfels.bin", "surfels.ply", "render.png"] {
+    for f in [
+        "report.json",
+        "surfels.bin",
+        "surfels.ply",
+        "render.png",
+        "render.exr",
+        "baked.glb",
+        "baked.ply",
+    ] {
         let meta = std::fs::metadata(out.join(f)).unwrap_or_else(|_| panic!("{f} missing"));
         assert!(meta.len() > 0, "{f} is empty");
     }
@@ -489,7 +497,15 @@ fn a_failed_solve_keeps_the_earlier_result() {
     let d = tmp.path();
     let out = d.join("out");
     assert_ok(&solve_furnace(d, &out), "solve furnace");
-    let files = ["report.json", "surfels.bin", "surfels.ply", "render.png"];
+    let files = [
+        "report.json",
+        "surfels.bin",
+        "surfels.ply",
+        "render.png",
+        "render.exr",
+        "baked.glb",
+        "baked.ply",
+    ];
     let before: Vec<Vec<u8>> = files
         .iter()
         .map(|f| std::fs::read(out.join(f)).unwrap())

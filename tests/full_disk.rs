@@ -284,7 +284,15 @@ fn solve_on_a_full_disk(base: &Path, full: Full) {
     );
     assert_eq!(
         entries(&out),
-        ["render.png", "report.json", "surfels.bin", "surfels.ply"]
+        [
+            "baked.glb",
+            "baked.ply",
+            "render.exr",
+            "render.png",
+            "report.json",
+            "surfels.bin",
+            "surfels.ply"
+        ]
     );
     assert!(snapshot(&out) != before);
     eprintln!("{what}: exit 1, earlier outputs intact, works again with space");

@@ -245,7 +245,9 @@ struct Number(f64);
 impl std::fmt::Display for Number {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let v = self.0;
-        if v == 0.0 || (1e-3..1e6).contains(&v.abs()) {
+        if v == 0.0 {
+            write!(f, "0")
+        } else if (1e-3..1e6).contains(&v.abs()) {
             let digits = (3 - v.abs().log10().floor() as i32).clamp(0, 6) as usize;
             write!(f, "{v:.digits$}")
         } else {
@@ -323,7 +325,7 @@ mod tests {
 
     #[test]
     fn numbers_read_well() {
-        assert_eq!(Number(0.0).to_string(), "0.000");
+        assert_eq!(Number(0.0).to_string(), "0");
         assert_eq!(Number(123.456).to_string(), "123.5");
         assert_eq!(Number(0.5).to_string(), "0.5000");
         assert_eq!(Number(2.5e7).to_string(), "2.500e7");

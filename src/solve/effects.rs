@@ -272,8 +272,7 @@ impl Analysis {
                     "{share}: {why}. Their direct light was gathered once along {} dense line \
                      directions from the {} lines through them only ({:.3} s, against {:.3} s \
                      for the {} iterations' gathering), and the iterations gathered only the \
-                     reflected light B - E along {} directions. Measured on the Cornell box \
-                     (docs/simulation.md): {}",
+                     reflected light B - E along {} directions. {}.",
                     d.directions,
                     d.lines,
                     d.seconds,
