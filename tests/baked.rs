@@ -10,30 +10,12 @@
 //! - `voxrad bake` writes the same mesh as the solve did, and refuses an unknown extension.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 use tempfile::TempDir;
 use voxrad::study::reference::Reference;
 
-fn voxrad(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_voxrad"))
-        .args(args)
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("run voxrad")
-}
-
-fn assert_ok(out: &Output, what: &str) {
-    assert!(
-        out.status.success(),
-        "{what}: exit {:?}\nstderr:\n{}",
-        out.status.code(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-fn s(p: &Path) -> String {
-    p.display().to_string()
-}
+mod common;
+use common::cli::*;
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -13,60 +13,11 @@
 //! Every test works in its own temporary directory.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use tempfile::TempDir;
 
-fn voxrad(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_voxrad"))
-        .args(args)
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("run voxrad")
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
-
-fn assert_ok(out: &Output, what: &str) {
-    assert!(
-        out.status.success(),
-        "{what}: exit {:?}\nstdout:\n{}\nstderr:\n{}",
-        out.status.code(),
-        text(&out.stdout),
-        text(&out.stderr)
-    );
-}
-
-/// Exit status 2, no panic, and every `needle` in the message.
-fn assert_bad_input(out: &Output, what: &str, needles: &[&str]) {
-    let stderr = text(&out.stderr);
-    assert_eq!(
-        out.status.code(),
-        Some(2),
-        "{what}: expected exit status 2\nstderr:\n{stderr}"
-    );
-    assert!(!stderr.contains("panicked"), "{what}: panicked:\n{stderr}");
-    assert!(!stderr.trim().is_empty(), "{what}: no message");
-    for needle in needles {
-        assert!(
-            stderr.contains(needle),
-            "{what}: message does not mention {needle:?}:\n{stderr}"
-        );
-    }
-}
-
-fn example(name: &str) -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("examples")
-        .join(name)
-        .display()
-        .to_string()
-}
-
-fn s(p: &Path) -> String {
-    p.display().to_string()
-}
+mod common;
+use common::cli::*;
 
 /// Solves the committed Cornell box into `out` (resolution 32, about 100 directions).
 fn solve_cornell(out: &Path) {
@@ -134,15 +85,7 @@ fn solve_writes_every_output_and_a_complete_report() {
     let tmp = TempDir::new().unwrap();
     let out = tmp.path().join("cornell");
     solve_cornell(&out);
-    for f in [
-        "report.json",
-        "surfels.bin",
-        "surfels.ply",
-        "render.png",
-        "render.exr",
-        "baked.glb",
-        "baked.ply",
-    ] {
+    for f in SOLVE_OUTPUTS {
         let meta = std::fs::metadata(out.join(f)).unwrap_or_else(|_| panic!("{f} missing"));
         assert!(meta.len() > 0, "{f} is empty");
     }
@@ -497,15 +440,7 @@ fn a_failed_solve_keeps_the_earlier_result() {
     let d = tmp.path();
     let out = d.join("out");
     assert_ok(&solve_furnace(d, &out), "solve furnace");
-    let files = [
-        "report.json",
-        "surfels.bin",
-        "surfels.ply",
-        "render.png",
-        "render.exr",
-        "baked.glb",
-        "baked.ply",
-    ];
+    let files = SOLVE_OUTPUTS;
     let before: Vec<Vec<u8>> = files
         .iter()
         .map(|f| std::fs::read(out.join(f)).unwrap())

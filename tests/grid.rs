@@ -5,30 +5,10 @@
 //! it, whichever way the rays and the emitter sum share it. The CSV has its header and one row a
 //! sensor; the picture is a PNG; bad options exit with status 2 and say why.
 
-use std::path::Path;
-use std::process::{Command, Output};
 use tempfile::TempDir;
 
-fn voxrad(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_voxrad"))
-        .args(args)
-        .env_remove("RUST_LOG")
-        .output()
-        .expect("run voxrad")
-}
-
-fn assert_ok(out: &Output, what: &str) {
-    assert!(
-        out.status.success(),
-        "{what}: exit {:?}\nstderr:\n{}",
-        out.status.code(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
-fn s(p: &Path) -> String {
-    p.display().to_string()
-}
+mod common;
+use common::cli::*;
 
 #[test]
 fn a_grid_in_a_furnace_reads_its_radiosity_everywhere() {

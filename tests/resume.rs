@@ -72,16 +72,7 @@ fn assert_clean(out: &Path) {
     for entry in std::fs::read_dir(out).unwrap() {
         let name = entry.unwrap().file_name().to_string_lossy().into_owned();
         assert!(
-            [
-                "surfels.bin",
-                "surfels.ply",
-                "render.png",
-                "render.exr",
-                "baked.glb",
-                "baked.ply",
-                "report.json"
-            ]
-            .contains(&name.as_str()),
+            common::cli::SOLVE_OUTPUTS.contains(&name.as_str()),
             "{} left in {}",
             name,
             out.display()

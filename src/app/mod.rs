@@ -31,7 +31,7 @@ use crate::geometry::directions::DirectionSet;
 use crate::outcore::{
     solve_out_of_core_checkpointed, OocCheckpoints, OocError, ShardSetSource, SurfelSource,
 };
-use crate::output::render::{auto_camera, render_files, render_mesh_files, render_png, Camera};
+use crate::output::render::{auto_camera, render_pictures, render_png, Camera, Drawn};
 use crate::output::report::{Report, RunInfo};
 use crate::output::results::{read_results, write_results, Results, ResultsWriter};
 use crate::output::staging::Staging;

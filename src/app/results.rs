@@ -22,11 +22,11 @@ pub(super) fn write_previews(
         out.join(RENDER_FILE),
         out.join(crate::output::RENDER_EXR_FILE),
     );
-    match mesh {
-        Some(mesh) => render_mesh_files(&png, &exr, mesh, &camera, size.0, size.1),
-        None => render_files(&png, &exr, set, solution, &camera, size.0, size.1),
-    }
-    .map_err(fail)
+    let drawn = match mesh {
+        Some(mesh) => Drawn::Mesh(mesh),
+        None => Drawn::Surfels(set, solution),
+    };
+    render_pictures(&png, Some(&exr), drawn, &camera, size.0, size.1).map_err(fail)
 }
 
 /// Rebuilds a surfel set and solution from a results file, for rendering.
@@ -93,8 +93,8 @@ pub fn run_render(
         Some(scene_path) => {
             let scene = load_scene_for_baking(&scene_path)?;
             let mesh = bake::bake(&scene, &results, &bake::BakeOptions::default());
-            crate::output::render::render_mesh_png(out, &mesh, &camera, size.0, size.1)
-                .map_err(fail)
+            let drawn = Drawn::Mesh(&mesh);
+            render_pictures(out, None, drawn, &camera, size.0, size.1).map_err(fail)
         }
         None => render_png(out, &set, &solution, &camera, size.0, size.1).map_err(fail),
     }

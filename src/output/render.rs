@@ -479,54 +479,42 @@ pub fn render_png(
     write_png(path, &image)
 }
 
-/// As [`render_png`], also writing the picture's linear radiosity to `exr` (see
-/// [`render_mesh_files`]).
-pub fn render_files(
-    png: &Path,
-    exr: &Path,
-    set: &SurfelSet,
-    solution: &Solution,
-    camera: &Camera,
-    width: u32,
-    height: u32,
-) -> Result<(), OutputError> {
-    check_pair(png, set, solution)?;
-    let view = View::new(camera, width, height).map_err(|what| OutputError::invalid(png, what))?;
-    let frame = rasterize(set, solution, &view);
-    write_png(png, &tone_map_frame(&frame, width, height))?;
-    write_exr(exr, &frame, width as usize, height as usize)
+/// What a picture is drawn from.
+#[derive(Clone, Copy)]
+pub enum Drawn<'a> {
+    /// The surfels, as squares (a shard set's solve: no triangles).
+    Surfels(&'a SurfelSet, &'a Solution),
+    /// The baked mesh, smooth (see [`rasterize_mesh`]).
+    Mesh(&'a BakedMesh),
 }
 
-/// Renders the baked mesh seen from `camera` (smooth, see [`rasterize_mesh`]) into a PNG at
-/// `png` and the same picture's linear radiosity into an OpenEXR file at `exr` (RGBA half
-/// floats, alpha 0 where nothing is drawn); both atomically.
-pub fn render_mesh_files(
+/// Renders `drawn` seen from `camera` into a PNG at `png` and, if `exr` is given, the same
+/// picture's linear radiosity into an OpenEXR file there (RGBA half floats, alpha 0 where
+/// nothing is drawn); each atomically.
+pub fn render_pictures(
     png: &Path,
-    exr: &Path,
-    mesh: &BakedMesh,
+    exr: Option<&Path>,
+    drawn: Drawn,
     camera: &Camera,
     width: u32,
     height: u32,
 ) -> Result<(), OutputError> {
     let view = View::new(camera, width, height).map_err(|what| OutputError::invalid(png, what))?;
-    let near = 1e-6 * camera.eye.distance(camera.target).max(f64::MIN_POSITIVE);
-    let frame = rasterize_mesh(mesh, &view, near);
+    let frame = match drawn {
+        Drawn::Surfels(set, solution) => {
+            check_pair(png, set, solution)?;
+            rasterize(set, solution, &view)
+        }
+        Drawn::Mesh(mesh) => {
+            let near = 1e-6 * camera.eye.distance(camera.target).max(f64::MIN_POSITIVE);
+            rasterize_mesh(mesh, &view, near)
+        }
+    };
     write_png(png, &tone_map_frame(&frame, width, height))?;
-    write_exr(exr, &frame, width as usize, height as usize)
-}
-
-/// Renders the baked mesh seen from `camera` into a PNG at `path` (atomically).
-pub fn render_mesh_png(
-    path: &Path,
-    mesh: &BakedMesh,
-    camera: &Camera,
-    width: u32,
-    height: u32,
-) -> Result<(), OutputError> {
-    let view = View::new(camera, width, height).map_err(|what| OutputError::invalid(path, what))?;
-    let near = 1e-6 * camera.eye.distance(camera.target).max(f64::MIN_POSITIVE);
-    let frame = rasterize_mesh(mesh, &view, near);
-    write_png(path, &tone_map_frame(&frame, width, height))
+    match exr {
+        Some(exr) => write_exr(exr, &frame, width as usize, height as usize),
+        None => Ok(()),
+    }
 }
 
 /// The frame's linear radiosity as OpenEXR: RGBA, 16-bit floats (ZIP compressed), alpha 0 where

@@ -1,6 +1,7 @@
 //! Helpers shared by the integration tests: small scenes built in code.
 #![allow(dead_code)]
 
+pub mod cli;
 pub mod files;
 pub mod mpi;
 pub mod process;
