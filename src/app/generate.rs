@@ -188,6 +188,7 @@ pub fn run_study(
             iterations = r.iterations,
             seconds = format!("{:.2}", r.seconds),
             mean_error = format!("{:.2e}", r.mean_error),
+            gathered_mean_error = format!("{:.2e}", r.gathered_mean_error),
             "study run"
         );
     })

@@ -198,6 +198,10 @@ pub struct Run {
     pub seconds: f64,
     pub mean_error: f64,
     pub max_error: f64,
+    /// The same errors with each probe answered by gathering (`voxrad probe --gather`,
+    /// [`crate::output::sensor`]); NaN unless the reference is path-traced.
+    pub gathered_mean_error: f64,
+    pub gathered_max_error: f64,
     /// No other run is both faster and more accurate.
     pub pareto: bool,
 }
@@ -264,6 +268,8 @@ pub fn probe_points(scene: &Scene, count: usize, seed: u64) -> Vec<(DVec3, DVec3
 /// the probe), the run's statistics and its time.
 struct Measured {
     values: Vec<Option<f64>>,
+    /// The probes answered by gathering, where asked.
+    gathered: Option<Vec<Option<f64>>>,
     directions: usize,
     direct: usize,
     surfels: usize,
@@ -277,6 +283,7 @@ fn measure(
     settings: Settings,
     probes: &[(DVec3, DVec3)],
     threads: usize,
+    gather: bool,
 ) -> Result<Measured, String> {
     let started = Instant::now();
     let set = voxelize(scene, GridSpec::Resolution(settings.resolution))
@@ -301,15 +308,17 @@ fn measure(
     let seconds = started.elapsed().as_secs_f64();
     let results = Results::from_solution(&set, &solution).map_err(|e| e.to_string())?;
     let index = ProbeIndex::new(&results);
-    let values = probes
-        .iter()
-        .map(|&(p, n)| {
-            let row = index.lookup(p, n);
-            row.found.then(|| row.radiosity.iter().sum())
-        })
-        .collect();
+    let rows: Vec<_> = probes.iter().map(|&(p, n)| index.lookup(p, n)).collect();
+    let sum = |row: &crate::output::ProbeRow| row.found.then(|| row.radiosity.iter().sum());
+    let values = rows.iter().map(sum).collect();
+    // Not part of the timed solve: an answer read afterwards, as `voxrad probe --gather` does.
+    let gathered = gather.then(|| {
+        let field = crate::output::sensor::SensorField::new(&results, GATHER_DIRECTIONS);
+        rows.iter().map(|row| sum(&field.gather_row(row))).collect()
+    });
     Ok(Measured {
         values,
+        gathered,
         directions: solution.stats.directions,
         direct: solution.stats.direct.as_ref().map_or(0, |d| d.directions),
         surfels: set.surfels.len(),
@@ -317,6 +326,9 @@ fn measure(
         seconds,
     })
 }
+
+/// Line directions of the gathered answers (as `voxrad probe --gather`'s default).
+pub const GATHER_DIRECTIONS: usize = 2000;
 
 /// Runs the study; `progress` is told each run as it finishes.
 pub fn run(
@@ -350,7 +362,7 @@ pub fn run(
         ),
         None => {
             let r = plan.reference;
-            let m = measure(&scene.scene, "reference", r, &probes, plan.threads)?;
+            let m = measure(&scene.scene, "reference", r, &probes, plan.threads, false)?;
             (
                 m.values,
                 format!(
@@ -426,8 +438,13 @@ pub fn run(
     }
     let mut runs = Vec::new();
     for (knob, s) in settings {
-        let m = measure(&scene.scene, knob, s, &probes, plan.threads)?;
+        let gather = scene.path_traced.is_some();
+        let m = measure(&scene.scene, knob, s, &probes, plan.threads, gather)?;
         let (mean_error, max_error) = errors(&m.values, &reference);
+        let (gathered_mean_error, gathered_max_error) = m
+            .gathered
+            .as_ref()
+            .map_or((f64::NAN, f64::NAN), |g| errors(g, &reference));
         let run = Run {
             knob,
             settings: s,
@@ -438,6 +455,8 @@ pub fn run(
             seconds: m.seconds,
             mean_error,
             max_error,
+            gathered_mean_error,
+            gathered_max_error,
             pareto: false,
         };
         progress(&run);
@@ -499,11 +518,11 @@ impl Study {
     /// The CSV table: one row per run.
     pub fn csv(&self) -> String {
         let mut out = String::from(
-            "knob,resolution,directions,direct_directions,tolerance,extrapolation,surfels,iterations,seconds,mean_error,max_error,pareto\n",
+            "knob,resolution,directions,direct_directions,tolerance,extrapolation,surfels,iterations,seconds,mean_error,max_error,pareto,gathered_mean_error,gathered_max_error\n",
         );
         for r in &self.runs {
             out.push_str(&format!(
-                "{},{},{},{},{:e},{},{},{},{:.4},{:.6e},{:.6e},{}\n",
+                "{},{},{},{},{:e},{},{},{},{:.4},{:.6e},{:.6e},{},{:.6e},{:.6e}\n",
                 r.knob,
                 r.settings.resolution,
                 r.directions_used,
@@ -515,7 +534,9 @@ impl Study {
                 r.seconds,
                 r.mean_error,
                 r.max_error,
-                r.pareto
+                r.pareto,
+                r.gathered_mean_error,
+                r.gathered_max_error
             ));
         }
         out
@@ -528,16 +549,18 @@ impl Study {
              B_r + B_g + B_b at {} fixed probe points on the non-emitting surfaces (mean and \
              largest over the probes; probes the reference sees below 5 % of its median, such as \
              the floor under a block, are left out). Time: voxelize + solve, wall clock. Each knob is swept \
-             from the same base setting with the others fixed.\n\n",
+             from the same base setting with the others fixed. Gathered: the same probes \
+             answered by gathering the solved light there (`voxrad probe --gather`, not timed; \
+             against a path-traced reference only).\n\n",
             self.scene, self.reference, self.probes
         );
         out.push_str(
-            "| knob | resolution | directions | direct directions | tolerance | extrapolation | iterations | seconds | mean error | max error | Pareto |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|\n",
+            "| knob | resolution | directions | direct directions | tolerance | extrapolation | iterations | seconds | mean error | max error | Pareto | gathered mean | gathered max |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &self.runs {
             out.push_str(&format!(
-                "| {} | {} | {} | {} | {:.0e} | {} | {} | {:.2} | {:.2e} | {:.2e} | {} |\n",
+                "| {} | {} | {} | {} | {:.0e} | {} | {} | {:.2} | {:.2e} | {:.2e} | {} | {} | {} |\n",
                 r.knob,
                 r.settings.resolution,
                 r.directions_used,
@@ -548,7 +571,9 @@ impl Study {
                 r.seconds,
                 r.mean_error,
                 r.max_error,
-                if r.pareto { "*" } else { "" }
+                if r.pareto { "*" } else { "" },
+                shown(r.gathered_mean_error),
+                shown(r.gathered_max_error)
             ));
         }
         out.push_str(&format!(
@@ -564,6 +589,15 @@ impl Study {
             plot::LEGEND
         ));
         out
+    }
+}
+
+/// An error for the Markdown table: `-` where it was not measured.
+fn shown(e: f64) -> String {
+    if e.is_nan() {
+        "-".to_string()
+    } else {
+        format!("{e:.2e}")
     }
 }
 
@@ -596,6 +630,8 @@ mod tests {
             seconds,
             mean_error,
             max_error: mean_error,
+            gathered_mean_error: f64::NAN,
+            gathered_max_error: f64::NAN,
             pareto: false,
         }
     }
