@@ -21,6 +21,7 @@ use super::results::Results;
 use super::{luminance, render::ToneMap};
 use crate::scene::Scene;
 use glam::DVec3;
+use rayon::prelude::*;
 use std::collections::HashMap;
 
 /// How finely triangles are cut.
@@ -85,52 +86,99 @@ impl BakedMesh {
 pub fn bake(scene: &Scene, results: &Results, options: &BakeOptions) -> BakedMesh {
     let index = ProbeIndex::new(results);
     let tone = ToneMap::for_results(results);
-    let mut refine = Refinement {
-        index: &index,
-        voxel: results.grid.voxel_size,
-        options,
-        // Luminances below this are dark for the purpose of cutting: no cut chases noise in the
-        // dark.
-        dark: 1e-3 / tone.exposure,
-        points: Vec::new(),
-        normals: Vec::new(),
-        values: Vec::new(),
-        vertex_at: HashMap::new(),
-        midpoints: HashMap::new(),
-        decisions: HashMap::new(),
-        triangles: Vec::new(),
-        alive: Vec::new(),
-        edges: HashMap::new(),
-    };
-    for triangle in &scene.triangles {
-        let cross = triangle.cross();
-        if cross.length() == 0.0 || !cross.is_finite() {
-            continue;
-        }
-        let normal = cross.normalize();
-        let [a, b, c] = triangle.vertices.map(|p| refine.vertex(p, normal));
-        refine.add([a, b, c]);
-        // The back, where it carries light: the same corners facing the other way, wound the
-        // other way round.
-        let back = triangle.vertices.map(|p| refine.vertex(p, -normal));
-        let centre = (triangle.vertices[0] + triangle.vertices[1] + triangle.vertices[2]) / 3.0;
-        let centre_value = index.lookup(centre, -normal).radiosity.map(|v| v as f32);
-        let lit = back
-            .iter()
-            .map(|&k| refine.values[k])
-            .chain([centre_value])
-            .any(|b| luminance(b) > BACK_LIT / tone.exposure);
-        if lit {
-            refine.add([back[0], back[2], back[1]]);
-        }
-    }
-    refine.run();
+    // Luminances below this are dark for the purpose of cutting: no cut chases noise in the dark.
+    let dark = 1e-3 / tone.exposure;
+    // Triangles share baked vertices only within one plane and side, so each set of coplanar
+    // triangles joined by their corners is cut on its own: in parallel, and holding only that
+    // set's bookkeeping (the whole scene's took about 2 KB a surfel).
+    let parts: Vec<BakedMesh> = plane_components(scene)
+        .par_iter()
+        .map(|triangles| {
+            let mut refine = Refinement::new(&index, results.grid.voxel_size, options, dark);
+            for &t in triangles {
+                refine.add_triangle(&scene.triangles[t], tone);
+            }
+            refine.run();
+            let mut part = BakedMesh::default();
+            refine.append_to(&mut part);
+            part
+        })
+        .collect();
     let mut mesh = BakedMesh {
         tone: Some(tone),
         ..Default::default()
     };
-    refine.append_to(&mut mesh);
+    for part in parts {
+        let base = mesh.positions.len() as u32;
+        mesh.positions.extend(part.positions);
+        mesh.normals.extend(part.normals);
+        mesh.radiosity.extend(part.radiosity);
+        mesh.indices.extend(part.indices.iter().map(|&i| base + i));
+    }
     mesh
+}
+
+/// The unit normal of a triangle's front, if it has one.
+fn front_normal(t: &crate::scene::Triangle) -> Option<DVec3> {
+    let cross = t.cross();
+    (cross.length() > 0.0 && cross.is_finite()).then(|| cross.normalize())
+}
+
+/// The scene's triangles (those with a normal) in sets that may share baked vertices: coplanar
+/// (the same normal up to its sign, bit for bit, as the vertices' keys have it) and joined by
+/// corners, in the order of their first triangles.
+fn plane_components(scene: &Scene) -> Vec<Vec<usize>> {
+    let n = scene.triangles.len();
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(parent: &mut [usize], mut k: usize) -> usize {
+        while parent[k] != k {
+            parent[k] = parent[parent[k]];
+            k = parent[k];
+        }
+        k
+    }
+    let mut first_at: HashMap<([u64; 3], [u64; 3]), usize> = HashMap::new();
+    for (t, triangle) in scene.triangles.iter().enumerate() {
+        let Some(normal) = front_normal(triangle) else {
+            continue;
+        };
+        // One sign for both faces of a plane.
+        let lead = [normal.x, normal.y, normal.z]
+            .into_iter()
+            .find(|&c| c != 0.0)
+            .unwrap_or(1.0);
+        let canonical = if lead > 0.0 { normal } else { -normal };
+        let key_normal = canonical.to_array().map(f64::to_bits);
+        for p in triangle.vertices {
+            let key = (p.to_array().map(f64::to_bits), key_normal);
+            match first_at.get(&key) {
+                Some(&other) => {
+                    let (a, b) = (root(&mut parent, t), root(&mut parent, other));
+                    if a != b {
+                        parent[a.max(b)] = a.min(b);
+                    }
+                }
+                None => {
+                    first_at.insert(key, t);
+                }
+            }
+        }
+    }
+    let mut slot: HashMap<usize, usize> = HashMap::new();
+    let mut components: Vec<Vec<usize>> = Vec::new();
+    for (t, triangle) in scene.triangles.iter().enumerate() {
+        if front_normal(triangle).is_none() {
+            continue;
+        }
+        let r = root(&mut parent, t);
+        let next = components.len();
+        let c = *slot.entry(r).or_insert(next);
+        if c == next {
+            components.push(Vec::new());
+        }
+        components[c].push(t);
+    }
+    components
 }
 
 /// Fraction of the preview's white a triangle's back must reach (at a corner or the centre) to be
@@ -165,8 +213,52 @@ fn edge_key(a: usize, b: usize) -> (usize, usize) {
     (a.min(b), a.max(b))
 }
 
-impl Refinement<'_> {
-    /// The vertex at `p` on the side facing `normal`, with that side's value there.
+impl<'a> Refinement<'a> {
+    fn new(index: &'a ProbeIndex<'a>, voxel: f64, options: &'a BakeOptions, dark: f64) -> Self {
+        Refinement {
+            index,
+            voxel,
+            options,
+            dark,
+            points: Vec::new(),
+            normals: Vec::new(),
+            values: Vec::new(),
+            vertex_at: HashMap::new(),
+            midpoints: HashMap::new(),
+            decisions: HashMap::new(),
+            triangles: Vec::new(),
+            alive: Vec::new(),
+            edges: HashMap::new(),
+        }
+    }
+
+    /// Adds an input triangle's front and, where it carries light ([`BACK_LIT`] of the tone
+    /// map's white), its back: the same corners facing the other way, wound the other way round.
+    fn add_triangle(&mut self, triangle: &crate::scene::Triangle, tone: ToneMap) {
+        let Some(normal) = front_normal(triangle) else {
+            return;
+        };
+        let [a, b, c] = triangle.vertices.map(|p| self.vertex(p, normal));
+        self.add([a, b, c]);
+        let centre = (triangle.vertices[0] + triangle.vertices[1] + triangle.vertices[2]) / 3.0;
+        let centre_value = self
+            .index
+            .lookup(centre, -normal)
+            .radiosity
+            .map(|v| v as f32);
+        let back_values = triangle
+            .vertices
+            .map(|p| self.index.lookup(p, -normal).radiosity.map(|v| v as f32));
+        let lit = back_values
+            .iter()
+            .chain([&centre_value])
+            .any(|b| luminance(*b) > BACK_LIT / tone.exposure);
+        if lit {
+            let back = triangle.vertices.map(|p| self.vertex(p, -normal));
+            self.add([back[0], back[2], back[1]]);
+        }
+    }
+
     fn vertex(&mut self, p: DVec3, normal: DVec3) -> usize {
         let key = (
             p.to_array().map(f64::to_bits),
