@@ -234,8 +234,12 @@ fn luminance_f64(h: [f64; 3]) -> f64 {
     luminance(h.map(|v| v as f32))
 }
 
+/// The viridis colour of `v` between `lo` and `hi`: the lowest where the range is empty (a grid
+/// whose sensors all read alike) or `v` is not a number (plotters' colour map panics on both).
 fn colour(v: f64, lo: f64, hi: f64) -> [u8; 3] {
-    let c = ViridisRGB.get_color_normalized(v as f32, lo as f32, hi as f32);
+    let t = if hi > lo { (v - lo) / (hi - lo) } else { 0.0 };
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    let c = ViridisRGB.get_color_normalized(t as f32, 0.0, 1.0);
     [c.0, c.1, c.2]
 }
 
@@ -329,6 +333,29 @@ mod tests {
         assert_eq!(Number(123.456).to_string(), "123.5");
         assert_eq!(Number(0.5).to_string(), "0.5000");
         assert_eq!(Number(2.5e7).to_string(), "2.500e7");
+    }
+
+    /// A grid whose sensors all read alike, or read NaN, still draws (the colour map of
+    /// plotters panics on an empty range).
+    #[test]
+    fn colours_of_an_empty_range_and_of_nan() {
+        assert_eq!(colour(2.0, 2.0, 2.0), colour(0.0, 0.0, 1.0));
+        assert_eq!(colour(f64::NAN, 0.0, 1.0), colour(0.0, 0.0, 1.0));
+        assert_eq!(colour(5.0, 0.0, 1.0), colour(1.0, 0.0, 1.0));
+        let grid = GridResult {
+            counts: [1, 1],
+            points: vec![DVec3::ZERO],
+            normal: DVec3::Y,
+            irradiance: vec![[1.0; 3]],
+            spec: GridSpec {
+                up: 1,
+                height: 0.0,
+                spacing: 1.0,
+                extent: [None, None],
+            },
+        };
+        let dir = tempfile::TempDir::new().unwrap();
+        grid.write_png(&dir.path().join("one.png")).unwrap();
     }
 
     #[test]
