@@ -25,9 +25,9 @@
 
 use super::results::{Record, Results};
 use super::{atomic, OutputError};
+use crate::solve::mix_hash::MixMap;
 use crate::voxel::{BACK, FRONT};
 use glam::DVec3;
-use std::collections::HashMap;
 use std::fs::File;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
@@ -85,13 +85,29 @@ pub enum ProbeError {
     },
 }
 
+/// A voxel's key in [`ProbeIndex::cells`]: its three coordinates packed 21 bits each, or `None`
+/// outside `0..2^21` (no grid reaches there: `voxelize::MAX_GRID_EDGE` is 2^20).
+fn cell_key(voxel: [i32; 3]) -> Option<u64> {
+    const BITS: u32 = 21;
+    let mut key = 0u64;
+    for c in voxel {
+        if !(0..1 << BITS).contains(&c) {
+            return None;
+        }
+        key = key << BITS | c as u64;
+    }
+    Some(key)
+}
+
 /// Surfels of a results file, indexed by voxel for fast neighbourhood lookups.
 pub struct ProbeIndex<'a> {
     results: &'a Results,
     /// Record indices sorted by voxel, so each voxel's records are one contiguous run.
     order: Vec<usize>,
-    /// Voxel -> (start, length) of its run in `order`.
-    cells: HashMap<[i32; 3], (usize, usize)>,
+    /// Voxel (by [`cell_key`]) -> (start, length) of its run in `order`. Baking looks up every
+    /// vertex's neighbourhood, 27 voxels each: with the standard library's SipHash these look-ups
+    /// were a tenth of a whole solve of the Cornell box at resolution 128.
+    cells: MixMap<(usize, usize)>,
 }
 
 impl<'a> ProbeIndex<'a> {
@@ -100,7 +116,7 @@ impl<'a> ProbeIndex<'a> {
         let mut order: Vec<usize> = (0..records.len()).collect();
         // Stable, so records of one voxel keep their file order (deterministic averages).
         order.sort_by_key(|&i| records[i].voxel);
-        let mut cells = HashMap::new();
+        let mut cells = MixMap::default();
         let mut start = 0;
         while start < order.len() {
             let voxel = records[order[start]].voxel;
@@ -108,7 +124,9 @@ impl<'a> ProbeIndex<'a> {
             while end < order.len() && records[order[end]].voxel == voxel {
                 end += 1;
             }
-            cells.insert(voxel, (start, end - start));
+            if let Some(key) = cell_key(voxel) {
+                cells.insert(key, (start, end - start));
+            }
             start = end;
         }
         ProbeIndex {
@@ -119,7 +137,9 @@ impl<'a> ProbeIndex<'a> {
     }
 
     fn records_in(&self, voxel: [i32; 3]) -> impl Iterator<Item = &Record> + '_ {
-        let (start, len) = self.cells.get(&voxel).copied().unwrap_or((0, 0));
+        let (start, len) = cell_key(voxel)
+            .and_then(|key| self.cells.get(&key).copied())
+            .unwrap_or((0, 0));
         self.order[start..start + len]
             .iter()
             .map(move |&i| &self.results.records[i])

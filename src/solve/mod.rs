@@ -13,7 +13,7 @@ pub mod effects;
 pub mod iterate;
 pub mod jacobi;
 pub mod links;
-mod mix_hash;
+pub(crate) mod mix_hash;
 pub mod normalize;
 pub mod propagate;
 pub mod stats;
