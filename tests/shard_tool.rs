@@ -9,6 +9,7 @@
 
 mod common;
 
+use common::cli::{assert_bad_input, assert_ok, s, text};
 use common::files::{copy_dir, edit};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -25,41 +26,6 @@ fn shard_tool(args: &[&str]) -> Output {
         .env_remove("RUST_LOG")
         .output()
         .expect("run voxrad-shard")
-}
-
-fn text(bytes: &[u8]) -> String {
-    String::from_utf8_lossy(bytes).into_owned()
-}
-
-fn s(p: &Path) -> String {
-    p.display().to_string()
-}
-
-fn assert_ok(out: &Output, what: &str) {
-    assert!(
-        out.status.success(),
-        "{what}: exit {:?}\nstdout:\n{}\nstderr:\n{}",
-        out.status.code(),
-        text(&out.stdout),
-        text(&out.stderr)
-    );
-}
-
-/// Exit status 2, no panic, and every `needle` in the message.
-fn assert_bad_input(out: &Output, what: &str, needles: &[&str]) {
-    let stderr = text(&out.stderr);
-    assert_eq!(
-        out.status.code(),
-        Some(2),
-        "{what}: expected exit status 2\nstderr:\n{stderr}"
-    );
-    assert!(!stderr.contains("panicked"), "{what}: panicked:\n{stderr}");
-    for needle in needles {
-        assert!(
-            stderr.contains(needle),
-            "{what}: message does not mention {needle:?}:\n{stderr}"
-        );
-    }
 }
 
 fn cornell() -> PathBuf {
