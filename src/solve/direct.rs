@@ -408,12 +408,24 @@ struct Buffers {
     scratch: LineScratch,
     /// This direction's emitting plane sides, and where each is in `senders`.
     senders: Vec<Sender>,
-    sender_at: HashMap<(u32, usize), usize>,
+    /// By [`sender_key`]: the solver's hash, not SipHash, which took a twentieth of a direct
+    /// pass (a look-up per link from an emitter).
+    sender_at: MixMap<usize>,
     /// By line position: the share of its ray ahead and behind that meets a surface.
     totals: Vec<[f64; 2]>,
     /// This direction's light from emitters: (receiver, its side, sender, light before the
     /// sender's scale, the weight it was gathered with).
     contributions: Vec<(u32, u8, u32, [f64; 3], f64)>,
+}
+
+/// A sender's key in [`Buffers::sender_at`]: its plane group and side in one `u64`.
+fn sender_key(group: u32, side: usize) -> u64 {
+    (group as u64) << 1 | side as u64
+}
+
+/// The plane group and side of a [`sender_key`].
+fn sender_of_key(key: u64) -> (u32, usize) {
+    ((key >> 1) as u32, (key & 1) as usize)
 }
 
 /// One side of an emitting plane in one direction: the power its receivers gathered from it and
@@ -509,7 +521,7 @@ impl Context<'_> {
         out.senders = b
             .sender_at
             .iter()
-            .map(|(&key, &i)| (key, b.senders[i]))
+            .map(|(&key, &i)| (sender_of_key(key), b.senders[i]))
             .collect();
         // In a fixed order: the hash map's is not.
         out.senders.sort_by_key(|s| s.0);
@@ -522,7 +534,7 @@ impl Context<'_> {
         let renumber: Vec<u32> = {
             let mut r = vec![0; b.senders.len()];
             for (&key, &i) in &b.sender_at {
-                r[i] = order[&key];
+                r[i] = order[&sender_of_key(key)];
             }
             r
         };
@@ -548,7 +560,7 @@ impl Context<'_> {
             ..
         } = b;
         let mut sender_index = |senders: &mut Vec<Sender>, group: u32, side: usize| {
-            *sender_at.entry((group, side)).or_insert_with(|| {
+            *sender_at.entry(sender_key(group, side)).or_insert_with(|| {
                 senders.push(Sender::default());
                 senders.len() - 1
             })
