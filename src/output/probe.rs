@@ -85,26 +85,12 @@ pub enum ProbeError {
     },
 }
 
-/// A voxel's key in [`ProbeIndex::cells`]: its three coordinates packed 21 bits each, or `None`
-/// outside `0..2^21` (no grid reaches there: `voxelize::MAX_GRID_EDGE` is 2^20).
-fn cell_key(voxel: [i32; 3]) -> Option<u64> {
-    const BITS: u32 = 21;
-    let mut key = 0u64;
-    for c in voxel {
-        if !(0..1 << BITS).contains(&c) {
-            return None;
-        }
-        key = key << BITS | c as u64;
-    }
-    Some(key)
-}
-
 /// Surfels of a results file, indexed by voxel for fast neighbourhood lookups.
 pub struct ProbeIndex<'a> {
     results: &'a Results,
     /// Record indices sorted by voxel, so each voxel's records are one contiguous run.
     order: Vec<usize>,
-    /// Voxel (by [`cell_key`]) -> (start, length) of its run in `order`. Baking looks up every
+    /// Voxel (by `voxel::packed_voxel`) -> (start, length) of its run in `order`. Baking looks up every
     /// vertex's neighbourhood, 27 voxels each: with the standard library's SipHash these look-ups
     /// were a tenth of a whole solve of the Cornell box at resolution 128.
     cells: MixMap<(usize, usize)>,
@@ -124,7 +110,7 @@ impl<'a> ProbeIndex<'a> {
             while end < order.len() && records[order[end]].voxel == voxel {
                 end += 1;
             }
-            if let Some(key) = cell_key(voxel) {
+            if let Some(key) = crate::voxel::packed_voxel(voxel) {
                 cells.insert(key, (start, end - start));
             }
             start = end;
@@ -137,7 +123,7 @@ impl<'a> ProbeIndex<'a> {
     }
 
     fn records_in(&self, voxel: [i32; 3]) -> impl Iterator<Item = &Record> + '_ {
-        let (start, len) = cell_key(voxel)
+        let (start, len) = crate::voxel::packed_voxel(voxel)
             .and_then(|key| self.cells.get(&key).copied())
             .unwrap_or((0, 0));
         self.order[start..start + len]

@@ -19,9 +19,9 @@
 
 use super::results::Results;
 use crate::geometry::directions::DirectionSet;
-use crate::voxel::{BACK, FRONT};
+use crate::solve::mix_hash::MixMap;
+use crate::voxel::{packed_voxel, BACK, FRONT};
 use glam::DVec3;
-use std::collections::HashMap;
 use std::f64::consts::PI;
 
 /// Rays start this far (voxels) along their direction from the sensor, so that a sensor laid on
@@ -41,8 +41,9 @@ struct Emitter {
 /// The records of a results file, indexed for ray casting, and its emitting sides.
 pub struct SensorField<'a> {
     results: &'a Results,
-    /// Record indices by voxel.
-    cells: HashMap<[i32; 3], Vec<u32>>,
+    /// Record indices by voxel (`voxel::packed_voxel`), in the solver's fast hash map: a ray
+    /// looks up every voxel it crosses.
+    cells: MixMap<Vec<u32>>,
     /// The grid's box in voxels (inclusive low corner, exclusive high).
     low: [i32; 3],
     high: [i32; 3],
@@ -65,12 +66,14 @@ impl<'a> SensorField<'a> {
     /// Indexes `results` (whose sides' emission comes from its material table) for sensors that
     /// gather along about `directions` line directions.
     pub fn new(results: &'a Results, directions: usize) -> Self {
-        let mut cells: HashMap<[i32; 3], Vec<u32>> = HashMap::new();
+        let mut cells: MixMap<Vec<u32>> = MixMap::default();
         let (mut low, mut high) = ([i32::MAX; 3], [i32::MIN; 3]);
         let mut emitters = Vec::new();
         let mut emits = Vec::with_capacity(results.records.len());
         for (k, r) in results.records.iter().enumerate() {
-            cells.entry(r.voxel).or_default().push(k as u32);
+            if let Some(key) = packed_voxel(r.voxel) {
+                cells.entry(key).or_default().push(k as u32);
+            }
             for a in 0..3 {
                 low[a] = low[a].min(r.voxel[a]);
                 high[a] = high[a].max(r.voxel[a] + 1);
@@ -269,7 +272,7 @@ impl<'a> SensorField<'a> {
     /// The nearest crossing of the ray with a plane of a surfel of `cell` that lies inside the
     /// cell, at a distance between [`START`] and `max_t`.
     fn hit_in(&self, cell: [i32; 3], p: DVec3, d: DVec3, max_t: f64) -> Option<Hit> {
-        let records = self.cells.get(&cell)?;
+        let records = self.cells.get(&packed_voxel(cell)?)?;
         let mut best: Option<Hit> = None;
         let slack = 1e-6;
         for &k in records {

@@ -16,6 +16,21 @@ pub mod voxelize;
 
 use glam::DVec3;
 
+/// A voxel's three coordinates packed 21 bits each into one `u64` (a key for the solver's fast
+/// hash map, `solve::mix_hash`), or `None` outside `0..2^21`, where no grid reaches
+/// (`voxelize::MAX_GRID_EDGE` is 2^20): a look-up there finds nothing.
+pub fn packed_voxel(voxel: [i32; 3]) -> Option<u64> {
+    const BITS: u32 = 21;
+    let mut key = 0u64;
+    for c in voxel {
+        if !(0..1 << BITS).contains(&c) {
+            return None;
+        }
+        key = key << BITS | c as u64;
+    }
+    Some(key)
+}
+
 /// The voxel grid: world position of voxel `(0, 0, 0)`'s low corner, the edge length of a voxel,
 /// and the number of voxels along each axis.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
