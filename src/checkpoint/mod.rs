@@ -64,9 +64,18 @@ use std::time::{Duration, Instant};
 /// The checkpoint's name inside the out directory.
 pub const FILE_NAME: &str = "checkpoint.bin";
 
+/// The prefix of a rank's work directory in the data and hybrid modes out of core (followed by
+/// the rank and `-`).
+pub const RANK_WORK_DIR_PREFIX: &str = ".voxrad-rank";
+
 /// Prefixes of the work directories a solve makes inside its out directory (removed when it
 /// ends, but left behind by a process that was killed).
-pub const WORK_DIR_PREFIXES: [&str; 3] = [".voxrad-work-", ".voxrad-shards-", ".voxrad-new-"];
+pub const WORK_DIR_PREFIXES: [&str; 4] = [
+    ".voxrad-work-",
+    ".voxrad-shards-",
+    ".voxrad-new-",
+    RANK_WORK_DIR_PREFIX,
+];
 
 /// The checkpoint path of the out directory `out`.
 pub fn path_in(out: &Path) -> PathBuf {
@@ -135,6 +144,46 @@ pub fn remove_finished(out: &Path) {
 mod tests {
     use super::*;
     use crate::comm::SingleProcess;
+
+    #[test]
+    fn what_a_killed_run_left_is_removed_and_nothing_else() {
+        let out = tempfile::TempDir::new().unwrap();
+        // The names the solvers give their work directories (a data-mode rank's was missed
+        // once, and a killed run's stayed behind for good).
+        let left = [
+            ".voxrad-work-a1",
+            ".voxrad-shards-b2",
+            ".voxrad-shards-rank1-c3",
+            ".voxrad-new-d4",
+            ".voxrad-rank0-e5",
+            ".voxrad-rank12-f6",
+        ];
+        for name in left {
+            std::fs::create_dir(out.path().join(name)).unwrap();
+            std::fs::write(out.path().join(name).join("work.bin"), b"x").unwrap();
+        }
+        std::fs::write(out.path().join("checkpoint.bin.partial"), b"x").unwrap();
+        let kept = ["checkpoint.bin", "report.json", "voxrad-rank-notes"];
+        for name in kept {
+            std::fs::write(out.path().join(name), b"x").unwrap();
+        }
+        std::fs::create_dir(out.path().join("rank0")).unwrap();
+        remove_leftovers(out.path());
+        let mut now: Vec<String> = std::fs::read_dir(out.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        now.sort();
+        assert_eq!(
+            now,
+            [
+                "checkpoint.bin",
+                "rank0",
+                "report.json",
+                "voxrad-rank-notes"
+            ]
+        );
+    }
 
     #[test]
     fn a_checkpoint_of_another_run_is_refused_with_the_difference() {

@@ -243,7 +243,7 @@ impl Solver<'_> {
         };
         crate::outcore::workset::check_free_space(work_parent, 3 * share + canonical_bytes)?;
         let work = tempfile::Builder::new()
-            .prefix(&format!(".voxrad-rank{me}-"))
+            .prefix(&format!("{}{me}-", crate::checkpoint::RANK_WORK_DIR_PREFIX))
             .tempdir_in(work_parent)
             .map_err(|e| OocError::io(work_parent, "create a work directory in", e))?;
         let dir = work.path();
