@@ -103,6 +103,12 @@ enum Command {
         /// disk left free once the work files are made, shared by the ranks on one node).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes_or_zero)]
         links_disk: Option<u64>,
+        /// Out of core: make the work files (read and written in every iteration) and an OBJ
+        /// scene's temporary shard set under this directory instead of under --out, for example
+        /// on a node-local disk while --out is on a shared file system. Each --out gets its own
+        /// subdirectory there; checkpoints stay in --out (default: --out).
+        #[arg(long, value_name = "DIR")]
+        work_dir: Option<PathBuf>,
         /// Under mpirun: how to share the solve between ranks (`directions`: every rank holds
         /// the scene and takes a share of the directions; `data`: ranks own whole lines and
         /// surfels move between them; `hybrid`: groups of ranks share the directions, the data
@@ -464,6 +470,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             memory,
             links_memory,
             links_disk,
+            work_dir,
             distribute,
             groups,
             compress_exchange,
@@ -544,6 +551,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 image_size,
                 memory,
                 checkpoint: CheckpointOptions { resume, every },
+                work_dir,
             };
             if groups.is_some() && !matches!(distribute, Some(Distribute::Hybrid)) {
                 return Err(AppError::BadInput(

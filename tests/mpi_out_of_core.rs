@@ -205,6 +205,37 @@ fn data_mode_out_of_core_matches_one_process_for_1_to_4_ranks() {
     ok(&mpirun(2, &args), "2 ranks searching again");
     assert_eq!(report(&out)["links"]["kept_in"], "none");
     assert!(radiosity(&out) == reference, "searching again changes bits");
+    // The ranks' work files under --work-dir (a node-local disk on a cluster): the same bits,
+    // and nothing left there or in --out.
+    let out = tmp.path().join("work-dir");
+    let local = tmp.path().join("local");
+    let mut args = solve(&out, "1");
+    args.extend(
+        [
+            "--distribute",
+            "data",
+            "--work-dir",
+            local.to_str().unwrap(),
+        ]
+        .map(String::from),
+    );
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    ok(&mpirun(2, &args), "2 ranks with --work-dir");
+    assert!(radiosity(&out) == reference, "--work-dir changes bits");
+    let names = |dir: &Path| -> Vec<String> {
+        std::fs::read_dir(dir)
+            .map(|d| {
+                d.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                    .collect()
+            })
+            .unwrap_or_default()
+    };
+    assert!(names(&local).is_empty(), "{:?}", names(&local));
+    assert!(
+        !names(&out).iter().any(|n| n.starts_with(".voxrad")),
+        "{:?}",
+        names(&out)
+    );
 }
 
 /// With the direct-light pass (run by rank 0 on the whole source, its light sent to every

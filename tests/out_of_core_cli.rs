@@ -214,3 +214,83 @@ fn a_budget_too_small_for_the_direct_light_pass_is_refused_with_what_it_needs() 
         "without the pass",
     );
 }
+
+/// The names in `dir` (empty when it does not exist).
+fn names_in(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .map(|entries| {
+            entries
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+/// `--work-dir`: an out-of-core solve of an OBJ scene makes its temporary shard set and work files
+/// there (a directory it cannot make there is refused, naming it) and gives the same bits as
+/// with them under `--out`; nothing is left in either; a solve in memory refuses the option.
+#[test]
+fn work_files_go_under_the_work_dir() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = common::cli::example("cornell_box.obj");
+    let solve = |out: &Path, extra: &[&str]| {
+        let mut args = vec![
+            "solve",
+            &scene,
+            "--resolution",
+            "24",
+            "--directions",
+            "13",
+            "--iterations",
+            "2",
+            "--memory",
+            "2MiB",
+            "--threads",
+            "1",
+        ];
+        let out = s(out);
+        args.extend(["--out", &out]);
+        args.extend(extra);
+        voxrad(&args)
+    };
+    let plain = tmp.path().join("plain");
+    ok(&solve(&plain, &[]), "under --out");
+    let local = tmp.path().join("local");
+    let moved = tmp.path().join("moved");
+    ok(
+        &solve(&moved, &["--work-dir", &s(&local)]),
+        "under --work-dir",
+    );
+    assert_eq!(
+        std::fs::read(plain.join("surfels.bin")).unwrap(),
+        std::fs::read(moved.join("surfels.bin")).unwrap(),
+        "--work-dir changed the answer"
+    );
+    assert!(names_in(&local).is_empty(), "{:?}", names_in(&local));
+    assert!(
+        !names_in(&moved).iter().any(|n| n.starts_with(".voxrad")),
+        "{:?}",
+        names_in(&moved)
+    );
+    // A work directory under a plain file cannot be made: the run fails and says where.
+    let file = tmp.path().join("a-file");
+    std::fs::write(&file, b"not a directory").unwrap();
+    let o = solve(&tmp.path().join("failed"), &["--work-dir", &s(&file)]);
+    common::cli::assert_bad_input(
+        &o,
+        "a work directory under a file",
+        &["a-file", "--work-dir"],
+    );
+    // In memory there are no work files.
+    let o = voxrad(&[
+        "solve",
+        &scene,
+        "--out",
+        &s(&tmp.path().join("in-memory")),
+        "--resolution",
+        "12",
+        "--work-dir",
+        &s(&local),
+    ]);
+    common::cli::assert_bad_input(&o, "--work-dir in memory", &["--work-dir", "--memory"]);
+}

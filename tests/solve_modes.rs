@@ -240,6 +240,7 @@ fn report_lists_the_effects_the_scene_calls_for() {
             image_size: (32, 24),
             memory: None,
             checkpoint: Default::default(),
+            work_dir: None,
         };
         run_solve_on(&cmd, &SingleProcess, mode).unwrap()
     };

@@ -23,6 +23,12 @@ pub(super) fn run_solve_data_out_of_core(
     if comm.rank() == 0 {
         checkpoint::remove_leftovers(&cmd.out);
     }
+    // Under --work-dir each node has its own (a local disk): every rank clears it, before any
+    // rank makes a work directory there.
+    let work_parent = work_parent(cmd)?;
+    if work_parent != cmd.out {
+        checkpoint::remove_leftovers(&work_parent);
+    }
     // No rank makes its work directories before rank 0 has removed a killed run's (it would
     // take a new one for a leftover).
     comm.max_u64(0);
@@ -67,7 +73,7 @@ pub(super) fn run_solve_data_out_of_core(
         comm,
         groups,
         budget,
-        &cmd.out,
+        &work_parent,
         Some(checkpoints),
     )
     .map_err(ooc_error)?;

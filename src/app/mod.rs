@@ -80,6 +80,37 @@ pub struct SolveCommand {
     pub memory: Option<u64>,
     /// `--resume` and how often checkpoints are written.
     pub checkpoint: CheckpointOptions,
+    /// `--work-dir`: where out-of-core work directories go instead of `out` ([`work_parent`]).
+    pub work_dir: Option<PathBuf>,
+}
+
+/// Where the work directories of an out-of-core solve of `cmd` go: `out` itself, or with
+/// `--work-dir DIR` a subdirectory of DIR named after `out` (made here), so that jobs with
+/// different out directories can share DIR (a node's local disk) and each removes there only
+/// what a killed run of its own left.
+pub(super) fn work_parent(cmd: &SolveCommand) -> Result<PathBuf, AppError> {
+    let Some(parent) = work_subdirectory(cmd) else {
+        return Ok(cmd.out.clone());
+    };
+    std::fs::create_dir_all(&parent).map_err(|e| {
+        AppError::BadInput(format!(
+            "cannot make the work directory {} (--work-dir): {e}",
+            parent.display()
+        ))
+    })?;
+    Ok(parent)
+}
+
+/// `--work-dir DIR`'s subdirectory for `cmd.out` (FNV-1a of its canonical path; `out` exists by
+/// then, and names itself alike on every node that mounts it at the same place).
+fn work_subdirectory(cmd: &SolveCommand) -> Option<PathBuf> {
+    let dir = cmd.work_dir.as_ref()?;
+    let out = std::fs::canonicalize(&cmd.out).unwrap_or_else(|_| cmd.out.clone());
+    let mut hash = 0xcbf2_9ce4_8422_2325u64;
+    for byte in out.as_os_str().as_encoded_bytes() {
+        hash = (hash ^ *byte as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    Some(dir.join(format!("voxrad-work-{hash:016x}")))
 }
 
 /// When a solve writes checkpoints into its out directory, and whether it starts from one.
@@ -107,6 +138,23 @@ pub fn run_solve(cmd: &SolveCommand) -> Result<Report, AppError> {
 
 /// As [`run_solve`], on the processes of `comm` in `mode`; only rank 0 writes outputs.
 pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<Report, AppError> {
+    if cmd.work_dir.is_some() && cmd.memory.is_none() && !cmd.scene.is_dir() {
+        return Err(AppError::BadInput(
+            "--work-dir applies to out-of-core solves (--memory SIZE, or a shard set): a solve \
+             in memory makes no work files"
+                .into(),
+        ));
+    }
+    let result = run_solve_checked(cmd, comm, mode);
+    // The work directories are gone (removed as their solvers ended); so is their parent under
+    // --work-dir once empty (not while another rank on this node still works there).
+    if let Some(parent) = work_subdirectory(cmd) {
+        let _ = std::fs::remove_dir(parent);
+    }
+    result
+}
+
+fn run_solve_checked(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<Report, AppError> {
     let started = Instant::now();
     if let Some(launched) = crate::distribute::launcher_world_size() {
         if launched != comm.size() {
@@ -160,6 +208,9 @@ pub fn run_solve_on(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<R
     }
     if comm.rank() == 0 {
         checkpoint::remove_leftovers(&cmd.out);
+        if let Some(parent) = work_subdirectory(cmd) {
+            checkpoint::remove_leftovers(&parent);
+        }
     }
     if cmd.scene.is_dir() && mode == Mode::Single {
         return run_solve_shard_set(cmd, started);

@@ -80,7 +80,8 @@ pub(super) fn solve_out_of_core_in(
         saver: &mut saver,
         resume,
     };
-    solve_out_of_core_checkpointed(source, directions, options, budget, &cmd.out, checkpoints)
+    let parent = work_parent(cmd)?;
+    solve_out_of_core_checkpointed(source, directions, options, budget, &parent, checkpoints)
         .map_err(ooc_error)
 }
 
@@ -140,7 +141,7 @@ pub(super) fn run_solve_obj_out_of_core(
 }
 
 /// Converts the OBJ scene of `cmd` into a shard set in a new temporary directory (named from
-/// `prefix`) inside the out directory: the streaming conversion of `voxrad-shard convert`,
+/// `prefix`) inside the out directory (or `--work-dir`'s, [`work_parent`]): the streaming conversion of `voxrad-shard convert`,
 /// within `budget`. Returns the directory (removed when dropped), the set and its summary.
 pub(super) fn convert_obj(
     cmd: &SolveCommand,
@@ -154,13 +155,14 @@ pub(super) fn convert_obj(
     ),
     AppError,
 > {
+    let parent = work_parent(cmd)?;
     let work = tempfile::Builder::new()
         .prefix(prefix)
-        .tempdir_in(&cmd.out)
+        .tempdir_in(&parent)
         .map_err(|e| {
             AppError::Failure(format!(
                 "cannot create a work directory in {}: {e}",
-                cmd.out.display()
+                parent.display()
             ))
         })?;
     let shards = work.path().join("scene.shards");
