@@ -2,7 +2,9 @@
 //! with the `mpi` feature, run by `.ci/run`): every rank count gives the single-process
 //! out-of-core radiosity bit for bit and the in-memory one within 1e-5, each rank's memory stays
 //! within the budget while its share of the scene is larger, a run stopped by SIGTERM resumes
-//! (on another rank count) to the same bytes, and what cannot work is refused.
+//! (on another rank count) to the same bytes, what cannot work is refused, and the Slurm
+//! recipe (`tools/slurm/solve.sbatch`) requeues and resumes with its work files on each
+//! "node's" own directory.
 //!
 //! Memory is read from the report: each rank's peak RSS (`VmHWM`) at the end, minus its peak
 //! before the scene was read (the program and the MPI library, which the budget does not
@@ -650,4 +652,174 @@ fn grey_furnace_is_extrapolated_as_in_one_process() {
     let effects = r["effects"].to_string();
     assert!(effects.contains("one channel"), "{effects}");
     assert!(effects.contains("extrapolations"), "{effects}");
+}
+
+/// `tools/slurm/solve.sbatch`, the recipe for a scene that fits no node, run as far as one
+/// machine can: `mpirun` for `srun` (2 ranks), each rank's `--work-dir` made its own directory
+/// (a node's local disk, at the same path on every node), a "time limit" signal (SIGTERM to rank
+/// 1 once a checkpoint inside an iteration is written) after which the script asks to be
+/// requeued, and the requeued run on other "nodes" (another work directory) resuming to the
+/// bytes of an uninterrupted run; nothing is left on the nodes' disks or in the out directory.
+#[test]
+fn the_slurm_recipe_requeues_and_resumes_on_other_nodes_to_the_same_bytes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 48, 2);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tools/slurm/solve.sbatch");
+    // Stands in for nodes: `--work-dir W` becomes `W/node<rank>` for each rank.
+    let node = tmp.path().join("node.sh");
+    std::fs::write(
+        &node,
+        "#!/bin/sh\ncount=$#\ntake=0\nfor a in \"$@\"; do\n  if [ \"$take\" = 1 ]; then \
+         a=\"$a/node$OMPI_COMM_WORLD_RANK\"; fi\n  if [ \"$a\" = \"--work-dir\" ]; then take=1; \
+         else take=0; fi\n  set -- \"$@\" \"$a\"\ndone\nshift \"$count\"\nexec \"$@\"\n",
+    )
+    .unwrap();
+    let requeue = tmp.path().join("requeue.sh");
+    std::fs::write(
+        &requeue,
+        "#!/bin/sh\necho \"$1\" > \"$(dirname \"$0\")/requeued\"\n",
+    )
+    .unwrap();
+    for file in [&node, &requeue] {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(file, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let mut launch = common::mpi::launcher(2);
+    launch.push(node.display().to_string());
+    let out = tmp.path().join("out");
+    let job = |work: &Path| {
+        let mut c = Command::new("bash");
+        c.arg(&script)
+            .env("SHARDS", &set)
+            .env("OUT", &out)
+            .env("MEMORY", "1MiB")
+            .env("WORK", work)
+            .env("DIRECTIONS", "49")
+            .env("CHECKPOINT_EVERY", "0")
+            .env("EXTRA", "--iterations 8")
+            .env("VOXRAD", env!("CARGO_BIN_EXE_voxrad"))
+            .env("LAUNCH", launch.join(" "))
+            .env("REQUEUE", &requeue)
+            .env("SLURM_JOB_ID", "4242")
+            .env("SLURM_CPUS_PER_TASK", "1")
+            .envs(common::mpi::AS_ROOT);
+        c
+    };
+    // The uninterrupted answer.
+    let reference = tmp.path().join("reference");
+    let o = mpirun(
+        2,
+        &[
+            "solve",
+            set.to_str().unwrap(),
+            "--out",
+            reference.to_str().unwrap(),
+            "--distribute",
+            "data",
+            "--memory",
+            "1MiB",
+            "--directions",
+            "49",
+            "--iterations",
+            "8",
+            "--threads",
+            "1",
+        ],
+    );
+    ok(&o, "reference");
+    // The first run, stopped inside its third iteration as the time limit's signal would.
+    let first = tmp.path().join("first-nodes");
+    let log = tmp.path().join("job1.log");
+    let mut child = Child::spawn(job(&first), &log);
+    let inside = |text: &str| {
+        text.lines().any(|l| {
+            l.contains("checkpoint written")
+                && l.contains("iteration=2 ")
+                && !l.contains("within=0 ")
+        })
+    };
+    assert!(
+        child.wait_for(HANG_LIMIT, || {
+            std::fs::read_to_string(&log).is_ok_and(|t| inside(&t))
+        }),
+        "no checkpoint inside iteration 3:\n{}",
+        child.log()
+    );
+    // Both ranks ran in their own "node" directory.
+    for rank in 0..2 {
+        let dir = first.join(format!("node{rank}"));
+        assert!(dir.is_dir(), "no work directory {}", dir.display());
+    }
+    let mpirun_pid = *common::process::children_of(child.pid())
+        .first()
+        .expect("mpirun under the job script");
+    common::mpi::signal_rank(mpirun_pid, 1, libc::SIGTERM);
+    let status = child.wait_at_most(HANG_LIMIT);
+    let text = child.log();
+    assert_eq!(status.code(), Some(3), "{}:\n{text}", describe(&status));
+    assert!(text.contains("starting from the beginning"), "{text}");
+    assert_eq!(
+        std::fs::read_to_string(tmp.path().join("requeued"))
+            .unwrap_or_default()
+            .trim(),
+        "4242",
+        "the job did not ask to be requeued:\n{}",
+        child.log()
+    );
+    assert!(
+        voxrad::checkpoint::path_in(&out).exists(),
+        "{}",
+        child.log()
+    );
+    // The requeued job, on other nodes: it goes on from the checkpoint to the same bytes.
+    let second = tmp.path().join("second-nodes");
+    let log = tmp.path().join("job2.log");
+    let mut child = Child::spawn(job(&second), &log);
+    let status = child.wait_at_most(HANG_LIMIT);
+    let text = child.log();
+    assert!(status.success(), "{}:\n{text}", describe(&status));
+    assert!(
+        text.contains("continuing inside an iteration from the checkpoint"),
+        "{text}"
+    );
+    assert!(
+        radiosity(&out) == radiosity(&reference),
+        "the requeued run differs from an uninterrupted one:\n{text}"
+    );
+    let names = |dir: &Path| -> Vec<String> {
+        walk(dir)
+            .into_iter()
+            .filter(|p| p.is_file())
+            .map(|p| p.display().to_string())
+            .collect()
+    };
+    for nodes in [&first, &second] {
+        assert!(
+            names(nodes).is_empty(),
+            "left on the nodes: {:?}",
+            names(nodes)
+        );
+    }
+    let left: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(".voxrad") || n.starts_with("checkpoint"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+/// Every path under `dir` (directories and files), depth first.
+fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut all = Vec::new();
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            let p = e.path();
+            all.push(p.clone());
+            if p.is_dir() {
+                all.extend(walk(&p));
+            }
+        }
+    }
+    all
 }

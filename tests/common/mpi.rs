@@ -5,22 +5,38 @@
 use super::process;
 use std::process::Command;
 
+/// `mpirun` and the flags every MPI test launches `ranks` ranks with (the program follows).
+pub fn launcher(ranks: usize) -> Vec<String> {
+    [
+        "mpirun",
+        "-n",
+        &ranks.to_string(),
+        "--oversubscribe",
+        "--mca",
+        "btl",
+        "self,vader",
+        "--mca",
+        "btl_vader_single_copy_mechanism",
+        "none",
+    ]
+    .map(String::from)
+    .to_vec()
+}
+
+/// The environment that lets `mpirun` run as root (CI containers).
+pub const AS_ROOT: [(&str, &str); 2] = [
+    ("OMPI_ALLOW_RUN_AS_ROOT", "1"),
+    ("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1"),
+];
+
 /// `mpirun -n ranks voxrad` with the flags and environment every MPI test uses; the caller adds
 /// the arguments.
 pub fn command(ranks: usize) -> Command {
-    let mut c = Command::new("mpirun");
-    c.args(["-n", &ranks.to_string(), "--oversubscribe"])
-        .args([
-            "--mca",
-            "btl",
-            "self,vader",
-            "--mca",
-            "btl_vader_single_copy_mechanism",
-            "none",
-        ])
+    let launcher = launcher(ranks);
+    let mut c = Command::new(&launcher[0]);
+    c.args(&launcher[1..])
         .arg(env!("CARGO_BIN_EXE_voxrad"))
-        .env("OMPI_ALLOW_RUN_AS_ROOT", "1")
-        .env("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1");
+        .envs(AS_ROOT);
     c
 }
 
