@@ -389,7 +389,8 @@ impl<'a> DataSolver<'a> {
         };
         let t1 = self.pool.install(|| {
             if links.replay(k, order, ids, &input, acc) {
-                return Instant::now();
+                // Nothing dispatched: the replay is this direction's propagation.
+                return t0;
             }
             dispatch(order, &self.frames[k], self.threads, lines);
             let t1 = Instant::now();
