@@ -106,7 +106,7 @@ impl DataSolver<'_> {
         let t = Instant::now();
         let mut arrived = Vec::new();
         for pack in received.iter().filter(|p| !p.is_empty()) {
-            held.decode_all(&unseal(pack), &mut arrived);
+            held.decode_all(&unseal(pack), &self.surfels, &mut arrived);
         }
         let ids = &held.ids;
         held.order = if canonical {

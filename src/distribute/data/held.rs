@@ -4,9 +4,10 @@
 use crate::solve::dispatch::OrderedEntry;
 use crate::solve::propagate::PropSurfel;
 
-/// Bytes of one surfel on the wire: id (4), propagation data (68), radiosity (24) and gathered
-/// light (48).
-pub const RECORD_BYTES: usize = 144;
+/// Bytes of one surfel on the wire: id (4), radiosity (24) and gathered light (48). Its
+/// propagation data does not travel: every rank of this in-memory mode holds the whole scene's
+/// (`DataSolver::surfels`), and finds it by id (it took 68 of 144 bytes).
+pub const RECORD_BYTES: usize = 76;
 
 /// The surfels a rank holds. Their data sits in slots that do not move while they stay (a
 /// surfel that leaves frees its slot, one that arrives takes a free slot), and `order` lists the
@@ -61,32 +62,23 @@ impl Held {
     /// reads).
     pub(super) fn encode(&self, slot: u32, out: &mut Vec<u8>) {
         let i = slot as usize;
-        let p = &self.prop[i];
-        let mut r = [0u8; RECORD_BYTES];
-        let mut at = 0;
-        let mut put = |bytes: [u8; 4]| {
-            r[at..at + 4].copy_from_slice(&bytes);
-            at += 4;
-        };
-        put(self.ids[i].to_le_bytes());
-        p.voxel.iter().for_each(|v| put(v.to_le_bytes()));
-        put(p.group.to_le_bytes());
-        p.point
-            .iter()
-            .chain(&p.normal)
-            .chain(p.extent.iter().flatten())
-            .chain(std::iter::once(&p.coverage))
-            .chain(self.radiosity[i].iter().flatten())
-            .for_each(|f| put(f.to_le_bytes()));
-        for (k, a) in self.acc[i].iter().flatten().enumerate() {
-            r[96 + 8 * k..104 + 8 * k].copy_from_slice(&a.to_le_bytes());
+        out.extend_from_slice(&self.ids[i].to_le_bytes());
+        for f in self.radiosity[i].iter().flatten() {
+            out.extend_from_slice(&f.to_le_bytes());
         }
-        out.extend_from_slice(&r);
+        for a in self.acc[i].iter().flatten() {
+            out.extend_from_slice(&a.to_le_bytes());
+        }
     }
 
-    /// Stores the surfels of a pack made by `encode`; appends their entries, in pack order, to
-    /// `entries`.
-    pub(super) fn decode_all(&mut self, bytes: &[u8], entries: &mut Vec<OrderedEntry>) {
+    /// Stores the surfels of a pack made by `encode`, their propagation data taken from `props`
+    /// (by id); appends their entries, in pack order, to `entries`.
+    pub(super) fn decode_all(
+        &mut self,
+        bytes: &[u8],
+        props: &[PropSurfel],
+        entries: &mut Vec<OrderedEntry>,
+    ) {
         for r in bytes.chunks_exact(RECORD_BYTES) {
             let u = |k: usize| u32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
             let f = |k: usize| f32::from_bits(u(k));
@@ -97,15 +89,9 @@ impl Held {
             };
             let f3 = |k: usize| [f(k), f(k + 4), f(k + 8)];
             let d3 = |k: usize| [d(k), d(k + 8), d(k + 16)];
-            let prop = PropSurfel {
-                voxel: [u(4) as i32, u(8) as i32, u(12) as i32],
-                group: u(16),
-                point: f3(20),
-                normal: f3(32),
-                extent: [f3(44), f3(56)],
-                coverage: f(68),
-            };
-            let slot = self.store(u(0), prop, [f3(72), f3(84)], [d3(96), d3(120)]);
+            let id = u(0);
+            let prop = props[id as usize];
+            let slot = self.store(id, prop, [f3(4), f3(16)], [d3(28), d3(52)]);
             entries.push(OrderedEntry {
                 voxel: prop.voxel,
                 index: slot,
@@ -122,6 +108,15 @@ mod tests {
     #[test]
     fn records_survive_the_wire() {
         let mut held = Held::default();
+        let blank = PropSurfel {
+            voxel: [0; 3],
+            group: 0,
+            point: [0.0; 3],
+            normal: [0.0; 3],
+            extent: [[0.0; 3]; 2],
+            coverage: 0.0,
+        };
+        let mut props = vec![blank; 29];
         for k in 0..5u32 {
             let f = k as f32 + 0.25;
             let prop = PropSurfel {
@@ -134,6 +129,7 @@ mod tests {
             };
             let radiosity = [[f, 1.0, 2.0], [3.0, 4.0, f]];
             let acc = [[1e-300, f as f64, 2.5], [f64::MAX, 0.0, -1.0]];
+            props[(k * 7) as usize] = prop;
             held.store(k * 7, prop, radiosity, acc);
         }
         for compress in [false, true] {
@@ -147,7 +143,7 @@ mod tests {
             back.store(99, held.prop[0], held.radiosity[0], held.acc[0]);
             back.free.push(0);
             let mut entries = Vec::new();
-            back.decode_all(&unseal(&seal(bytes, compress)), &mut entries);
+            back.decode_all(&unseal(&seal(bytes, compress)), &props, &mut entries);
             let slots: Vec<u32> = entries.iter().map(|e| e.index).collect();
             assert_eq!(slots, [0, 1, 2, 3, 4]);
             assert_eq!(back.ids, held.ids);
