@@ -19,6 +19,26 @@ use std::process::{Command, Output};
 use voxrad::output::results::read_results;
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 
+/// Waits until the run logging to `log` has written a checkpoint inside its third iteration
+/// (checkpoints are due at every step, spaced by their writing time), so that a signal sent
+/// then comes inside that iteration; fails with the log when none comes.
+fn wait_for_a_checkpoint_inside_iteration_3(child: &mut Child, log: &Path) {
+    let inside = |text: &str| {
+        text.lines().any(|l| {
+            l.contains("checkpoint written")
+                && l.contains("iteration=2 ")
+                && !l.contains("within=0 ")
+        })
+    };
+    assert!(
+        child.wait_for(HANG_LIMIT, || {
+            std::fs::read_to_string(log).is_ok_and(|t| inside(&t))
+        }),
+        "no checkpoint inside iteration 3:\n{}",
+        child.log()
+    );
+}
+
 /// As in the single-process out-of-core tests (`tests/memory_limit.rs`): code, stacks, the
 /// allocator's bookkeeping and fragmentation beyond the budget.
 const ALLOWANCE_BYTES: u64 = 16 << 20;
@@ -507,22 +527,7 @@ fn stopped_by_sigterm_resumes_to_the_same_bytes(
             mpirun_command(ranks, &a.iter().map(String::as_str).collect::<Vec<_>>()),
             &log,
         );
-        // Once a checkpoint inside the third iteration is written (due at every step, spaced
-        // by its writing time), so that the signal comes inside it.
-        let inside = |text: &str| {
-            text.lines().any(|l| {
-                l.contains("checkpoint written")
-                    && l.contains("iteration=2 ")
-                    && !l.contains("within=0 ")
-            })
-        };
-        assert!(
-            child.wait_for(HANG_LIMIT, || {
-                std::fs::read_to_string(&log).is_ok_and(|t| inside(&t))
-            }),
-            "no checkpoint inside iteration 3:\n{}",
-            child.log()
-        );
+        wait_for_a_checkpoint_inside_iteration_3(&mut child, &log);
         common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
         let status = child.wait_at_most(HANG_LIMIT);
         let text = child.log();
@@ -732,20 +737,7 @@ fn the_slurm_recipe_requeues_and_resumes_on_other_nodes_to_the_same_bytes() {
     let first = tmp.path().join("first-nodes");
     let log = tmp.path().join("job1.log");
     let mut child = Child::spawn(job(&first), &log);
-    let inside = |text: &str| {
-        text.lines().any(|l| {
-            l.contains("checkpoint written")
-                && l.contains("iteration=2 ")
-                && !l.contains("within=0 ")
-        })
-    };
-    assert!(
-        child.wait_for(HANG_LIMIT, || {
-            std::fs::read_to_string(&log).is_ok_and(|t| inside(&t))
-        }),
-        "no checkpoint inside iteration 3:\n{}",
-        child.log()
-    );
+    wait_for_a_checkpoint_inside_iteration_3(&mut child, &log);
     // Both ranks ran in their own "node" directory.
     for rank in 0..2 {
         let dir = first.join(format!("node{rank}"));

@@ -33,16 +33,28 @@ const MIN_SLICE: f64 = 0.05;
 pub fn slice_area(normal: DVec3, point: DVec3) -> f64 {
     let u = normal.any_orthonormal_vector();
     let v = normal.cross(u);
-    // A square of side 4 around the point covers the cube's slice (its diagonal is below 2).
-    let mut polygon = vec![
-        point + 2.0 * (u + v),
-        point + 2.0 * (v - u),
-        point - 2.0 * (u + v),
-        point + 2.0 * (u - v),
-    ];
-    let mut scratch = Vec::with_capacity(12);
-    clip_to_unit_cube(&mut polygon, &mut scratch);
-    polygon_area_centroid(&polygon).0
+    CLIP_BUFFERS.with_borrow_mut(|(polygon, scratch)| {
+        // A square of side 4 around the point covers the cube's slice (its diagonal is below 2).
+        polygon.clear();
+        polygon.extend([
+            point + 2.0 * (u + v),
+            point + 2.0 * (v - u),
+            point - 2.0 * (u + v),
+            point + 2.0 * (u - v),
+        ]);
+        clip_to_unit_cube(polygon, scratch);
+        polygon_area_centroid(polygon).0
+    })
+}
+
+thread_local! {
+    /// The polygon [`slice_area`] clips and the clipper's scratch, kept per thread. It runs for
+    /// every surfel alone in its voxel and on every line meeting an open edge; two fresh vectors
+    /// per call cost two system calls each where the allocator maps small blocks one by one
+    /// (a worker thread's arena under a small address-space limit: the out-of-core solve under
+    /// 32 MiB in `tests/memory_limit.rs` spent nine tenths of its time mapping and unmapping).
+    static CLIP_BUFFERS: std::cell::RefCell<(Vec<DVec3>, Vec<DVec3>)> =
+        std::cell::RefCell::new((Vec::with_capacity(12), Vec::with_capacity(12)));
 }
 
 /// Coverage of every surfel of `set` (see the module header).
