@@ -292,18 +292,19 @@ fn grey_scene_solved_once_gives_the_three_channel_answer() {
     assert_eq!(one.stats.absorbed_power, three.stats.absorbed_power);
 }
 
-/// The direct pass searches a line only where a link from an emitter can be found
-/// (`propagate::find_partners_toward`): ahead from the voxels up to the last emitter's, behind
-/// from the first emitter's on. On every line of an office (walls, desks, partitions, open-edged
-/// lamps) along 13 directions, and any span, those searches give exactly the links the full
-/// search gives, and no other.
+/// The direct pass searches a line only where a link from an emitting side can be found
+/// (`propagate::find_partners_toward`): ahead from the voxels up to the last emitter's whose
+/// side facing back emits, behind from the first emitter's whose side facing along emits, and
+/// the emitters' own searches. On every line of an office (walls, desks, partitions, open-edged
+/// lamps) along 13 directions, for spans, one-sided spans and single further positions, those
+/// searches give exactly the links the full search gives from them, and no other.
 #[test]
 fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
     use voxrad::geometry::lines::LineFrame;
     use voxrad::geometry::order;
     use voxrad::solve::dispatch::{dispatch, lexicographic_orders, Lines};
     use voxrad::solve::propagate::{
-        find_partners, find_partners_toward, for_each_link, prop_surfels, LineScratch,
+        find_partners, find_partners_toward, for_each_link, prop_surfels, LineScratch, Toward,
     };
     let set = voxelize(&voxrad::gen::office().scene, GridSpec::Resolution(32)).expect("voxelize");
     let props = prop_surfels(&set);
@@ -330,20 +331,40 @@ fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
             }
             find_partners(line, &props, d.unit, &mut full);
             let voxel = |k: usize| set.surfels[line[k] as usize].voxel;
-            for (first, last) in [
-                (0, n - 1),
-                (n / 3, n / 2),
-                (n - 1, n - 1),
-                (1.min(n - 1), 1.min(n - 1)),
-            ] {
-                find_partners_toward(line, &props, d.unit, &mut part, Some((first, last)));
+            let (third, half) = (n / 3, n / 2);
+            let (one, end) = ([third as u32], [(n - 1) as u32]);
+            let cases = [
+                Toward::span(0, n - 1),
+                Toward::span(third, half),
+                Toward::span(n - 1, n - 1),
+                Toward::span(1.min(n - 1), 1.min(n - 1)),
+                // One-sided emitters: only one of the two spans, and an emitter's own search.
+                Toward {
+                    ahead_upto: Some(half),
+                    also_behind: &one,
+                    ..Toward::default()
+                },
+                Toward {
+                    behind_from: Some(third),
+                    also_ahead: &end,
+                    ..Toward::default()
+                },
+            ];
+            for toward in cases {
+                find_partners_toward(line, &props, d.unit, &mut part, Some(toward));
                 let mut expected = Vec::new();
                 for_each_link(&full, d.unit, |link| {
                     let k = link.receiver;
                     let wanted = if link.which == 0 {
-                        k <= last || voxel(k) == voxel(last)
+                        toward
+                            .ahead_upto
+                            .is_some_and(|last| k <= last || voxel(k) == voxel(last))
+                            || toward.also_ahead.contains(&(k as u32))
                     } else {
-                        k >= first || voxel(k) == voxel(first)
+                        toward
+                            .behind_from
+                            .is_some_and(|first| k >= first || voxel(k) == voxel(first))
+                            || toward.also_behind.contains(&(k as u32))
                     };
                     if wanted {
                         expected.push(key(&link));
@@ -353,11 +374,7 @@ fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
                 for_each_link(&part, d.unit, |link| got.push(key(&link)));
                 expected.sort_unstable();
                 got.sort_unstable();
-                assert_eq!(
-                    got, expected,
-                    "line {l} of {:?}, span {first}..={last}",
-                    d.vector
-                );
+                assert_eq!(got, expected, "line {l} of {:?}, {toward:?}", d.vector);
                 checked += got.len();
             }
         }

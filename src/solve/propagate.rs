@@ -319,17 +319,41 @@ pub fn find_partners(line: &[u32], surfels: &[PropSurfel], s: DVec3, scratch: &m
     find_partners_toward(line, surfels, s, scratch, None);
 }
 
-/// As [`find_partners`], with `toward = Some((first, last))` searching only where a partner at
-/// line position `first..=last` or in its voxel could be found: ahead from the positions up to
-/// `last`'s voxel, behind from `first`'s voxel on (a search ahead walks only the voxels after
-/// its own, and its own). The other searches find nothing. The direct-light pass needs only
-/// links from its emitters (and its emitters' own searches, which lie in that span).
+/// Which searches of a line [`find_partners_toward`] runs: those whose partner may be wanted.
+/// A search ahead walks only its own voxel and the voxels after it, a search behind its own and
+/// those before it, so a partner at some line position can only be found by the searches ahead
+/// from its voxel and before, and behind from its voxel and after.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Toward<'a> {
+    /// Search ahead from the positions up to this position's voxel (none: no such prefix).
+    pub ahead_upto: Option<usize>,
+    /// Search behind from the positions from this position's voxel on (none: no such suffix).
+    pub behind_from: Option<usize>,
+    /// Further positions searched ahead, and behind, in ascending order.
+    pub also_ahead: &'a [u32],
+    pub also_behind: &'a [u32],
+}
+
+impl Toward<'_> {
+    /// Every search that may find a partner at a position `first..=last` (or in their voxels).
+    pub fn span(first: usize, last: usize) -> Self {
+        Toward {
+            ahead_upto: Some(last),
+            behind_from: Some(first),
+            ..Toward::default()
+        }
+    }
+}
+
+/// As [`find_partners`], searching only as `toward` asks (every search when `None`); the other
+/// searches find nothing. The direct-light pass needs only the links from its emitters' emitting
+/// sides, and its emitters' own searches (`solve::direct`).
 pub fn find_partners_toward(
     line: &[u32],
     surfels: &[PropSurfel],
     s: DVec3,
     scratch: &mut LineScratch,
-    toward: Option<(usize, usize)>,
+    toward: Option<Toward>,
 ) {
     let sf = s.as_vec3();
     // The line's cross-section across the direction, in voxel-size squared: a line is a tube of
@@ -441,24 +465,28 @@ pub fn find_partners_toward(
         },
     };
     // The voxel groups whose searches ahead and behind may be needed.
-    let (ahead_to, behind_from) = match toward {
-        None => (group_count, 0),
-        Some((first, last)) => {
-            let group_of = |k: usize| groups.partition_point(|&start| start <= k) - 1;
-            (group_of(last) + 1, group_of(first))
-        }
+    let group_of = |k: usize| groups.partition_point(|&start| start <= k) - 1;
+    let (ahead_to, behind_from, also_ahead, also_behind) = match toward {
+        None => (group_count, 0, &[][..], &[][..]),
+        Some(t) => (
+            t.ahead_upto.map_or(0, |last| group_of(last) + 1),
+            t.behind_from.map_or(group_count, group_of),
+            t.also_ahead,
+            t.also_behind,
+        ),
     };
+    let also = |list: &[u32], k: usize| !list.is_empty() && list.binary_search(&(k as u32)).is_ok();
     if !shared && open_ranges.is_empty() {
         // The common line: one surfel per voxel and no open edge (see `LineView::nearest_plain`).
         let none = (u32::MAX, 0.0);
         partners.extend((0..locals.len()).map(|k| {
             [
-                if k < ahead_to {
+                if k < ahead_to || also(also_ahead, k) {
                     view.nearest_plain::<true>(k, sf)
                 } else {
                     none
                 },
-                if k >= behind_from {
+                if k >= behind_from || also(also_behind, k) {
                     view.nearest_plain::<false>(k, -sf)
                 } else {
                     none
@@ -473,12 +501,12 @@ pub fn find_partners_toward(
             // The chains are filled in place: returned by value, each was copied through the
             // stack with wide loads of narrower stores just written (a store-forwarding stall
             // that cost a tenth of the search).
-            if g < ahead_to {
+            if g < ahead_to || also(also_ahead, k) {
                 view.nearest::<true>(g, k, sf, &mut ahead);
             } else {
                 ahead.len = 0;
             }
-            if g >= behind_from {
+            if g >= behind_from || also(also_behind, k) {
                 view.nearest::<false>(g, k, -sf, &mut behind);
             } else {
                 behind.len = 0;
