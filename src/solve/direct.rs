@@ -395,16 +395,14 @@ struct DirectionLight {
     contributions: Vec<(u32, u8, u32, [f64; 3], f64)>,
 }
 
-/// A task's reusable buffers: one line at a time, copied into local arrays so that
-/// `gather_line` runs on it unchanged.
+/// A task's reusable buffers, one line at a time.
 #[derive(Default)]
 struct Buffers {
     line_ids: Vec<u64>,
+    /// The surfels of the line being searched, in order along the direction.
     members: Vec<u32>,
     /// The surfels of each line of a bundle ([`VoxelTable::walk_bundle`]).
     bundle: Vec<Vec<u32>>,
-    local_line: Vec<u32>,
-    local_surfels: Vec<PropSurfel>,
     scratch: LineScratch,
     /// The emitters' own searches a line needs besides its spans ([`Context::searches_wanted`]).
     also_ahead: Vec<u32>,
@@ -495,11 +493,6 @@ impl Context<'_> {
                 if b.members.len() < 2 {
                     continue;
                 }
-                b.local_line.clear();
-                b.local_line.extend(0..b.members.len() as u32);
-                b.local_surfels.clear();
-                b.local_surfels
-                    .extend(b.members.iter().map(|&m| self.surfels[m as usize]));
                 let Some((ahead_upto, behind_from)) = self.searches_wanted(d, b) else {
                     continue;
                 };
@@ -509,9 +502,11 @@ impl Context<'_> {
                     also_ahead: &b.also_ahead,
                     also_behind: &b.also_behind,
                 };
+                // The line's own surfel indices: the search copies what it reads of each
+                // into its buffer, and its links are by line position.
                 find_partners_toward(
-                    &b.local_line,
-                    &b.local_surfels,
+                    &b.members,
+                    self.surfels,
                     d.unit,
                     &mut b.scratch,
                     Some(toward),
