@@ -42,9 +42,9 @@
 //! costs about (emitter lines) x (line length) per direction instead of the whole surfel set;
 //! neighbouring lines of one row are walked together, 64 at a time through occupancy bitmaps
 //! ([`VoxelTable`]), so the air they cross costs little. On a line only the searches that can
-//! end at an emitter run (`propagate::find_partners_toward`: ahead from the voxels up to the
-//! line's last emitter, behind from its first), which halves the search on a line through a
-//! lamp in the middle of a building.
+//! end at an emitter's emitting side run, and the emitters' own ([`Context::searches_wanted`],
+//! `propagate::Toward`): a line through a lamp crosses a whole building, and a lamp lit on its
+//! underside needs no search from the floors above it.
 //!
 //! **When** ([`DirectPass`]): asked for with a count, or automatically where the emitters are
 //! small ([`small_emitters`]: at most 5 % of the surfels emit), capped to what about
@@ -544,8 +544,8 @@ impl Context<'_> {
 
     /// The searches of the line in `b.members` whose links the pass uses, as the bounds of a
     /// [`Toward`] with its further positions left in `b.also_ahead` and `b.also_behind`; `None`
-    /// if no surfel of the line emits. Only links from an emitting side carry light, and a side is found
-    /// by the searches that come toward it: the side of an emitter facing back along the
+    /// if no surfel of the line emits. Only links from an emitting side carry light, and a side
+    /// is found by the searches that come toward it: the side of an emitter facing back along the
     /// direction by the searches ahead from the positions before it (up to its voxel), the side
     /// facing along it by the searches behind from the positions after it. Besides those, an
     /// emitter's own search toward each side that emits tells the power that side sends (the
