@@ -68,6 +68,9 @@
 //! edges (`LineView::nearest_plain`), which gives the same partners. The surfels, radiosity and
 //! sums of the lines a little ahead are prefetched ([`gather_lines`]): they lie scattered over
 //! arrays far larger than the caches (about a sixth of the kernel's time went to waiting).
+//! Which side of each other's planes two pieces of one voxel lie on depends on them alone: it is
+//! computed once per line, when a search first asks (`LineView::mate_side`). A caller that needs
+//! only some searches of a line (the direct-light pass) says which ([`Toward`]).
 
 use crate::voxel::{BACK, FRONT};
 use glam::{DVec3, Vec3};
