@@ -202,8 +202,9 @@ fn data_and_hybrid_modes_match_one_process_for_1_to_4_ranks() {
             if ranks == 1 {
                 // Every line is gathered from the same surfels in the same order and every
                 // surfel adds its directions in the same order as on one process. (On more
-                // ranks the direct pass's light is added over the ranks, as in the directions
-                // mode; `shard_sets_solve_in_every_mode` checks the plain data mode's bits.)
+                // ranks each rank adds up its part of a surfel's light and the parts are added
+                // at the end of the iteration, and the direct pass's light is added over the
+                // ranks, as in the directions mode.)
                 assert_eq!(worst, 0.0, "{mode}, {ranks} ranks");
             }
             let pass = report["effects"]
@@ -237,23 +238,49 @@ fn data_and_hybrid_modes_match_one_process_for_1_to_4_ranks() {
             assert_eq!(report["links"]["kept_directions"], 49, "{report}");
         }
     }
-    // Kept links give the bits of searching again in every iteration, whatever the slots the
-    // surfels sit in after each exchange.
+    // Kept links give the bits of searching again in every iteration (which exchanges surfels
+    // for every direction, where a replay exchanges nothing until the iteration's end), and so
+    // does a budget that keeps the links of some directions only (exchanges for every
+    // direction, replays where the links are kept).
+    let report_of = |out: &Path| -> serde_json::Value {
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap()
+    };
     for (mode, ranks) in [("data", 3), ("hybrid", 4)] {
         let kept = tmp.path().join(format!("{mode}{ranks}"));
-        let searched = tmp.path().join(format!("{mode}{ranks}-searched"));
-        let mut args = small_solve(&searched, "1", mode);
-        args.extend(["--links-memory", "0"].map(String::from));
-        let o = mpirun(ranks, &as_strs(&args));
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let report: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(searched.join("report.json")).unwrap()).unwrap();
-        assert_eq!(report["links"]["kept_directions"], 0, "{report}");
-        assert_eq!(
-            std::fs::read(kept.join("surfels.bin")).unwrap(),
-            std::fs::read(searched.join("surfels.bin")).unwrap(),
-            "{mode}, {ranks} ranks"
-        );
+        let kept_report = report_of(&kept);
+        let link_bytes = kept_report["links"]["bytes"].as_u64().unwrap();
+        let per_rank = link_bytes / ranks as u64;
+        for (name, budget) in [("searched", 0), ("some kept", per_rank / 2)] {
+            let out = tmp.path().join(format!("{mode}{ranks}-{budget}"));
+            let mut args = small_solve(&out, "1", mode);
+            args.extend(["--links-memory".to_string(), budget.to_string()]);
+            let o = mpirun(ranks, &as_strs(&args));
+            assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+            let report = report_of(&out);
+            let kept_directions = report["links"]["kept_directions"].as_u64().unwrap();
+            if budget == 0 {
+                assert_eq!(kept_directions, 0, "{report}");
+            } else {
+                assert!(
+                    (1..49).contains(&kept_directions),
+                    "{mode}, {name}: {kept_directions} directions kept"
+                );
+            }
+            assert_eq!(
+                std::fs::read(kept.join("surfels.bin")).unwrap(),
+                std::fs::read(out.join("surfels.bin")).unwrap(),
+                "{mode}, {ranks} ranks, {name}"
+            );
+            // With every link kept, only the first of the 4 iterations moved surfels.
+            let moved =
+                |r: &serde_json::Value| r["data_distribution"]["bytes_packed"].as_f64().unwrap();
+            let ratio = moved(&kept_report) / moved(&report);
+            assert!(
+                (0.2..0.3).contains(&ratio),
+                "{mode}, {name}: surfel bytes moved with all links kept / here: {ratio}"
+            );
+            assert!(kept_report["data_distribution"]["end_of_iteration_bytes"].as_u64() > Some(0));
+        }
     }
 }
 
@@ -985,8 +1012,10 @@ fn shard_sets_solve_in_every_mode() {
                 "3",
                 "--threads",
                 "1",
-                // Plain: the data mode's gather is the one process's bit for bit (the direct
-                // pass's light is added over the ranks in another grouping).
+                // Plain, without the direct pass (whose light is added over the ranks): every
+                // line is gathered as on one process; only each surfel's light is added up in
+                // another grouping (each rank's part, then the parts), so the data mode agrees
+                // to the rounding of the last bit.
                 "--direct-directions",
                 "0",
                 "--distribute",
@@ -1004,7 +1033,7 @@ fn shard_sets_solve_in_every_mode() {
         println!("shard set, {mode}, 2 ranks: worst relative difference {worst:.2e}");
         assert!(worst <= 1e-5, "{mode}: {worst:e}");
         if mode == "data" {
-            assert_eq!(worst, 0.0);
+            assert!(worst <= 1e-6, "{mode}: {worst:e}");
         }
     }
 }

@@ -86,12 +86,13 @@ pub struct DataStats {
     /// Direction groups (1 in the data mode) and ranks per group.
     pub groups: usize,
     pub ranks_per_group: usize,
-    /// Mean, over the directions of every iteration, of the fraction of the surfels that
-    /// changed rank for that direction.
+    /// Mean, over the directions, of the fraction of the surfels that changed rank in each
+    /// exchange of that direction (in memory, iterations that replay every link exchange
+    /// nothing until their end).
     pub exchanged_fraction: f64,
     /// The largest such fraction (the first direction of an iteration, or of an octant).
     pub max_exchanged_fraction: f64,
-    /// The fraction for each direction, in walk order (averaged over iterations).
+    /// The fraction for each direction, in walk order (averaged over its exchanges).
     pub exchanged_by_direction: Vec<f64>,
     /// Mean, over directions, of the largest rank's surfels over the mean (1 is perfect).
     pub imbalance: f64,
@@ -99,6 +100,12 @@ pub struct DataStats {
     /// Surfel bytes sent to other ranks, before and after compression.
     pub bytes_packed: u64,
     pub bytes_sent: u64,
+    /// In memory: bytes of the exchange plans all ranks keep (`distribute::data::plan`) and
+    /// of the parts of the light and radiosity moved at the ends of iterations.
+    #[serde(default)]
+    pub plan_bytes: u64,
+    #[serde(default)]
+    pub end_of_iteration_bytes: u64,
     /// Every rank's seconds per phase, by rank.
     pub per_rank: Vec<PhaseSeconds>,
     /// The data mode out of core (`--memory`): every rank's work-file traffic, largest share

@@ -1,13 +1,13 @@
-//! The data mode's checkpoints: the radiosity gathered by id for a boundary, every rank's light
-//! of the surfels it holds for a save inside an iteration, and the rebuild of what each rank
+//! The data mode's checkpoints: the owners' radiosity gathered by id for a boundary, every
+//! rank's part of the light for a save inside an iteration, and the rebuild of what each rank
 //! held when a solve resumes inside an iteration.
 
 use super::*;
 
 impl DataSolver<'_> {
     /// A mid-iteration checkpoint `done` steps into iteration `state.iteration + 1`: the
-    /// radiosity it gathers from and every rank's light of the surfels it holds, by surfel id
-    /// (see `checkpoint::State::data_groups`). Collective: every rank calls it.
+    /// radiosity it gathers from and every rank's part of the light, by surfel id (see
+    /// `checkpoint::State::data_groups`). Collective: every rank calls it.
     pub(super) fn save_within(
         &self,
         world: &dyn Comm,
@@ -15,13 +15,13 @@ impl DataSolver<'_> {
         mut state: State,
         done: usize,
         held: &Held,
+        owned: &Owned,
     ) -> Result<(), CheckpointError> {
         let t = Instant::now();
-        let radiosity = self.gather_radiosity(held, world);
+        let radiosity = self.gather_radiosity(owned, world);
         let mut acc: Vec<Gathered> = vec![[[0.0; 3]; 2]; self.set.surfels.len()];
-        for e in &held.order {
-            let slot = e.index as usize;
-            acc[held.ids[slot] as usize] = held.acc[slot];
+        for (&id, a) in held.ids.iter().zip(&held.acc) {
+            acc[id as usize] = *a;
         }
         state.data_groups = self.groups as u32;
         let result = saver.save_within(world, state, done as u64, &radiosity, &acc);
@@ -31,12 +31,13 @@ impl DataSolver<'_> {
     }
 
     /// Rebuilds what this rank held after its group's directions `done` (the first ones of an
-    /// iteration) from a mid-iteration checkpoint: their distributions, found again as the first
+    /// iteration) from a mid-iteration checkpoint, `held` holding the canonical block: their distributions, found again as the first
     /// iteration found them (each from the histograms, which do not depend on who holds the
     /// surfels, and the bands of the one before), then the surfels the last one gives this rank,
-    /// with the checkpoint's `radiosity` and this rank's `sums`, in that direction's order; the
-    /// uninterrupted run held exactly these there. Returns the octant order `held` is sorted in
-    /// (`None`: still by id, when the group had no direction yet). Collective in the group.
+    /// with the checkpoint's `radiosity`, in that direction's order (the uninterrupted run held
+    /// exactly these there), and this rank's part of the light, `sums` (every surfel it has a
+    /// part of is met). Returns the octant order `held` is sorted in (`None`: the canonical
+    /// block by id, when the group had no direction yet). Collective in the group.
     pub(super) fn rebuild_within(
         &self,
         held: &mut Held,
@@ -56,10 +57,8 @@ impl DataSolver<'_> {
             }
         }
         let Some(&last) = done.last() else {
-            for e in &held.order {
-                let slot = e.index as usize;
-                held.acc[slot] = sums[held.ids[slot] as usize];
-            }
+            // `held` is the block it starts from.
+            self.meet_parts(held, radiosity, sums);
             return None;
         };
         let d = &self.directions.directions[last];
@@ -68,36 +67,49 @@ impl DataSolver<'_> {
         let distribution = remembered[last].as_ref()?;
         let table = distribution.table();
         let me = group_comm.rank();
-        let mut rebuilt = Held::default();
+        // The block stays met (with no part of the light, which adds nothing).
+        held.order.clear();
         for (id, prop) in self.surfels.iter().enumerate() {
             let (row, col) = bins.bin(prop.voxel);
             if group_comm.size() == 1 || table.owner(row, col) == me {
-                let slot = rebuilt.store(id as u32, *prop, radiosity[id], sums[id]);
-                rebuilt.order.push(OrderedEntry {
+                let place = held.meet(id as u32, *prop, radiosity[id], &self.emission[id]);
+                held.order.push(OrderedEntry {
                     voxel: prop.voxel,
-                    index: slot,
+                    index: place,
                 });
             }
         }
-        let ids = &rebuilt.ids;
-        rebuilt.order.sort_unstable_by(|x, y| compare(o, ids, x, y));
-        *held = rebuilt;
+        let ids = &held.ids;
+        held.order.sort_unstable_by(|x, y| compare(o, ids, x, y));
+        self.meet_parts(held, radiosity, sums);
         Some(o)
     }
 
-    /// The radiosity of every surfel by id, on every rank (group 0's surfels added over the
+    /// Puts this rank's part of the light back (`sums`, by id), meeting the surfels it has a
+    /// part of. A surfel whose part is zero need not be met: meeting it later adds the same.
+    fn meet_parts(&self, held: &mut Held, radiosity: &[Radiosity], sums: &[Gathered]) {
+        for (id, part) in sums.iter().enumerate() {
+            if part.iter().flatten().any(|&v| v != 0.0) {
+                let place = held.meet(
+                    id as u32,
+                    self.surfels[id],
+                    radiosity[id],
+                    &self.emission[id],
+                );
+                held.acc[place as usize] = *part;
+            }
+        }
+    }
+
+    /// The radiosity of every surfel by id, on every rank (the owners' blocks added over the
     /// world; in a grey solve the one channel copied to all three, as the solver returns it).
-    pub(super) fn gather_radiosity(&self, held: &Held, world: &dyn Comm) -> Vec<[[f32; 3]; 2]> {
+    pub(super) fn gather_radiosity(&self, owned: &Owned, world: &dyn Comm) -> Vec<Radiosity> {
         let n = self.set.surfels.len();
         let mut flat = vec![0.0f64; n * 6];
-        if self.group == 0 {
-            for e in &held.order {
-                let b = &held.radiosity[e.index as usize];
-                let id = held.ids[e.index as usize] as usize;
-                for side in 0..2 {
-                    for ch in 0..3 {
-                        flat[id * 6 + side * 3 + ch] = b[side][ch] as f64;
-                    }
+        for (b, id) in owned.radiosity.iter().zip(owned.ids.clone()) {
+            for side in 0..2 {
+                for ch in 0..3 {
+                    flat[id * 6 + side * 3 + ch] = b[side][ch] as f64;
                 }
             }
         }

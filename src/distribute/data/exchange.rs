@@ -1,6 +1,7 @@
 //! The data mode's distribution of one direction: the balance of its lines over the group's
 //! ranks (from histograms added over them), and the exchange that brings every surfel to the
-//! rank owning its line (fill, all-to-all, merge).
+//! rank owning its line (fill, all-to-all, merge), the first time in full and later by the
+//! direction's plan (`plan`).
 
 use super::*;
 
@@ -41,10 +42,11 @@ impl DataSolver<'_> {
         })
     }
 
-    /// Sends every held surfel to the rank `owner` names (from its voxel and id), and leaves
-    /// `held` with what this rank holds then, sorted in octant order `order` (by id when
-    /// `direction` is `usize::MAX`, the canonical distribution). `held_order` is the order
-    /// `held` is sorted in now.
+    /// Sends every held surfel to the rank `owner` names (from its voxel) for direction `k`,
+    /// and leaves `held.order` with what this rank holds then, sorted in octant order `order`.
+    /// `held_order` is the order `held` is sorted in now, `from` what it was distributed by.
+    /// Returns the plan of this exchange, which later exchanges from `from` to `k` follow
+    /// (`plan`).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn redistribute(
         &self,
@@ -53,14 +55,15 @@ impl DataSolver<'_> {
         order: usize,
         group_comm: &dyn Comm,
         tally: &mut Tally,
-        direction: usize,
-        owner: impl Fn([i32; 3], &dyn Fn() -> u32) -> usize + Sync,
-    ) {
+        k: usize,
+        from: Origin,
+        owner: impl Fn([i32; 3]) -> usize + Sync,
+    ) -> ExchangePlan {
         let (ranks, me) = (group_comm.size(), group_comm.rank());
-        let canonical = direction == usize::MAX;
         // Fill: destinations in held order, so every pack is sorted as `held` is.
         let t = Instant::now();
         let mut kept = Vec::with_capacity(held.len());
+        let mut leave = Vec::new();
         let mut packs: Vec<Vec<u8>> = vec![Vec::new(); ranks];
         if ranks == 1 {
             kept = std::mem::take(&mut held.order);
@@ -68,24 +71,76 @@ impl DataSolver<'_> {
             let owners: Vec<u32> = self.pool.install(|| {
                 held.order
                     .par_iter()
-                    // The id only when the owner needs it: reading it is a random access.
-                    .map(|e| owner(e.voxel, &|| held.ids[e.index as usize]) as u32)
+                    .map(|e| owner(e.voxel) as u32)
                     .collect()
             });
             let entries = std::mem::take(&mut held.order);
-            for (e, &dest) in entries.iter().zip(&owners) {
+            for (place, (e, &dest)) in entries.iter().zip(&owners).enumerate() {
                 if dest as usize == me {
                     kept.push(*e);
                 } else {
                     held.encode(e.index, &mut packs[dest as usize]);
-                    held.free.push(e.index);
+                    leave.push((place as u32, dest));
                 }
             }
         }
+        tally.seconds.fill += t.elapsed().as_secs_f64();
+        let arrived = self.send_and_receive(held, packs, group_comm, tally, k);
+
+        // Merge: the received packs (each sorted) into one run, then with the kept run.
+        let t = Instant::now();
+        let ids = &held.ids;
+        let cmp = |x: &OrderedEntry, y: &OrderedEntry| compare(order, ids, x, y);
+        held.order = if held_order == Some(order) {
+            // The packs are sorted runs: a stable sort merges them as runs.
+            let mut sorted = arrived.clone();
+            sorted.sort_by(cmp);
+            merge_two(&kept, &sorted, cmp)
+        } else {
+            let mut all = kept.clone();
+            all.extend_from_slice(&arrived);
+            all.sort_unstable_by(cmp);
+            all
+        };
+        tally.seconds.merge += t.elapsed().as_secs_f64();
+        ExchangePlan::record(from, leave, &kept, &arrived, &held.order, held.met())
+    }
+
+    /// The exchange `plan` recorded, again: the same surfels leave for the same ranks and the
+    /// arrivals take the same places, without placing a surfel on its line's bin or comparing
+    /// two (the plan's module says why that holds).
+    pub(super) fn redistribute_planned(
+        &self,
+        plan: &ExchangePlan,
+        held: &mut Held,
+        group_comm: &dyn Comm,
+        tally: &mut Tally,
+        k: usize,
+    ) {
+        let t = Instant::now();
+        let mut packs: Vec<Vec<u8>> = vec![Vec::new(); group_comm.size()];
+        let kept = plan.fill(held, &mut packs);
+        tally.seconds.fill += t.elapsed().as_secs_f64();
+        let arrived = self.send_and_receive(held, packs, group_comm, tally, k);
+        let t = Instant::now();
+        held.order = plan.order(&kept, &arrived);
+        tally.seconds.merge += t.elapsed().as_secs_f64();
+    }
+
+    /// Seals the packs, exchanges them over the group and stores what arrives; returns the
+    /// arrivals' entries in pack order.
+    fn send_and_receive(
+        &self,
+        held: &mut Held,
+        packs: Vec<Vec<u8>>,
+        group_comm: &dyn Comm,
+        tally: &mut Tally,
+        k: usize,
+    ) -> Vec<OrderedEntry> {
+        let t = Instant::now();
         let moved = packs.iter().map(Vec::len).sum::<usize>() / RECORD_BYTES;
-        if !canonical {
-            tally.moved[direction] += moved as f64;
-        }
+        tally.moved[k] += moved as f64;
+        tally.exchanges[k] += 1;
         tally.bytes_packed += (moved * RECORD_BYTES) as u64;
         let compress = self.compress;
         let packs: Vec<Vec<u8>> = self
@@ -95,36 +150,19 @@ impl DataSolver<'_> {
         tally.seconds.fill += t.elapsed().as_secs_f64();
 
         let t = Instant::now();
-        let received = if ranks == 1 {
+        let received = if group_comm.size() == 1 {
             Vec::new()
         } else {
             group_comm.exchange(packs)
         };
         tally.seconds.exchange += t.elapsed().as_secs_f64();
 
-        // Merge: the received packs (each sorted) into one run, then with the kept run.
         let t = Instant::now();
         let mut arrived = Vec::new();
         for pack in received.iter().filter(|p| !p.is_empty()) {
-            held.decode_all(&unseal(pack), &self.surfels, &mut arrived);
+            held.decode_all(&unseal(pack), &self.surfels, &self.emission, &mut arrived);
         }
-        let ids = &held.ids;
-        held.order = if canonical {
-            kept.extend_from_slice(&arrived);
-            kept.sort_unstable_by_key(|e| ids[e.index as usize]);
-            kept
-        } else {
-            let cmp = |x: &OrderedEntry, y: &OrderedEntry| compare(order, ids, x, y);
-            if held_order == Some(order) {
-                // The packs are sorted runs: a stable sort merges them as runs.
-                arrived.sort_by(cmp);
-                merge_two(&kept, &arrived, cmp)
-            } else {
-                kept.extend_from_slice(&arrived);
-                kept.sort_unstable_by(cmp);
-                kept
-            }
-        };
         tally.seconds.merge += t.elapsed().as_secs_f64();
+        arrived
     }
 }

@@ -1,47 +1,52 @@
 //! The data and hybrid modes (paper, sections 4 and 5): ranks own whole lines, and surfels
 //! travel to the rank that owns their line as the directions turn.
 //!
-//! Every rank holds a share of the surfels with their radiosity and the light they have gathered
-//! so far in this iteration (`Held`). Per direction, in the walk order of `DirectionSet` (octant by
+//! Every rank has the surfels its lines have held so far, with their radiosity and its own part
+//! of their light (`Held`). Per direction, in the walk order of `DirectionSet` (octant by
 //! octant, neighbours on the sphere one after another):
 //!
 //! 1. **balance**: the elastic distribution of the direction's lines over the group's ranks
 //!    ([`balance`](super::balance)), found from histograms added over ranks in the first
 //!    iteration and remembered for the later ones;
-//! 2. **fill**: the surfels whose line now belongs to another rank are packed per destination,
-//!    in the order they are held (sorted along the direction's octant order), and compressed with
-//!    zstd where that pays;
+//! 2. **fill**: the surfels whose line now belongs to another rank are packed per destination
+//!    (id and radiosity), in the order they are held (sorted along the direction's octant
+//!    order), and compressed with zstd where that pays;
 //! 3. **exchange**: one all-to-all with variable counts;
 //! 4. **merge**: the kept surfels and the received packs, each sorted, are merged k-way into the
 //!    octant order (a full sort only when the octant order changes, four times per iteration);
+//!    the exchange is written down as the direction's plan (`plan`), which later exchanges
+//!    follow without placing a surfel on its bin or comparing two;
 //! 5. **dispatch and propagate**: the in-memory solver's, on the held surfels, which now hold
 //!    every line they touch whole. The first time, the partner links are written down
-//!    ([`HeldLinks`], within the links budget); later iterations replay them instead (the
-//!    held surfels and their order are the same each time, only their slots differ).
+//!    ([`HeldLinks`], within the links budget); later iterations replay them instead.
+//!
+//! **Light stays where it is gathered.** A rank adds what its lines gather to its own part of
+//! each surfel's light, by the surfel's place (`Held`), and the parts are added over the world
+//! once, at the end of the iteration, on the rank that owns the surfel's radiosity (a block of
+//! ids, `Owned`), which updates `B` and sends it back to every rank that has the surfel
+//! (`reduce`). So once the first iteration has brought each rank every surfel its lines will
+//! hold, an iteration whose links every rank of a group kept moves no surfel at all: it is the
+//! replay of the links of each direction, then that one exchange. Like the directions mode, a
+//! surfel's light is thus added in another grouping than on one process: the answer agrees with
+//! the one process's to rounding (on one rank, bit for bit), and it is the same for any thread
+//! count and after any resume.
 //!
 //! **The direct-light pass** (`solve::direct`) runs once before the iterations, as on one
 //! process: every rank holds the scene, so its dense directions are dealt over the world and its
 //! light summed across it; the lines then carry `B - E` and the update adds `rho` times the
 //! direct light, surfel by surfel.
 //!
-//! A surfel's gathered light is accumulated in direction order, on whichever rank holds it, and
-//! each line is processed from the same surfels in the same order as on one process: the data
-//! mode gives the single-process radiosity bit for bit (the stopping rule's sums are added in
-//! another grouping, which can only move a borderline stop by one iteration; the direct pass's
-//! light is summed across ranks, as in the directions mode, and agrees to rounding).
-//!
-//! **Checkpoints.** At an iteration boundary the radiosity is gathered by id and rank 0 writes
-//! it. Inside an iteration the whole world agrees between two steps (one direction of every
-//! group) on a stop signal and on saving; a save holds each rank's light of the surfels it holds,
-//! by id. A resume rebuilds every rank's surfels from the first iteration's distributions of the
+//! **Checkpoints.** At an iteration boundary the owners' radiosity is gathered by id and rank 0
+//! writes it. Inside an iteration the whole world agrees between two steps (one direction of
+//! every group) on a stop signal and on saving; a save holds each rank's part of the light, by
+//! id. A resume rebuilds every rank's surfels from the first iteration's distributions of the
 //! directions done (found again: they depend on the scene only), so the rest of the iteration
 //! sees the same lines in the same order and the result is the uninterrupted run's bits.
 //!
 //! **Hybrid.** The ranks form `G` groups of equal size; group `g` takes the `g`-th contiguous
 //! block of directions (contiguous, so that the directions a group walks stay close) and spreads
-//! the data over its ranks. At the end of an iteration every group brings its surfels to one
-//! canonical distribution (blocks of surfel ids), so that the `k`-th rank of every group holds
-//! the same surfels; those ranks add their gathered light, in group order, and all update `B`.
+//! the data over its ranks; the end of the iteration adds the parts of every rank of the world
+//! alike.
 //!
 //! In this in-memory form every rank reads and voxelizes the whole scene (the surfel set is the
 //! input of this function) and keeps the scene tables; only the solver's per-surfel state is
@@ -52,6 +57,7 @@ mod checkpoints;
 mod exchange;
 mod held;
 mod links;
+mod plan;
 mod wire;
 
 use crate::checkpoint::{CheckpointError, Gathered, Radiosity, Saver, State};
@@ -73,6 +79,7 @@ use crate::solve::{Solution, SolveStats};
 use crate::voxel::SurfelSet;
 use held::{Held, RECORD_BYTES};
 use links::HeldLinks;
+use plan::{ExchangePlan, ExchangePlans, Origin};
 use rayon::prelude::*;
 use std::time::Instant;
 use wire::{compare, merge_two, seal, unseal};
@@ -112,9 +119,8 @@ pub fn solve_data(
     let (threads, pool) = worker_pool(options)?;
     let per_group = size / groups;
     let group = comm.rank() / per_group;
-    // Both splits are collective: every rank makes them, in this order.
+    // The split is collective: every rank makes it.
     let group_comm = comm.split(group);
-    let peers = comm.split(group_comm.rank());
     let mut solver = DataSolver::new(set, directions, options, threads, &pool, groups, group);
     solver.compress = compress;
     // The direct light, once, as the one-process solver gathers it: every rank holds the whole
@@ -133,7 +139,7 @@ pub fn solve_data(
                 &pool,
             )
         });
-    solver.run(comm, group_comm.as_ref(), peers.as_ref(), checkpoints)
+    solver.run(comm, group_comm.as_ref(), checkpoints)
 }
 
 /// The scene-wide tables every rank keeps, and the solve's settings.
@@ -163,8 +169,12 @@ struct Tally {
     seconds: PhaseSeconds,
     /// Surfels this rank sent away, per direction (summed over iterations).
     moved: Vec<f64>,
+    /// Exchanges of each direction (iterations that replay have none).
+    exchanges: Vec<u32>,
     bytes_packed: u64,
     bytes_sent: u64,
+    /// Bytes of parts of the light and of radiosity this rank sent at the ends of iterations.
+    end_bytes: u64,
 }
 
 impl<'a> DataSolver<'a> {
@@ -231,7 +241,6 @@ impl<'a> DataSolver<'a> {
         &self,
         world: &dyn Comm,
         group_comm: &dyn Comm,
-        peers: &dyn Comm,
         mut checkpoints: Option<Checkpoints>,
     ) -> Result<Solution, SolveError> {
         let n = self.set.surfels.len();
@@ -241,34 +250,27 @@ impl<'a> DataSolver<'a> {
             solver: self,
             world,
             group_comm,
-            peers,
             mine: (d_count * self.group / self.groups..d_count * (self.group + 1) / self.groups)
                 .collect(),
-            held: Held::default(),
+            held: Held::new(n, self.direct.is_some()),
+            owned: Owned::new(self.block(world.rank(), world.size()), &self.emission),
+            sharing: Sharing::default(),
             held_order: None,
+            from: Origin::Blocks,
+            plans: ExchangePlans::new(d_count),
+            replaying: false,
             remembered: vec![None; d_count],
             tally: Tally {
                 moved: vec![0.0; d_count],
+                exchanges: vec![0; d_count],
                 ..Default::default()
             },
             lines: Lines::default(),
-            reflected: Vec::new(),
-            previous: Vec::new(),
             links: HeldLinks::new(
                 d_count,
                 rank_budget(self.options.links_memory, self.set.surfels.len(), world),
             ),
         };
-        for id in self.block(me, ranks) {
-            let prop = self.surfels[id];
-            let slot = sweep
-                .held
-                .store(id as u32, prop, self.emission[id], [[0.0; 3]; 2]);
-            sweep.held.order.push(OrderedEntry {
-                voxel: prop.voxel,
-                index: slot,
-            });
-        }
         let mut stats = SolveStats {
             channels: self.channels,
             directions: d_count,
@@ -284,11 +286,11 @@ impl<'a> DataSolver<'a> {
         if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
             // The boundary the checkpoint holds (every rank has the whole of it).
             let resume_within = loaded.take_within(self.groups as u32, world.size());
-            let held = &mut sweep.held;
-            for e in &held.order {
-                let slot = e.index as usize;
-                held.radiosity[slot] = loaded.radiosity[held.ids[slot] as usize];
-            }
+            let owned = &mut sweep.owned;
+            owned
+                .radiosity
+                .copy_from_slice(&loaded.radiosity[owned.ids.clone()]);
+            self.meet_block(&mut sweep.held, me, ranks, &loaded.radiosity);
             let mut within = 0;
             match resume_within {
                 // Every rank has the same header: all continue inside, or none.
@@ -308,6 +310,9 @@ impl<'a> DataSolver<'a> {
                         &loaded.radiosity,
                         &sums,
                     );
+                    sweep.from = sweep.mine[..done_here]
+                        .last()
+                        .map_or(Origin::Blocks, |&k| Origin::After(k));
                     within = done as usize;
                 }
                 Some((done, _)) => tracing::warn!(
@@ -317,6 +322,8 @@ impl<'a> DataSolver<'a> {
                 None => {}
             }
             start = Start::resumed(&loaded.state, &loaded.path, within, &mut stats);
+        } else {
+            self.meet_block(&mut sweep.held, me, ranks, &self.emission);
         }
         let saver = checkpoints.map(|c| c.saver);
         iterate(
@@ -330,52 +337,55 @@ impl<'a> DataSolver<'a> {
         )?;
         stats.links = Some(sweep.links.stats(d_count, self.set.surfels.len(), world));
         let DataSweep {
-            held,
+            owned,
             remembered,
-            tally,
+            mut tally,
+            plans,
+            sharing,
             ..
         } = sweep;
+        tally.end_bytes = sharing.bytes;
         stats.dispatch_seconds = tally.seconds.dispatch;
         stats.propagate_seconds = tally.seconds.propagate;
         stats.reduce_seconds = tally.seconds.reduce;
-        stats.data = Some(self.summary(world, &tally, &remembered, stats.iterations));
-        let radiosity = self.finish(&held, world, &mut stats);
+        stats.data = Some(self.summary(world, &tally, &remembered, plans.bytes()));
+        let radiosity = self.finish(&owned, world, &mut stats);
         Ok(Solution { radiosity, stats })
     }
 
-    /// Dispatch and propagation of direction `k` over the held surfels. With the direct pass the
-    /// lines carry `B - E`, by slot in `reflected` (refilled here: the held surfels change with
-    /// every direction).
+    /// Gives `held` the canonical block of ids of rank `me` of a group of `ranks`, with their
+    /// radiosity from `radiosity` (by id), in id order: where every solve starts.
+    fn meet_block(&self, held: &mut Held, me: usize, ranks: usize, radiosity: &[Radiosity]) {
+        for id in self.block(me, ranks) {
+            let prop = self.surfels[id];
+            let place = held.meet(id as u32, prop, radiosity[id], &self.emission[id]);
+            held.order.push(OrderedEntry {
+                voxel: prop.voxel,
+                index: place,
+            });
+        }
+    }
+
+    /// Dispatch and propagation of direction `k` over the held surfels (with the direct pass,
+    /// the lines carry `B - E`), or the replay of its links.
     fn propagate(
         &self,
         k: usize,
         held: &mut Held,
         lines: &mut Lines,
-        reflected: &mut Vec<Radiosity>,
         links: &mut HeldLinks,
         tally: &mut Tally,
     ) {
         let d = &self.directions.directions[k];
         let t0 = Instant::now();
         let Held {
-            ids,
             prop,
             radiosity,
+            reflected,
             acc,
             order,
             ..
         } = held;
-        if self.direct.is_some() {
-            // The one-process solver's `DirectLight::reflected`, by slot.
-            reflected.resize(radiosity.len(), [[0.0; 3]; 2]);
-            for e in order.iter() {
-                let slot = e.index as usize;
-                reflected[slot] = crate::solve::update::reflected_part(
-                    &radiosity[slot],
-                    &self.emission[ids[slot] as usize],
-                );
-            }
-        }
         let input = DirectionInput {
             unit: d.unit,
             weight: d.solid_angle / std::f64::consts::PI,
@@ -388,7 +398,7 @@ impl<'a> DataSolver<'a> {
             channels: self.channels,
         };
         let t1 = self.pool.install(|| {
-            if links.replay(k, order, ids, &input, acc) {
+            if links.replay(k, &input, acc) {
                 // Nothing dispatched: the replay is this direction's propagation.
                 return t0;
             }
@@ -398,7 +408,7 @@ impl<'a> DataSolver<'a> {
                 gather_all_lines(lines, &input, acc, self.threads);
             } else {
                 let recorded = gather_and_record(lines, &input, acc, self.threads);
-                links.keep(k, recorded, order, ids);
+                links.keep(k, recorded);
             }
             t1
         });
@@ -406,33 +416,106 @@ impl<'a> DataSolver<'a> {
         tally.seconds.propagate += t1.elapsed().as_secs_f64();
     }
 
-    /// `B = E + rho H / S` on the held surfels; returns the change it makes `[change, total,
-    /// falling]` added over the world (group 0 speaks for every surfel once).
-    fn update(&self, held: &mut Held, world: &dyn Comm) -> [f64; 3] {
+    /// The end of an iteration: every rank's part of the light of each surfel it has goes to
+    /// the surfel's owner, which adds the parts in rank order and updates `B = E + rho H / S`;
+    /// the new radiosity goes back to every rank that has the surfel. Returns the update's
+    /// sums `[change, total, falling]` added over the world. Collective on `world`.
+    fn reduce(
+        &self,
+        held: &mut Held,
+        owned: &mut Owned,
+        sharing: &mut Sharing,
+        world: &dyn Comm,
+    ) -> [f64; 3] {
+        let size = world.size();
+        // Parts, by owner (each rank sends each surfel it has once: the owner's sum is in rank
+        // order whatever order a pack lists them in).
+        sharing.sent = vec![Vec::new(); size];
+        let mut packs = vec![Vec::new(); size];
+        for (place, &id) in held.ids.iter().enumerate() {
+            let owner = self.owner_of_id(id, size);
+            sharing.sent[owner].push(place as u32);
+            let pack: &mut Vec<u8> = &mut packs[owner];
+            pack.extend_from_slice(&id.to_le_bytes());
+            for a in held.acc[place].iter().flatten() {
+                pack.extend_from_slice(&a.to_le_bytes());
+            }
+        }
+        sharing.bytes += packs.iter().map(|p| p.len() as u64).sum::<u64>();
+        let received = world.exchange(packs);
+        owned.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+        sharing.asked = Vec::with_capacity(size);
+        for pack in &received {
+            let mut ids = Vec::with_capacity(pack.len() / PART_BYTES);
+            for r in pack.chunks_exact(PART_BYTES) {
+                let id = u32::from_le_bytes([r[0], r[1], r[2], r[3]]);
+                let sum = &mut owned.acc[id as usize - owned.ids.start];
+                for (k, v) in sum.iter_mut().flatten().enumerate() {
+                    let at = 4 + 8 * k;
+                    let mut b = [0u8; 8];
+                    b.copy_from_slice(&r[at..at + 8]);
+                    *v += f64::from_le_bytes(b);
+                }
+                ids.push(id);
+            }
+            sharing.asked.push(ids);
+        }
         let mut sums = crate::solve::update::UpdateSums::default();
-        for e in &held.order {
-            let i = e.index as usize;
-            let id = held.ids[i] as usize;
+        for (i, id) in owned.ids.clone().enumerate() {
             let s = &self.set.surfels[id];
-            held.radiosity[i] = crate::solve::update::update_surfel(
+            owned.radiosity[i] = crate::solve::update::update_surfel(
                 &self.emission[id],
                 &self.reflectance[id],
-                held.acc[i],
+                owned.acc[i],
                 crate::solve::update::direct_of(self.direct.as_ref(), id),
                 self.channels,
-                &held.radiosity[i],
+                &owned.radiosity[i],
                 self.cosine_sum[s.normal_id as usize],
                 s.area as f64,
                 &mut sums,
             );
         }
-        let mut sums = if self.group == 0 {
-            [sums.change, sums.total, sums.falling]
-        } else {
-            [0.0, 0.0, 0.0]
-        };
+        let mut sums = [sums.change, sums.total, sums.falling];
         world.sum_in_place(&mut sums);
+        self.share_radiosity(held, owned, sharing, world);
         sums
+    }
+
+    /// Sends the owners' radiosity to every rank that has the surfel (the ones each rank sent
+    /// its parts of at the last `reduce`). Collective on `world`.
+    fn share_radiosity(
+        &self,
+        held: &mut Held,
+        owned: &Owned,
+        sharing: &mut Sharing,
+        world: &dyn Comm,
+    ) {
+        let replies: Vec<Vec<u8>> = sharing
+            .asked
+            .iter()
+            .map(|ids| {
+                let mut out = Vec::with_capacity(ids.len() * 24);
+                for &id in ids {
+                    for f in owned.radiosity[id as usize - owned.ids.start]
+                        .iter()
+                        .flatten()
+                    {
+                        out.extend_from_slice(&f.to_le_bytes());
+                    }
+                }
+                out
+            })
+            .collect();
+        sharing.bytes += replies.iter().map(|p| p.len() as u64).sum::<u64>();
+        let received = world.exchange(replies);
+        for (places, pack) in sharing.sent.iter().zip(&received) {
+            for (&place, r) in places.iter().zip(pack.chunks_exact(24)) {
+                let f = |k: usize| f32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
+                let b = [[f(0), f(4), f(8)], [f(12), f(16), f(20)]];
+                let id = held.ids[place as usize] as usize;
+                held.set_radiosity(place as usize, b, &self.emission[id]);
+            }
+        }
     }
 
     /// Exchanged fraction, imbalance, bytes and every rank's phase seconds.
@@ -441,24 +524,34 @@ impl<'a> DataSolver<'a> {
         world: &dyn Comm,
         tally: &Tally,
         remembered: &[Option<Distribution>],
-        iterations: usize,
+        plan_bytes: u64,
     ) -> DataStats {
         let n = self.set.surfels.len().max(1) as f64;
+        let d_count = self.directions.len();
         let mut moved = tally.moved.clone();
+        moved.extend(tally.exchanges.iter().map(|&e| e as f64));
         let mut table = vec![0.0; PhaseSeconds::FIELDS * world.size()];
         table[PhaseSeconds::FIELDS * world.rank()..][..PhaseSeconds::FIELDS]
             .copy_from_slice(&tally.seconds.to_array());
         moved.extend_from_slice(&table);
+        moved.push(plan_bytes as f64);
+        moved.push(tally.end_bytes as f64);
         moved.push(tally.bytes_packed as f64);
         moved.push(tally.bytes_sent as f64);
         world.sum_in_place(&mut moved);
-        let d_count = self.directions.len();
         let bytes_sent = moved.pop().unwrap_or(0.0) as u64;
         let bytes_packed = moved.pop().unwrap_or(0.0) as u64;
-        let table = moved.split_off(d_count);
+        let end_of_iteration_bytes = moved.pop().unwrap_or(0.0) as u64;
+        let plan_bytes = moved.pop().unwrap_or(0.0) as u64;
+        let table = moved.split_off(2 * d_count);
+        let exchanges = moved.split_off(d_count);
+        // Per exchange of the direction (iterations that replay move nothing); every rank of
+        // the group counted the exchange.
+        let per_group = (world.size() / self.groups) as f64;
         let fractions: Vec<f64> = moved
             .iter()
-            .map(|&m| m / (n * iterations.max(1) as f64))
+            .zip(&exchanges)
+            .map(|(&m, &e)| m / (n * (e / per_group).max(1.0)))
             .collect();
         // Imbalance: every group found its own directions' distributions; gather them all.
         let mut imbalance = vec![0.0; d_count];
@@ -483,6 +576,8 @@ impl<'a> DataSolver<'a> {
             max_imbalance: if used.is_empty() { 1.0 } else { max(&used) },
             bytes_packed,
             bytes_sent,
+            plan_bytes,
+            end_of_iteration_bytes,
             per_rank: table
                 .chunks(PhaseSeconds::FIELDS)
                 .map(PhaseSeconds::from_slice)
@@ -491,36 +586,32 @@ impl<'a> DataSolver<'a> {
         }
     }
 
-    /// The whole radiosity on every rank (group 0's surfels added over the world), and the
-    /// energy balance from the last gather.
-    fn finish(&self, held: &Held, world: &dyn Comm, stats: &mut SolveStats) -> Vec<[[f32; 3]; 2]> {
+    /// The whole radiosity on every rank (the owners' blocks added over the world), and the
+    /// energy balance from the last iteration's light.
+    fn finish(&self, owned: &Owned, world: &dyn Comm, stats: &mut SolveStats) -> Vec<Radiosity> {
         let n = self.set.surfels.len();
         let mut flat = vec![0.0f64; n * 6 + 9];
         let area_unit = self.set.grid.voxel_size * self.set.grid.voxel_size;
         let mut sums = crate::solve::update::UpdateSums::default();
-        if self.group == 0 {
-            for e in &held.order {
-                let i = e.index as usize;
-                let id = held.ids[i] as usize;
-                let s = &self.set.surfels[id];
-                for side in 0..2 {
-                    for ch in 0..3 {
-                        let c = if self.channels == 1 { 0 } else { ch };
-                        flat[id * 6 + side * 3 + ch] = held.radiosity[i][side][c] as f64;
-                    }
+        for (i, id) in owned.ids.clone().enumerate() {
+            let s = &self.set.surfels[id];
+            for side in 0..2 {
+                for ch in 0..3 {
+                    let c = if self.channels == 1 { 0 } else { ch };
+                    flat[id * 6 + side * 3 + ch] = owned.radiosity[i][side][c] as f64;
                 }
-                // As every loop adds it up (`solve::update::add_power`).
-                crate::solve::update::add_power(
-                    s.material.map(|m| &self.set.materials[m as usize]),
-                    held.acc[i],
-                    crate::solve::update::direct_of(self.direct.as_ref(), id),
-                    self.channels,
-                    self.cosine_sum[s.normal_id as usize],
-                    s.area as f64,
-                    area_unit,
-                    &mut sums,
-                );
             }
+            // As every loop adds it up (`solve::update::add_power`).
+            crate::solve::update::add_power(
+                s.material.map(|m| &self.set.materials[m as usize]),
+                owned.acc[i],
+                crate::solve::update::direct_of(self.direct.as_ref(), id),
+                self.channels,
+                self.cosine_sum[s.normal_id as usize],
+                s.area as f64,
+                area_unit,
+                &mut sums,
+            );
         }
         flat[n * 6..]
             .copy_from_slice(&[sums.emitted, sums.absorbed, sums.absorbed_direct].concat());
@@ -544,27 +635,114 @@ impl<'a> DataSolver<'a> {
     }
 }
 
-/// The data and hybrid modes as the iteration loop drives them: the held surfels of this rank
-/// (a store in RAM, by slot), lines dealt over the ranks of a group, groups over directions.
+/// Bytes of one surfel's part of the light on its way to the owner: id (4) and light (48).
+const PART_BYTES: usize = 52;
+
+/// The surfels whose radiosity this rank owns (a block of ids of the world): their radiosity,
+/// the light of the last iteration added over the ranks, and the radiosity before the last
+/// update (for the tail extrapolation).
+struct Owned {
+    ids: std::ops::Range<usize>,
+    radiosity: Vec<Radiosity>,
+    acc: Vec<Gathered>,
+    previous: Vec<Radiosity>,
+}
+
+impl Owned {
+    /// The block `ids`, starting from `B = E`.
+    fn new(ids: std::ops::Range<usize>, emission: &[Radiosity]) -> Self {
+        Owned {
+            radiosity: emission[ids.clone()].to_vec(),
+            acc: vec![[[0.0; 3]; 2]; ids.len()],
+            previous: Vec::new(),
+            ids,
+        }
+    }
+}
+
+/// Who has which surfel, as the last `reduce` found it: the places this rank sent parts of to
+/// each owner, and the ids each rank sent parts of here (by source rank), so that the
+/// radiosity can be sent back along the same lists.
+#[derive(Default)]
+struct Sharing {
+    sent: Vec<Vec<u32>>,
+    asked: Vec<Vec<u32>>,
+    /// Bytes this rank sent at ends of iterations (own ones included).
+    bytes: u64,
+}
+
+/// The data and hybrid modes as the iteration loop drives them: the surfels this rank has,
+/// lines dealt over the ranks of a group, groups over directions.
 struct DataSweep<'s, 'a> {
     solver: &'s DataSolver<'a>,
     world: &'s dyn Comm,
     group_comm: &'s dyn Comm,
-    /// The ranks of the same place in every group (hybrid: their light is added).
-    peers: &'s dyn Comm,
     /// This group's directions.
     mine: Vec<usize>,
     held: Held,
-    /// The octant order `held` is sorted in (None: by id).
+    owned: Owned,
+    sharing: Sharing,
+    /// The octant order `held.order` is sorted in (None: by id).
     held_order: Option<usize>,
+    /// What `held.order` was last distributed by.
+    from: Origin,
+    /// Each direction's exchange, recorded the first time (`plan`).
+    plans: ExchangePlans,
+    /// This iteration replays the kept links of every direction of the group, on every rank
+    /// of it: no exchange until its end.
+    replaying: bool,
     /// Each direction's distribution, found in the first iteration.
     remembered: Vec<Option<Distribution>>,
     tally: Tally,
     lines: Lines,
-    reflected: Vec<Radiosity>,
-    /// The held radiosity the last update replaced, by slot (for the tail extrapolation).
-    previous: Vec<Radiosity>,
     links: HeldLinks,
+}
+
+impl DataSweep<'_, '_> {
+    /// Brings the surfels whose lines direction `k` gives this rank here, by the direction's
+    /// plan if one was recorded from where `held` is, else in full (recording the plan).
+    fn distribute(&mut self, k: usize) {
+        let solver = self.solver;
+        let d = &solver.directions.directions[k];
+        let o = order::order_of(d.vector);
+        if let Some(plan) = self.plans.usable(k, self.from) {
+            solver.redistribute_planned(plan, &mut self.held, self.group_comm, &mut self.tally, k);
+        } else {
+            let t = Instant::now();
+            if self.remembered[k].is_none() {
+                let previous = self
+                    .mine
+                    .iter()
+                    .rev()
+                    .skip_while(|&&j| j != k)
+                    .nth(1)
+                    .and_then(|&j| self.remembered[j].as_ref())
+                    .map(Distribution::bands);
+                self.remembered[k] = Some(solver.balance(k, &self.held, self.group_comm, previous));
+            }
+            let distribution = self.remembered[k].as_ref().expect("just filled");
+            self.tally.seconds.balance += t.elapsed().as_secs_f64();
+            let bins = solver.projection(k).lines(&solver.frames[k], d.vector);
+            let table = distribution.table();
+            let owner = |voxel: [i32; 3]| {
+                let (row, col) = bins.bin(voxel);
+                table.owner(row, col)
+            };
+            let plan = solver.redistribute(
+                &mut self.held,
+                self.held_order,
+                o,
+                self.group_comm,
+                &mut self.tally,
+                k,
+                self.from,
+                owner,
+            );
+            self.plans.keep(k, plan);
+        }
+        self.from = Origin::After(k);
+        self.held_order = Some(o);
+    }
 }
 
 impl Sweep for DataSweep<'_, '_> {
@@ -584,6 +762,10 @@ impl Sweep for DataSweep<'_, '_> {
         if from == 0 {
             self.held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         }
+        // Replay without exchanges only if every rank of the group kept every direction's
+        // links (the exchanges are collective in the group).
+        let all_kept = self.mine.iter().all(|&k| self.links.kept(k));
+        self.replaying = self.group_comm.max_u64(u64::from(!all_kept)) == 0;
         Ok(())
     }
 
@@ -591,44 +773,13 @@ impl Sweep for DataSweep<'_, '_> {
         let Some(&k) = self.mine.get(step) else {
             return Ok(true);
         };
-        let solver = self.solver;
-        let d = &solver.directions.directions[k];
-        let o = order::order_of(d.vector);
-        let t = Instant::now();
-        if self.remembered[k].is_none() {
-            let previous = self
-                .mine
-                .iter()
-                .rev()
-                .skip_while(|&&j| j != k)
-                .nth(1)
-                .and_then(|&j| self.remembered[j].as_ref())
-                .map(Distribution::bands);
-            self.remembered[k] = Some(solver.balance(k, &self.held, self.group_comm, previous));
+        if !self.replaying {
+            self.distribute(k);
         }
-        let distribution = self.remembered[k].as_ref().expect("just filled");
-        self.tally.seconds.balance += t.elapsed().as_secs_f64();
-        let bins = solver.projection(k).lines(&solver.frames[k], d.vector);
-        let table = distribution.table();
-        let owner = |voxel: [i32; 3], _id: &dyn Fn() -> u32| {
-            let (row, col) = bins.bin(voxel);
-            table.owner(row, col)
-        };
-        solver.redistribute(
-            &mut self.held,
-            self.held_order,
-            o,
-            self.group_comm,
-            &mut self.tally,
-            k,
-            owner,
-        );
-        self.held_order = Some(o);
-        solver.propagate(
+        self.solver.propagate(
             k,
             &mut self.held,
             &mut self.lines,
-            &mut self.reflected,
             &mut self.links,
             &mut self.tally,
         );
@@ -648,49 +799,26 @@ impl Sweep for DataSweep<'_, '_> {
         done: usize,
     ) -> Result<(), CheckpointError> {
         self.solver
-            .save_within(self.world, saver, state, done, &self.held)
+            .save_within(self.world, saver, state, done, &self.held, &self.owned)
     }
 
     fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
         // Collective: every rank gathers, rank 0 writes.
-        let radiosity = self.solver.gather_radiosity(&self.held, self.world);
+        let radiosity = self.solver.gather_radiosity(&self.owned, self.world);
         saver.save_memory(state, &radiosity)
     }
 
     fn end(&mut self) -> Result<[f64; 3], SolveError> {
         let t = Instant::now();
-        let solver = self.solver;
-        if solver.groups > 1 {
-            // One canonical distribution, then the peers' light added in group order.
-            let ranks = self.group_comm.size();
-            let block_owner = |_: [i32; 3], id: &dyn Fn() -> u32| solver.owner_of_id(id(), ranks);
-            solver.redistribute(
-                &mut self.held,
-                None,
-                0,
-                self.group_comm,
-                &mut self.tally,
-                usize::MAX,
-                block_owner,
-            );
-            self.held_order = None;
-            let held = &mut self.held;
-            let mut flat: Vec<f64> = held
-                .order
-                .iter()
-                .flat_map(|e| held.acc[e.index as usize].into_iter().flatten())
-                .collect();
-            self.peers.sum_in_place(&mut flat);
-            for (e, v) in held.order.iter().zip(flat.chunks_exact(6)) {
-                let a = &mut held.acc[e.index as usize];
-                a[0].copy_from_slice(&v[..3]);
-                a[1].copy_from_slice(&v[3..]);
-            }
+        if self.solver.options.accelerate {
+            self.owned.previous.clone_from(&self.owned.radiosity);
         }
-        if solver.options.accelerate {
-            self.previous.clone_from(&self.held.radiosity);
-        }
-        let sums = solver.update(&mut self.held, self.world);
+        let sums = self.solver.reduce(
+            &mut self.held,
+            &mut self.owned,
+            &mut self.sharing,
+            self.world,
+        );
         self.tally.seconds.reduce += t.elapsed().as_secs_f64();
         Ok(sums)
     }
@@ -698,18 +826,14 @@ impl Sweep for DataSweep<'_, '_> {
     fn extrapolate(&mut self, factor: f64) -> Result<(), SolveError> {
         let t = Instant::now();
         let solver = self.solver;
-        let emission: Vec<Radiosity> = self
-            .held
-            .ids
-            .iter()
-            .map(|&id| solver.emission[id as usize])
-            .collect();
+        let owned = &mut self.owned;
         crate::solve::accelerate::extrapolate(
-            &mut self.held.radiosity,
-            &self.previous,
-            &emission,
+            &mut owned.radiosity,
+            &owned.previous,
+            &solver.emission[owned.ids.clone()],
             factor,
         );
+        solver.share_radiosity(&mut self.held, &self.owned, &mut self.sharing, self.world);
         self.tally.seconds.reduce += t.elapsed().as_secs_f64();
         Ok(())
     }

@@ -89,6 +89,7 @@ impl Solver<'_> {
                 bytes_sent: bytes_moved,
                 per_rank,
                 out_of_core,
+                ..Default::default()
             },
             bytes_read,
             bytes_written,
