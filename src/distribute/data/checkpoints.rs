@@ -53,7 +53,7 @@ impl DataSolver<'_> {
                     .checked_sub(1)
                     .and_then(|p| remembered[done[p]].as_ref())
                     .map(Distribution::bands);
-                remembered[k] = Some(self.balance(k, held, group_comm, previous));
+                remembered[k] = Some(self.balance(k, held, group_comm, previous).0);
             }
         }
         let Some(&last) = done.last() else {

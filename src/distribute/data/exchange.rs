@@ -7,43 +7,42 @@ use super::*;
 
 impl DataSolver<'_> {
     /// The elastic distribution of direction `k` over the group, from histograms added over
-    /// the group's ranks.
+    /// the group's ranks, and the bin of every held surfel (in `held.order`'s order).
     pub(super) fn balance(
         &self,
         k: usize,
         held: &Held,
         group_comm: &dyn Comm,
         preferred_bands: Option<usize>,
-    ) -> Distribution {
+    ) -> (Distribution, Vec<(usize, usize)>) {
         let d = &self.directions.directions[k];
         let projection = self.projection(k);
         let line_bins = projection.lines(&self.frames[k], d.vector);
-        let bins: Vec<(usize, usize)> = self.pool.install(|| {
-            held.order
-                .par_iter()
-                .map(|e| line_bins.bin(e.voxel))
-                .collect()
-        });
+        // One thread: a bin costs a few nanoseconds, and in rayon's pieces this pass took three
+        // times as long on one thread and longer on two than alone.
+        let bins: Vec<(usize, usize)> = held.order.iter().map(|e| line_bins.bin(e.voxel)).collect();
         let width = projection.bins();
         let mut rows = vec![0.0f64; width];
         for &(r, _) in &bins {
             rows[r] += 1.0;
         }
         group_comm.sum_in_place(&mut rows);
-        balance::distribute(group_comm.size(), &rows, preferred_bands, |row_cuts| {
-            let bands = row_cuts.len() - 1;
-            let mut columns = vec![0.0f64; bands * width];
-            for &(r, c) in &bins {
-                let band = row_cuts.partition_point(|&x| x <= r).clamp(1, bands) - 1;
-                columns[band * width + c] += 1.0;
-            }
-            group_comm.sum_in_place(&mut columns);
-            columns.chunks(width).map(<[f64]>::to_vec).collect()
-        })
+        let distribution =
+            balance::distribute(group_comm.size(), &rows, preferred_bands, |row_cuts| {
+                let bands = row_cuts.len() - 1;
+                let mut columns = vec![0.0f64; bands * width];
+                for &(r, c) in &bins {
+                    let band = row_cuts.partition_point(|&x| x <= r).clamp(1, bands) - 1;
+                    columns[band * width + c] += 1.0;
+                }
+                group_comm.sum_in_place(&mut columns);
+                columns.chunks(width).map(<[f64]>::to_vec).collect()
+            });
+        (distribution, bins)
     }
 
-    /// Sends every held surfel to the rank `owner` names (from its voxel) for direction `k`,
-    /// and leaves `held.order` with what this rank holds then, sorted in octant order `order`.
+    /// Sends every held surfel to its rank in `owners` (in `held.order`'s order) for direction
+    /// `k`, and leaves `held.order` with what this rank holds then, sorted in octant order `order`.
     /// `held_order` is the order `held` is sorted in now, `from` what it was distributed by.
     /// Returns the plan of this exchange, which later exchanges from `from` to `k` follow
     /// (`plan`).
@@ -57,7 +56,7 @@ impl DataSolver<'_> {
         tally: &mut Tally,
         k: usize,
         from: Origin,
-        owner: impl Fn([i32; 3]) -> usize + Sync,
+        owners: &[u32],
     ) -> ExchangePlan {
         let (ranks, me) = (group_comm.size(), group_comm.rank());
         // Fill: destinations in held order, so every pack is sorted as `held` is.
@@ -68,14 +67,8 @@ impl DataSolver<'_> {
         if ranks == 1 {
             kept = std::mem::take(&mut held.order);
         } else {
-            let owners: Vec<u32> = self.pool.install(|| {
-                held.order
-                    .par_iter()
-                    .map(|e| owner(e.voxel) as u32)
-                    .collect()
-            });
             let entries = std::mem::take(&mut held.order);
-            for (place, (e, &dest)) in entries.iter().zip(&owners).enumerate() {
+            for (place, (e, &dest)) in entries.iter().zip(owners).enumerate() {
                 if dest as usize == me {
                     kept.push(*e);
                 } else {

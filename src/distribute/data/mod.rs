@@ -709,6 +709,7 @@ impl DataSweep<'_, '_> {
             solver.redistribute_planned(plan, &mut self.held, self.group_comm, &mut self.tally, k);
         } else {
             let t = Instant::now();
+            let mut fresh_bins = None;
             if self.remembered[k].is_none() {
                 let previous = self
                     .mine
@@ -718,16 +719,36 @@ impl DataSweep<'_, '_> {
                     .nth(1)
                     .and_then(|&j| self.remembered[j].as_ref())
                     .map(Distribution::bands);
-                self.remembered[k] = Some(solver.balance(k, &self.held, self.group_comm, previous));
+                let (distribution, bins) = solver.balance(k, &self.held, self.group_comm, previous);
+                self.remembered[k] = Some(distribution);
+                fresh_bins = Some(bins);
             }
             let distribution = self.remembered[k].as_ref().expect("just filled");
             self.tally.seconds.balance += t.elapsed().as_secs_f64();
-            let bins = solver.projection(k).lines(&solver.frames[k], d.vector);
+            let t = Instant::now();
             let table = distribution.table();
-            let owner = |voxel: [i32; 3]| {
-                let (row, col) = bins.bin(voxel);
-                table.owner(row, col)
+            // One thread: a bin costs a few nanoseconds, and in rayon's pieces such a pass
+            // took three times as long on one thread, and longer on two than alone.
+            let owners: Vec<u32> = match fresh_bins {
+                // One rank keeps everything.
+                _ if self.group_comm.size() == 1 => Vec::new(),
+                Some(bins) => bins
+                    .iter()
+                    .map(|&(r, c)| table.owner(r, c) as u32)
+                    .collect(),
+                None => {
+                    let bins = solver.projection(k).lines(&solver.frames[k], d.vector);
+                    self.held
+                        .order
+                        .iter()
+                        .map(|e| {
+                            let (r, c) = bins.bin(e.voxel);
+                            table.owner(r, c) as u32
+                        })
+                        .collect()
+                }
             };
+            self.tally.seconds.fill += t.elapsed().as_secs_f64();
             let plan = solver.redistribute(
                 &mut self.held,
                 self.held_order,
@@ -736,7 +757,7 @@ impl DataSweep<'_, '_> {
                 &mut self.tally,
                 k,
                 self.from,
-                owner,
+                &owners,
             );
             self.plans.keep(k, plan);
         }
