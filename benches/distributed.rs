@@ -7,22 +7,28 @@
 //! 2. **Exchanged fraction and imbalance for 2 to 64 ranks** in the data mode (and hybrid): more
 //!    ranks than cores are oversubscribed, which ruins their times but not these two figures, which
 //!    depend only on the distribution.
-//! 3. **The model**: per iteration, on `P` ranks with `n` surfels and `D` directions,
-//!    - directions: `T = c n D / P + T_sum`, where the sum of `6 n` values is a reduce-scatter and
-//!      an all-gather: `T_sum = 2 (alpha (P - 1) + 48 n (P - 1) / (P beta))`;
-//!    - data: `T = (c + o) n D imb(P) / P + D (alpha (P - 1) + f(P) (n / P) b / beta)`, `o` the
-//!      data mode's own work per held surfel and direction (balance, fill, merge), `b` the bytes
-//!      sent per exchanged surfel (after compression), `f` the exchanged fraction, `imb` the
-//!      imbalance;
+//! 3. **The model**: a solve of `I` iterations on `P` ranks with `n` surfels and `D` directions,
+//!    the first iteration searching for partners and writing the links down, the later ones
+//!    replaying them (in every mode, when the links fit in memory):
+//!    - directions: `T = (c1 + (I - 1) cr) n D / P + I T_sum`, where the sum of `6 n` values is a
+//!      reduce-scatter and an all-gather: `T_sum = 2 (alpha (P - 1) + 48 n (P - 1) / (P beta))`;
+//!    - data: the first iteration `(c1 + o) n D imb(P) / P + D (alpha (P - 1) + f(P) (n / P) b /
+//!      beta)`, each later one `cr n D imb(P) / P` (no surfel moves: the light stays on the rank
+//!      that gathers it), and every iteration ends with `T_end = 2 alpha (P - 1) + m(P) (n / P) 76
+//!      / beta`: each rank sends its part of the light of the `m(P) n / P` surfels it has met to
+//!      their owners (52 bytes) and gets their radiosity back (24). `o` is the data mode's own
+//!      work per held surfel and direction (balance, fill, merge), `b` the bytes sent per
+//!      exchanged surfel, `f` the exchanged fraction, `imb` the imbalance;
 //!    - hybrid with `G` groups of `Q = P / G` ranks: the data mode's terms on `Q` ranks for `D / G`
-//!      directions, one exchange back to the canonical distribution, and the sum across the `G`
-//!      groups of `6 n / Q` values per rank.
+//!      directions, and the same end of iteration over all `P` ranks with `m(Q)`;
+//!    - without the links (they do not fit): every iteration is a first one.
 //!
-//!    `c` (seconds per voxel-direction) comes from the one-process run, `o` from the 2-rank data
-//!    run's phases, `beta` from the bytes and
-//!    seconds of the 2-rank data exchange (shared memory here; a cluster's network is slower, so
-//!    both are printed), `alpha` is a latency per peer per exchange (assumed, printed), `f` and
-//!    `imb` are measured up to 64 ranks and extrapolated beyond by a power law fitted to them.
+//!    `c1` and `cr` (seconds per voxel-direction of a first and of a later iteration) come from
+//!    one-process runs of 1 and `I` iterations, `o` from the 2-rank data run's phases (the
+//!    direct-light pass off in both), `beta` from the bytes and seconds of the 2-rank data
+//!    exchange (shared memory here; a cluster's network is slower, so both are printed), `alpha`
+//!    is a latency per peer per exchange (assumed, printed), `f`, `imb` and `m` are measured up
+//!    to 64 ranks and extrapolated beyond by a power law fitted to them.
 //!
 //! ```text
 //! cargo bench --features mpi --bench distributed
@@ -218,11 +224,12 @@ fn main() {
     }
     let (sres, sdirs) = (args.sweep_resolution, args.sweep_directions);
     println!("\n## Exchanged fraction and imbalance (Cornell box, resolution {sres}, {sdirs} directions, 1 iteration)\n");
-    println!("| mode | ranks | groups | exchanged mean | exchanged max | imbalance mean | imbalance max | bytes sent per surfel-direction |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| mode | ranks | groups | exchanged mean | exchanged max | imbalance mean | imbalance max | bytes sent per surfel-direction | met per rank / (n / P) |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut fractions = Vec::new();
     let mut imbalances = Vec::new();
     let mut sent_per_moved = Vec::new();
+    let mut met = Vec::new();
     for &p in &args.sweep_ranks {
         let mut modes = vec!["data"];
         if p >= 4 {
@@ -238,14 +245,19 @@ fn main() {
             );
             let per_update = f("bytes_sent") / (surfels * directions);
             println!(
-                "| {mode} | {p} | {} | {:.4} | {:.3} | {:.4} | {:.3} | {per_update:.2} |",
+                "| {mode} | {p} | {} | {:.4} | {:.3} | {:.4} | {:.3} | {per_update:.2} | {:.2} |",
                 dd["groups"],
                 f("exchanged_fraction"),
                 f("max_exchanged_fraction"),
                 f("imbalance"),
                 f("max_imbalance"),
+                f("end_of_iteration_bytes") / 76.0 / surfels,
             );
             if mode == "data" {
+                // Surfels each rank has met over the iteration, over its share n / P: the end of
+                // the iteration moves 76 bytes for each (one iteration here).
+                let met_per_rank = f("end_of_iteration_bytes") / 76.0 / p as f64;
+                met.push((p as f64, met_per_rank / (surfels / p as f64)));
                 fractions.push((p as f64, f("exchanged_fraction")));
                 imbalances.push((p as f64, f("imbalance") - 1.0));
                 let moved = f("exchanged_fraction") * surfels * directions;
@@ -256,16 +268,33 @@ fn main() {
         }
     }
 
-    // The model's parameters.
-    let c = t1 / (n * d * iters as f64);
+    // The model's parameters: first and later iterations apart, without the direct-light pass
+    // (the model is of the bounces).
+    let plain = ["--direct-directions", "0"];
+    let first = solve(None, &plain, res, dirs, 1);
+    let all = solve(None, &plain, res, dirs, iters.max(2));
+    let c1 = seconds(&first, "solve") / (n * d);
+    let cr = (seconds(&all, "solve") - seconds(&first, "solve")).max(0.0)
+        / (n * d * (iters.max(2) - 1) as f64);
+    let link_bytes = all["links"]["bytes_per_surfel_direction"]
+        .as_f64()
+        .unwrap_or(0.0);
+    let data_first = solve(
+        Some(2),
+        &["--distribute", "data", "--direct-directions", "0"],
+        res,
+        dirs,
+        1,
+    );
+    let phases = data_first["data_distribution"]["per_rank"].clone();
     let phase = |r: usize, k: &str| phases[r][k].as_f64().unwrap_or(0.0);
     let exchange_seconds = (phase(0, "exchange") + phase(1, "exchange")) / 2.0;
     let own_seconds = (0..2)
         .map(|r| phase(r, "balance") + phase(r, "fill") + phase(r, "merge"))
         .sum::<f64>()
         / 2.0;
-    let o = own_seconds / (n / 2.0 * d * iters as f64);
-    let bytes2 = data2["data_distribution"]["bytes_sent"]
+    let o = own_seconds / (n / 2.0 * d);
+    let bytes2 = data_first["data_distribution"]["bytes_sent"]
         .as_f64()
         .unwrap_or(0.0)
         / 2.0;
@@ -277,6 +306,7 @@ fn main() {
     let b = sent_per_moved.iter().sum::<f64>() / sent_per_moved.len().max(1) as f64;
     let (fa, fb) = power_law(&fractions);
     let (ia, ib) = power_law(&imbalances);
+    let (ma, mb) = power_law(&met);
     let measured = |table: &[(f64, f64)], p: f64| table.iter().find(|x| x.0 == p).map(|x| x.1);
     let fraction = |p: f64| {
         if p <= 1.0 {
@@ -290,52 +320,64 @@ fn main() {
         }
         1.0 + measured(&imbalances, p).unwrap_or(ia * p.powf(ib))
     };
+    // A rank meets at least its share and at most the whole scene.
+    let met_share = |p: f64| measured(&met, p).unwrap_or(ma * p.powf(mb)).clamp(1.0, p);
     println!("\n## Model\n");
     println!(
-        "c = {c:.3e} s per voxel-direction (one process, one thread); o = {o:.3e} s per held \
-         surfel and direction (data mode: balance, fill, merge); b = {b:.1} bytes sent per \
-         exchanged surfel; beta = {:.2} GB/s measured here (shared memory), {:.2} GB/s assumed \
-         for a network; alpha = {:.1} us per peer per exchange (assumed); f(P) = {fa:.4} P^{fb:.3}, \
-         imbalance(P) - 1 = {ia:.4} P^{ib:.3} beyond the measured ranks.\n",
+        "c1 = {c1:.3e} s per voxel-direction in a first iteration, cr = {cr:.3e} in a later one \
+         (one process, one thread, links kept: {link_bytes:.2} bytes per surfel-direction); \
+         o = {o:.3e} s per held surfel and direction (data mode, first iteration: balance, fill, \
+         merge); b = {b:.1} bytes sent per exchanged surfel; beta = {:.2} GB/s measured here \
+         (shared memory), {:.2} GB/s assumed for a network; alpha = {:.1} us per peer per \
+         exchange (assumed); f(P) = {fa:.4} P^{fb:.3}, imbalance(P) - 1 = {ia:.4} P^{ib:.3}, \
+         m(P) = {ma:.3} P^{mb:.3} beyond the measured ranks.\n",
         beta_here / 1e9,
         args.network_beta / 1e9,
         args.alpha * 1e6
     );
-    let (big_n, big_d) = (1e8, 589.0);
-    println!("Predicted seconds per iteration for n = 10^8 surfels, D = {big_d} directions (and parallel efficiency):\n");
-    println!("| ranks | directions (network) | data (network) | hybrid G = sqrt P (network) | data (shared-memory beta) |");
-    println!("|---|---|---|---|---|");
-    for p in [2.0f64, 8.0, 64.0, 512.0] {
-        let work = c * big_n * big_d;
+    let (big_n, big_d, big_i) = (1e10, 589.0, 10.0);
+    println!(
+        "Predicted seconds for a solve of {big_i} iterations, n = 10^10 surfels, D = {big_d} \
+         directions, with the network's beta (parallel efficiency against one process):\n"
+    );
+    println!("| ranks | links per rank | directions | data | hybrid G = sqrt P | data, links not kept | data, shared-memory beta |");
+    println!("|---|---|---|---|---|---|---|");
+    for p in [8.0f64, 64.0, 512.0] {
+        let one = (c1 + (big_i - 1.0) * cr) * big_n * big_d;
         let sum = |ranks: f64, values: f64, beta: f64| {
             2.0 * (args.alpha * (ranks - 1.0) + 8.0 * values * (ranks - 1.0) / ranks / beta)
         };
-        let directions_mode = |beta: f64| work / p + sum(p, 6.0 * big_n, beta);
-        let data_mode = |q: f64, dirs: f64, beta: f64| {
-            (c + o) * big_n * dirs * imbalance(q) / q
-                + dirs * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
+        let directions_mode = |beta: f64| one / p + big_i * sum(p, 6.0 * big_n, beta);
+        // The data mode's iterations on `q` ranks of a group taking `dirs` directions, with
+        // `p` ranks in all adding the light at the ends of iterations.
+        let data_mode = |p: f64, q: f64, dirs: f64, beta: f64, links: bool| {
+            let first = (c1 + o) * big_n * dirs * imbalance(q) / q
+                + dirs * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta);
+            let later = if links {
+                cr * big_n * dirs * imbalance(q) / q
+            } else {
+                first
+            };
+            let end = 2.0 * args.alpha * (p - 1.0) + met_share(q) * (big_n / q) * 76.0 / beta;
+            first + (big_i - 1.0) * later + big_i * end
         };
         let g = (p.sqrt().floor()).max(1.0);
-        let hybrid = |beta: f64| {
-            let q = p / g;
-            (c + o) * big_n * big_d / p * imbalance(q)
-                + (big_d / g) * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta)
-                // Back to the canonical distribution, then the sum across the groups.
-                + (big_n / q) * b / beta
-                + sum(g, 6.0 * big_n / q, beta)
-        };
-        let eff = |t: f64| 100.0 * work / p / t;
-        let (tdir, tdata, thyb, tdata_here) = (
-            directions_mode(args.network_beta),
-            data_mode(p, big_d, args.network_beta),
-            hybrid(args.network_beta),
-            data_mode(p, big_d, beta_here),
+        let beta = args.network_beta;
+        let eff = |t: f64| 100.0 * one / p / t;
+        let (tdir, tdata, thyb, tnolinks, tdata_here) = (
+            directions_mode(beta),
+            data_mode(p, p, big_d, beta, true),
+            data_mode(p, p / g, big_d / g, beta, true),
+            data_mode(p, p, big_d, beta, false),
+            data_mode(p, p, big_d, beta_here, true),
         );
         println!(
-            "| {p} | {tdir:.1} ({:.0}%) | {tdata:.1} ({:.0}%) | {thyb:.1} ({:.0}%) | {tdata_here:.1} ({:.0}%) |",
+            "| {p} | {:.0} GB | {tdir:.0} ({:.0}%) | {tdata:.0} ({:.0}%) | {thyb:.0} ({:.0}%) | {tnolinks:.0} ({:.0}% of the one process with links) | {tdata_here:.0} ({:.0}%) |",
+            link_bytes * big_n * big_d / p / 1e9,
             eff(tdir),
             eff(tdata),
             eff(thyb),
+            eff(tnolinks),
             eff(tdata_here)
         );
     }
