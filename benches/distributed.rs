@@ -21,7 +21,10 @@
 //!      exchanged surfel, `f` the exchanged fraction, `imb` the imbalance;
 //!    - hybrid with `G` groups of `Q = P / G` ranks: the data mode's terms on `Q` ranks for `D / G`
 //!      directions, and the same end of iteration over all `P` ranks with `m(Q)`;
-//!    - without the links (they do not fit): every iteration is a first one.
+//!    - without the links (they do not fit): every iteration is a first one;
+//!    - the data mode out of core: every iteration a first one, or the time its disk takes to
+//!      move the bytes measured at 2 ranks (per surfel-direction of the scene, shared by the
+//!      ranks) if that is longer; the disk's bandwidth per rank is assumed (`--disk`).
 //!
 //!    `c1` and `cr` (seconds per voxel-direction of a first and of a later iteration) come from
 //!    one-process runs of 1 and `I` iterations, `o` from the 2-rank data run's phases (the
@@ -52,6 +55,8 @@ struct Args {
     alpha: f64,
     /// A cluster network's bandwidth per rank for the model's second column (bytes/s).
     network_beta: f64,
+    /// A node's disk bandwidth per rank for the data mode out of core (bytes/s).
+    disk: f64,
     /// Only the speed-up at 2 ranks (for a quiet machine), no sweep and no model.
     speedup_only: bool,
 }
@@ -66,6 +71,7 @@ fn parse_args() -> Args {
         sweep_directions: 589,
         alpha: 5e-6,
         network_beta: 5e9,
+        disk: 2e9,
         speedup_only: false,
     };
     let argv: Vec<String> = std::env::args().skip(1).collect();
@@ -86,6 +92,7 @@ fn parse_args() -> Args {
             "--sweep-directions" => a.sweep_directions = number(&value) as usize,
             "--alpha" => a.alpha = number(&value),
             "--network-beta" => a.network_beta = number(&value),
+            "--disk" => a.disk = number(&value),
             "--sweep-ranks" => {
                 a.sweep_ranks = value.split(',').map(|r| number(r) as usize).collect()
             }
@@ -303,6 +310,37 @@ fn main() {
     } else {
         f64::INFINITY
     };
+    // The data mode out of core at 2 ranks, first iteration: the bytes each rank reads and
+    // writes per surfel-direction (with one rank's share of `n / 2` surfels).
+    let ooc = solve(
+        Some(2),
+        &[
+            "--distribute",
+            "data",
+            "--direct-directions",
+            "0",
+            "--memory",
+            "4MiB",
+        ],
+        res,
+        dirs,
+        1,
+    );
+    let ooc_bytes = ooc["data_distribution"]["out_of_core"]
+        .as_array()
+        .map(|ranks| {
+            ranks
+                .iter()
+                .map(|r| {
+                    r["bytes_read_per_voxel_direction"].as_f64().unwrap_or(0.0)
+                        + r["bytes_written_per_voxel_direction"]
+                            .as_f64()
+                            .unwrap_or(0.0)
+                })
+                .sum::<f64>()
+                / ranks.len().max(1) as f64
+        })
+        .unwrap_or(0.0);
     let b = sent_per_moved.iter().sum::<f64>() / sent_per_moved.len().max(1) as f64;
     let (fa, fb) = power_law(&fractions);
     let (ia, ib) = power_law(&imbalances);
@@ -330,10 +368,15 @@ fn main() {
          merge); b = {b:.1} bytes sent per exchanged surfel; beta = {:.2} GB/s measured here \
          (shared memory), {:.2} GB/s assumed for a network; alpha = {:.1} us per peer per \
          exchange (assumed); f(P) = {fa:.4} P^{fb:.3}, imbalance(P) - 1 = {ia:.4} P^{ib:.3}, \
-         m(P) = {ma:.3} P^{mb:.3} beyond the measured ranks.\n",
+         m(P) = {ma:.3} P^{mb:.3} beyond the measured ranks; the data mode out of core moved \
+         {ooc_bytes:.0} bytes per surfel-direction through each of 2 ranks' disks (read and \
+         written, first iteration), so {:.0} per surfel-direction of the scene in all, and a \
+         disk of {:.2} GB/s per rank is assumed.\n",
         beta_here / 1e9,
         args.network_beta / 1e9,
-        args.alpha * 1e6
+        args.alpha * 1e6,
+        2.0 * ooc_bytes,
+        args.disk / 1e9,
     );
     let (big_n, big_d, big_i) = (1e10, 589.0, 10.0);
     println!(
@@ -342,8 +385,8 @@ fn main() {
          per rank: the bytes each rank's links would take, which must fit beside the scene; \
          without links, against one process that searches in every iteration too):\n"
     );
-    println!("| ranks | links per rank | directions | data | hybrid G = sqrt P | data, links not kept | data, shared-memory beta |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| ranks | links per rank | directions | data | hybrid G = sqrt P | data, links not kept | data, shared-memory beta | data out of core (disk) |");
+    println!("|---|---|---|---|---|---|---|---|");
     for p in [8.0f64, 64.0, 512.0] {
         let one = (c1 + (big_i - 1.0) * cr) * big_n * big_d;
         let sum = |ranks: f64, values: f64, beta: f64| {
@@ -368,6 +411,10 @@ fn main() {
         let eff = |t: f64| 100.0 * one / p / t;
         // Against one process that cannot keep its links either.
         let one_searching = big_i * c1 * big_n * big_d;
+        // Out of core every iteration searches (no links) and moves its bytes through the disk,
+        // which sets the pace unless the search is slower.
+        let disk_seconds = 2.0 * ooc_bytes * big_n * big_d / p / args.disk;
+        let tooc = big_i * disk_seconds.max(data_mode(p, p, big_d, beta, false) / big_i);
         let (tdir, tdata, thyb, tnolinks, tdata_here) = (
             directions_mode(beta),
             data_mode(p, p, big_d, beta, true),
@@ -376,13 +423,14 @@ fn main() {
             data_mode(p, p, big_d, beta_here, true),
         );
         println!(
-            "| {p} | {:.0} GB | {tdir:.0} ({:.0}%) | {tdata:.0} ({:.0}%) | {thyb:.0} ({:.0}%) | {tnolinks:.0} ({:.0}%) | {tdata_here:.0} ({:.0}%) |",
+            "| {p} | {:.0} GB | {tdir:.0} ({:.0}%) | {tdata:.0} ({:.0}%) | {thyb:.0} ({:.0}%) | {tnolinks:.0} ({:.0}%) | {tdata_here:.0} ({:.0}%) | {tooc:.0} ({:.0}%) |",
             link_bytes * big_n * big_d / p / 1e9,
             eff(tdir),
             eff(tdata),
             eff(thyb),
             100.0 * one_searching / p / tnolinks,
-            eff(tdata_here)
+            eff(tdata_here),
+            100.0 * one_searching / p / tooc,
         );
     }
 }
