@@ -121,20 +121,6 @@ impl DirectionLinks {
 
     /// Adds to `acc` what the links bring from `radiosity` (the first `channels` channels).
     pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
-        self.replay_through(radiosity, channels, acc, None);
-    }
-
-    /// As [`Self::replay`], for links whose surfel numbers are places in `slots`: surfel `k` of
-    /// a link is `slots[k]` of `radiosity` and `acc` (the data mode keeps its surfels in slots
-    /// that change from one iteration to the next, while their order along a direction does
-    /// not; see [`Self::renumbered`]).
-    pub fn replay_through(
-        &self,
-        radiosity: &[Radiosity],
-        channels: usize,
-        acc: &mut [Gathered],
-        slots: Option<&[u32]>,
-    ) {
         let acc_ptr = AccPtr(acc.as_mut_ptr());
         let len = acc.len();
         assert!(
@@ -150,14 +136,11 @@ impl DirectionLinks {
                 len,
             };
             // SAFETY: the surfels of one piece's links are no other piece's (see the module
-            // header; `slots` numbers every surfel once), so the pieces write disjoint parts of
-            // `acc`; `AccPtr` is shared for that.
+            // header), so the pieces write disjoint parts of `acc`; `AccPtr` is shared for that.
             unsafe {
-                match (channels, slots) {
-                    (1, None) => replay_piece::<1, false>(piece, &at, &[]),
-                    (_, None) => replay_piece::<3, false>(piece, &at, &[]),
-                    (1, Some(slots)) => replay_piece::<1, true>(piece, &at, slots),
-                    (_, Some(slots)) => replay_piece::<3, true>(piece, &at, slots),
+                match channels {
+                    1 => replay_piece::<1>(piece, &at),
+                    _ => replay_piece::<3>(piece, &at),
                 }
             }
         });
@@ -242,16 +225,6 @@ impl DirectionLinks {
             .max()
             .unwrap_or(0)
     }
-
-    /// The same links with every surfel number `k` replaced by `number[k]` (sides kept).
-    pub fn renumbered(mut self, number: &[u32]) -> Self {
-        let renumber = |side: u32| number[(side >> 1) as usize] << 1 | (side & 1);
-        for link in &mut self.links {
-            link.to = renumber(link.to);
-            link.from = renumber(link.from);
-        }
-        self
-    }
 }
 
 /// What a replay reads and writes besides the links.
@@ -264,33 +237,22 @@ struct Arrays<'a> {
 }
 
 /// Adds to `at.acc` the first `CHANNELS` channels of what the links of `piece` bring from
-/// `at.radiosity`, in their order; with `MAPPED`, a link's surfel `k` is `slots[k]`.
+/// `at.radiosity`, in their order.
 ///
 /// # Safety
 /// `at.acc` points to `at.len` surfels, no other thread touches those the links of `piece`
 /// receive on, and `at.radiosity` holds at least `at.len` surfels.
 #[inline(never)]
-unsafe fn replay_piece<const CHANNELS: usize, const MAPPED: bool>(
-    piece: &[Link],
-    at: &Arrays,
-    slots: &[u32],
-) {
-    let slot = |side: u32| {
-        let k = (side >> 1) as usize;
-        if MAPPED {
-            slots[k] as usize
-        } else {
-            k
-        }
-    };
+unsafe fn replay_piece<const CHANNELS: usize>(piece: &[Link], at: &Arrays) {
+    let surfel = |side: u32| (side >> 1) as usize;
     for (k, link) in piece.iter().enumerate() {
         // The surfels a link names lie scattered over arrays far larger than the caches: ask
         // for those of a link a little ahead.
         if let Some(ahead) = piece.get(k + PREFETCH_AHEAD) {
-            prefetch(at.radiosity.as_ptr(), slot(ahead.from));
-            prefetch(at.acc as *const Gathered, slot(ahead.to));
+            prefetch(at.radiosity.as_ptr(), surfel(ahead.from));
+            prefetch(at.acc as *const Gathered, surfel(ahead.to));
         }
-        let (receiver, partner) = (slot(link.to), slot(link.from));
+        let (receiver, partner) = (surfel(link.to), surfel(link.from));
         assert!(
             receiver < at.len && partner < at.len,
             "a link names a surfel of the scene"

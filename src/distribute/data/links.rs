@@ -42,7 +42,7 @@ impl HeldLinks {
         let Some(links) = &self.kept[k] else {
             return false;
         };
-        links.replay_through(input.radiosity, input.channels, acc, None);
+        links.replay(input.radiosity, input.channels, acc);
         true
     }
 

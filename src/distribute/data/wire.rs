@@ -45,7 +45,7 @@ pub(super) fn unseal(sealed: &[u8]) -> Vec<u8> {
 }
 
 /// The order of the data mode: position in octant order `order`, then surfel id (the
-/// single-process solver breaks ties by index, which is the id). The ids, read by slot (a random
+/// single-process solver breaks ties by index, which is the id). The ids, read by place (a random
 /// access), are compared only between surfels of one voxel.
 #[inline]
 pub(super) fn compare(order: usize, ids: &[u32], x: &OrderedEntry, y: &OrderedEntry) -> Ordering {
