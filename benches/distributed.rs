@@ -188,9 +188,14 @@ fn main() {
     println!("|---|---|---|---|---|");
     println!("| one process | 1 | {t1:.2} | 1.00 | 100% |");
     let mut data2 = Value::Null;
-    let runs: [(&str, &[&str]); 3] = [
+    let runs: [(&str, &[&str]); 4] = [
         ("directions", &["--distribute", "directions"]),
         ("data", &["--distribute", "data"]),
+        // Two groups of one rank (one group of two is the data mode).
+        (
+            "hybrid, 2 groups",
+            &["--distribute", "hybrid", "--groups", "2"],
+        ),
         (
             "data, zstd exchange",
             &["--distribute", "data", "--compress-exchange"],
