@@ -216,10 +216,10 @@ impl ExchangePlans {
 mod tests {
     use super::*;
 
-    fn entry(slot: u32) -> OrderedEntry {
+    fn entry(place: u32) -> OrderedEntry {
         OrderedEntry {
-            voxel: [slot as i32, 0, 0],
-            index: slot,
+            voxel: [place as i32, 0, 0],
+            index: place,
         }
     }
 
