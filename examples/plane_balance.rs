@@ -17,7 +17,11 @@
 //!   and direction), settled by `STEPS` Sinkhorn alternations on the power matrix: each row keeps
 //!   the share of its side's hemisphere that meets a surface (a uniform field stays uniform),
 //!   each column is brought to the power its side's rays can deliver (light sent toward a piece
-//!   of no area, covered by a solid resting on it, is absorbed by nothing and not counted).
+//!   of no area, covered by a solid resting on it, is absorbed by nothing and not counted);
+//! - 5: in every iteration, one scale per direction and channel: what the receivers' own sides
+//!   send along that direction's links (their radiosity) against what they gather through them
+//!   (their partners'), so that each direction hands on the power its met rays carry;
+//! - 6: as 5, one scale per channel over all directions.
 //!
 //! It also prints the plane sides whose light goes missing most: what each sends over all
 //! directions against what receivers took from it, and the lost power split into the share of
@@ -159,7 +163,7 @@ fn main() {
             }
         }
     }
-    if mode == 0 || mode == 3 || mode == 4 {
+    if mode == 0 || mode == 3 || mode >= 4 {
         scales = vec![HashMap::new(); all.len()];
     }
     // Mode 4: one scale per receiver side (a) and per sender side (b) over all directions,
@@ -297,10 +301,50 @@ fn main() {
     }
     let mut h = vec![[[0f64; 3]; 2]; n];
     for it in 0..200 {
+        // Mode 6: one scale per channel over all directions, what the receivers' own sides send
+        // along their links against what they gather through them.
+        let mut global = [1f64; 3];
+        if mode == 6 {
+            let (mut own_d, mut got_d) = ([0f64; 3], [0f64; 3]);
+            for links in &all {
+                for l in links {
+                    let r = l.r as usize;
+                    let wt = set.surfels[r].area as f64 * l.f / norm[r];
+                    for c in 0..3 {
+                        own_d[c] += wt * b[r][l.to as usize][c];
+                        got_d[c] += wt * b[l.p as usize][l.from as usize][c];
+                    }
+                }
+            }
+            for c in 0..3 {
+                if got_d[c] > 0.0 {
+                    global[c] = own_d[c] / got_d[c];
+                }
+            }
+        }
         h.iter_mut().for_each(|x| *x = [[0.0; 3]; 2]);
         let mut rows = vec![[0f64; 2]; n];
         let mut next = Vec::new();
         for (d, links) in all.iter().enumerate() {
+            // Mode 5: one scale per direction and channel, what the receivers' own sides send
+            // along their links against what they gather through them.
+            let mut per_direction = [1f64; 3];
+            if mode == 5 {
+                let (mut own_d, mut got_d) = ([0f64; 3], [0f64; 3]);
+                for l in links {
+                    let r = l.r as usize;
+                    let wt = set.surfels[r].area as f64 * l.f / norm[r];
+                    for c in 0..3 {
+                        own_d[c] += wt * b[r][l.to as usize][c];
+                        got_d[c] += wt * b[l.p as usize][l.from as usize][c];
+                    }
+                }
+                for c in 0..3 {
+                    if got_d[c] > 0.0 {
+                        per_direction[c] = own_d[c] / got_d[c];
+                    }
+                }
+            }
             let mut sent: HashMap<(u32, u8), f64> = HashMap::new();
             for l in links {
                 let g = set.surfels[l.p as usize].group;
@@ -310,7 +354,7 @@ fn main() {
                 let from = b[l.p as usize][l.from as usize];
                 let to = &mut h[l.r as usize][l.to as usize];
                 for c in 0..3 {
-                    to[c] += from[c] * l.f * s;
+                    to[c] += from[c] * l.f * s * per_direction[c] * global[c];
                 }
                 rows[l.r as usize][l.to as usize] += l.f * s;
                 let r = l.r as usize;

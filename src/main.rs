@@ -177,9 +177,10 @@ enum Command {
         #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
         second: Option<[f64; 2]>,
         /// Line directions each sensor gathers the reflected light along (emitters are summed
-        /// one by one besides).
-        #[arg(long, default_value_t = 2000)]
-        directions: usize,
+        /// one by one besides); default: 2,000 at resolution 64, growing with the square of the
+        /// resolution up to 32,000 at 256.
+        #[arg(long)]
+        directions: Option<usize>,
     },
     /// Bake a solve's radiosity onto its scene's triangles: glTF binary (.glb) or PLY mesh (.ply).
     Bake {
@@ -264,9 +265,10 @@ enum Command {
         out: Option<PathBuf>,
         /// Gather the light at each point (sensors as `voxrad grid`'s, along this many line
         /// directions, and every emitter) instead of reading the surfels near it: slower,
-        /// several times closer to a path-traced answer (docs/formats.md).
-        #[arg(long, num_args = 0..=1, default_missing_value = "2000", value_name = "DIRECTIONS")]
-        gather: Option<usize>,
+        /// several times closer to a path-traced answer (docs/formats.md). Without a count:
+        /// 2,000 at resolution 64, growing with the square of the resolution up to 32,000.
+        #[arg(long, num_args = 0..=1, value_name = "DIRECTIONS")]
+        gather: Option<Option<usize>>,
     },
 }
 
@@ -286,7 +288,7 @@ enum QualityArg {
     Draft,
     /// Balanced (resolution 64, 193 directions, tolerance 1e-4).
     Default,
-    /// Slow and accurate (resolution 128, 589 directions, tolerance 1e-5).
+    /// Slow and accurate (resolution 256, 433 directions, tolerance 1e-5).
     High,
 }
 

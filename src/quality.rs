@@ -6,12 +6,16 @@
 //! preset uses it. The direction aliasing is the lamp's direct light: where the emitters are small
 //! the direct-light pass (`solve::direct`) gathers it along 5,000 (`draft`) or 20,000 (`default`,
 //! `high`) dense directions from the emitters' lines only, which lets the bounces use fewer
-//! directions (193 instead of 589 for `default`, 589 instead of 1201 for `high`) at a lower
+//! directions (193 instead of 589 for `default`, 433 instead of 1201 for `high`) at a lower
 //! error. On the realistic scenes (an office, a corridor, a furnished room: `tests/data/reference`)
 //! the resolution matters most, as their partitions, lamps and furniture are a fraction of a
 //! voxel at 32: since the links kept between iterations and the direct pass's bundled walks made
-//! solves several times faster, `default` runs at 64 and `high` at 128 (2026-12-02). Measured
-//! error and time of each preset: `docs/study.md`, "Quality presets".
+//! solves several times faster, `default` runs at 64 (2026-12-02). `high` runs at 256
+//! (2026-12-03): read by gathering (`voxrad probe --gather`), it is within 0.5 % mean and 3 %
+//! largest error of the path-traced reference on all four reference scenes, where 128 left the
+//! office and the corridor at 0.9 %; 433 directions instead of 589 cost the office 0.06 % of
+//! mean error and save a quarter of the time. Measured error and time of each preset:
+//! `docs/study.md`, "Quality presets".
 //!
 //! Options given explicitly on the command line override the preset's.
 
@@ -63,8 +67,8 @@ impl Quality {
                 direct: 20_000,
             },
             Quality::High => Preset {
-                resolution: 128,
-                directions: 589,
+                resolution: 256,
+                directions: 433,
                 tolerance: 1e-5,
                 accelerate: true,
                 direct: 20_000,

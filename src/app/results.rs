@@ -101,12 +101,13 @@ pub fn run_render(
 }
 
 /// `voxrad probe DIR --points P.csv [--gather [N]]`: rows on standard output (or into `out`);
-/// with `gather`, each answered by gathering along about that many directions.
+/// with `gather`, each answered by gathering along about that many directions (without a
+/// count, as many as `sensor::directions_for` the solve's grid).
 pub fn run_probe(
     dir: &Path,
     points: &Path,
     out: Option<&Path>,
-    gather: Option<usize>,
+    gather: Option<Option<usize>>,
 ) -> Result<(), AppError> {
     let results = load_results(dir)?;
     let mut rows = probe::probe(&results, points).map_err(|e| AppError::BadInput(e.to_string()))?;
@@ -118,6 +119,8 @@ pub fn run_probe(
                 dir.join(crate::output::RESULTS_FILE).display()
             )));
         }
+        let directions =
+            directions.unwrap_or_else(|| crate::output::sensor::directions_for(results.grid.dims));
         let field = crate::output::sensor::SensorField::new(&results, directions);
         rows = rows.par_iter().map(|row| field.gather_row(row)).collect();
     }
@@ -228,10 +231,12 @@ fn scene_of_report(dir: &Path) -> Result<PathBuf, AppError> {
 pub fn run_grid(
     dir: &Path,
     spec: &crate::output::grid::GridSpec,
-    directions: usize,
+    directions: Option<usize>,
     prefix: &Path,
 ) -> Result<(), AppError> {
     let results = load_results(dir)?;
+    let directions =
+        directions.unwrap_or_else(|| crate::output::sensor::directions_for(results.grid.dims));
     if results.materials.is_empty() {
         return Err(AppError::BadInput(format!(
             "{}: results written before version 2 of the format do not say which surfaces \

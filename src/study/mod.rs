@@ -313,7 +313,8 @@ fn measure(
     let values = rows.iter().map(sum).collect();
     // Not part of the timed solve: an answer read afterwards, as `voxrad probe --gather` does.
     let gathered = gather.then(|| {
-        let field = crate::output::sensor::SensorField::new(&results, GATHER_DIRECTIONS);
+        let directions = crate::output::sensor::directions_for(results.grid.dims);
+        let field = crate::output::sensor::SensorField::new(&results, directions);
         rows.iter().map(|row| sum(&field.gather_row(row))).collect()
     });
     Ok(Measured {
@@ -326,9 +327,6 @@ fn measure(
         seconds,
     })
 }
-
-/// Line directions of the gathered answers (as `voxrad probe --gather`'s default).
-pub const GATHER_DIRECTIONS: usize = 2000;
 
 /// Runs the study; `progress` is told each run as it finishes.
 pub fn run(
