@@ -177,10 +177,10 @@ enum Command {
         #[arg(long, value_parser = parse_range, allow_hyphen_values = true)]
         second: Option<[f64; 2]>,
         /// Line directions each sensor gathers the reflected light along (emitters are summed
-        /// one by one besides); default: 2,000 at resolution 64, growing with the square of the
-        /// resolution up to 32,000 at 256.
-        #[arg(long)]
-        directions: Option<usize>,
+        /// one by one besides). A grid has many sensors, so the default stays at 2,000 whatever
+        /// the resolution (`probe --gather` takes more at high resolutions).
+        #[arg(long, default_value_t = 2000)]
+        directions: usize,
     },
     /// Bake a solve's radiosity onto its scene's triangles: glTF binary (.glb) or PLY mesh (.ply).
     Bake {

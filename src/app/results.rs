@@ -231,12 +231,10 @@ fn scene_of_report(dir: &Path) -> Result<PathBuf, AppError> {
 pub fn run_grid(
     dir: &Path,
     spec: &crate::output::grid::GridSpec,
-    directions: Option<usize>,
+    directions: usize,
     prefix: &Path,
 ) -> Result<(), AppError> {
     let results = load_results(dir)?;
-    let directions =
-        directions.unwrap_or_else(|| crate::output::sensor::directions_for(results.grid.dims));
     if results.materials.is_empty() {
         return Err(AppError::BadInput(format!(
             "{}: results written before version 2 of the format do not say which surfaces \

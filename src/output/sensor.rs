@@ -64,7 +64,8 @@ pub const DIRECTIONS_AT_64: usize = 2000;
 /// The most line directions [`directions_for`] asks for.
 pub const MOST_DIRECTIONS: usize = 32_000;
 
-/// Line directions a sensor gathers along by default for a grid of `dims` voxels: 2,000 at a
+/// Line directions a probe's sensor (`voxrad probe --gather`, the study) gathers along by
+/// default for a grid of `dims` voxels: 2,000 at a
 /// longest side of 64 voxels, growing with its square up to 32,000 at 256. A ray's neighbours
 /// then lie about as many voxels apart at the far wall whatever the resolution: at resolution
 /// 192, 2,000 directions left the gathered answer 0.56 % off the path-traced reference on the
