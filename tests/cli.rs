@@ -253,6 +253,18 @@ fn probe_shows_light_and_colour_bleeding_on_the_cornell_floor() {
     for (red, green) in [(1, 2), (3, 4)] {
         assert!(red_green(&gathered[red]) > red_green(&gathered[green]));
     }
+    // Without a count, the directions follow the solve's resolution: 2,000 for a grid at most
+    // 64 voxels long (`sensor::directions_for`), the same rows as asking for 2,000.
+    let by_default = voxrad(&["probe", &s(&out), "--points", &s(&csv), "--gather"]);
+    assert_ok(&by_default, "probe --gather without a count");
+    let asked = voxrad(&["probe", &s(&out), "--points", &s(&csv), "--gather", "2000"]);
+    assert_ok(&asked, "probe --gather 2000");
+    assert_eq!(text(&by_default.stdout), text(&asked.stdout));
+    assert_ne!(
+        text(&by_default.stdout),
+        text(&o.stdout),
+        "400 directions answer otherwise"
+    );
 
     // --out writes the same rows as a CSV file with a header.
     let csv_out = tmp.path().join("probed.csv");
