@@ -288,7 +288,7 @@ enum QualityArg {
     Draft,
     /// Balanced (resolution 64, 193 directions, tolerance 1e-4).
     Default,
-    /// Slow and accurate (resolution 256, 433 directions, tolerance 1e-5).
+    /// Slow and accurate (resolution 256, 433 directions, tolerance 1e-4).
     High,
 }
 
