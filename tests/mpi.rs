@@ -629,6 +629,14 @@ fn killed_under_mpirun_in(
                         child.started.elapsed().as_secs_f64(),
                         ranks.len()
                     );
+                    // A kill that lands after the solve wrote its outputs and removed its
+                    // checkpoint (between that and mpirun's exit, on a loaded machine) leaves
+                    // a finished run: a resume would start afresh, and rightly.
+                    if !ckpt.exists() && out.join("surfels.bin").exists() {
+                        println!("run {run}: its outputs were written before the kill");
+                        finished = true;
+                        break;
+                    }
                 }
                 Ended::Exited(status) => {
                     assert!(status.success(), "{}:\n{text}", describe(&status));
