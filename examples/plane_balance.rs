@@ -49,6 +49,27 @@ struct L {
     f: f64,
 }
 
+/// Modes 5 and 6: per channel, what the receivers' own sides send along `links` (their
+/// radiosity `b`, weighted as their gather weights it) over what they gather through them (their
+/// partners'); 1 where nothing is gathered.
+fn conserving_scale<'a>(
+    links: impl Iterator<Item = &'a L>,
+    set: &voxrad::voxel::SurfelSet,
+    norm: &[f64],
+    b: &[[[f64; 3]; 2]],
+) -> [f64; 3] {
+    let (mut own, mut got) = ([0f64; 3], [0f64; 3]);
+    for l in links {
+        let r = l.r as usize;
+        let weight = set.surfels[r].area as f64 * l.f / norm[r];
+        for c in 0..3 {
+            own[c] += weight * b[r][l.to as usize][c];
+            got[c] += weight * b[l.p as usize][l.from as usize][c];
+        }
+    }
+    std::array::from_fn(|c| if got[c] > 0.0 { own[c] / got[c] } else { 1.0 })
+}
+
 fn main() {
     let a: Vec<String> = std::env::args().collect();
     let scene = voxrad::scene::obj::load_obj(std::path::Path::new(&a[1])).unwrap();
@@ -303,48 +324,22 @@ fn main() {
     for it in 0..200 {
         // Mode 6: one scale per channel over all directions, what the receivers' own sides send
         // along their links against what they gather through them.
-        let mut global = [1f64; 3];
-        if mode == 6 {
-            let (mut own_d, mut got_d) = ([0f64; 3], [0f64; 3]);
-            for links in &all {
-                for l in links {
-                    let r = l.r as usize;
-                    let wt = set.surfels[r].area as f64 * l.f / norm[r];
-                    for c in 0..3 {
-                        own_d[c] += wt * b[r][l.to as usize][c];
-                        got_d[c] += wt * b[l.p as usize][l.from as usize][c];
-                    }
-                }
-            }
-            for c in 0..3 {
-                if got_d[c] > 0.0 {
-                    global[c] = own_d[c] / got_d[c];
-                }
-            }
-        }
+        let global = if mode == 6 {
+            conserving_scale(all.iter().flatten(), &set, &norm, &b)
+        } else {
+            [1.0; 3]
+        };
         h.iter_mut().for_each(|x| *x = [[0.0; 3]; 2]);
         let mut rows = vec![[0f64; 2]; n];
         let mut next = Vec::new();
         for (d, links) in all.iter().enumerate() {
             // Mode 5: one scale per direction and channel, what the receivers' own sides send
             // along their links against what they gather through them.
-            let mut per_direction = [1f64; 3];
-            if mode == 5 {
-                let (mut own_d, mut got_d) = ([0f64; 3], [0f64; 3]);
-                for l in links {
-                    let r = l.r as usize;
-                    let wt = set.surfels[r].area as f64 * l.f / norm[r];
-                    for c in 0..3 {
-                        own_d[c] += wt * b[r][l.to as usize][c];
-                        got_d[c] += wt * b[l.p as usize][l.from as usize][c];
-                    }
-                }
-                for c in 0..3 {
-                    if got_d[c] > 0.0 {
-                        per_direction[c] = own_d[c] / got_d[c];
-                    }
-                }
-            }
+            let per_direction = if mode == 5 {
+                conserving_scale(links.iter(), &set, &norm, &b)
+            } else {
+                [1.0; 3]
+            };
             let mut sent: HashMap<(u32, u8), f64> = HashMap::new();
             for l in links {
                 let g = set.surfels[l.p as usize].group;
