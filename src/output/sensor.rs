@@ -65,11 +65,12 @@ pub const DIRECTIONS_AT_64: usize = 2000;
 pub const MOST_DIRECTIONS: usize = 32_000;
 
 /// Line directions a probe's sensor (`voxrad probe --gather`, the study) gathers along by
-/// default for a grid of `dims` voxels: 2,000 at a
-/// longest side of 64 voxels, growing with its square up to 32,000 at 256. A ray's neighbours
-/// then lie about as many voxels apart at the far wall whatever the resolution: at resolution
-/// 192, 2,000 directions left the gathered answer 0.56 % off the path-traced reference on the
-/// office scene, 20,000 took it to 0.35 % (docs/accuracy.md, "Gathering at the probes").
+/// default for a grid of `dims` voxels: 2,000 at a longest side of 64 voxels, growing with its
+/// square up to 32,000 at 256. A ray's neighbours then lie about as many voxels apart at the far
+/// wall whatever the resolution: at resolution 192, 2,000 directions left the gathered answer
+/// 0.56 % off the path-traced reference on the office scene, 20,000 took it to 0.35 %
+/// (docs/accuracy.md, "The sensors' directions and the `high` preset"). `voxrad grid`, whose
+/// many sensors would take six times longer at 256, keeps 2,000 unless told.
 pub fn directions_for(dims: [u32; 3]) -> usize {
     let longest = dims.iter().copied().max().unwrap_or(0) as f64;
     let scaled = DIRECTIONS_AT_64 as f64 * (longest / 64.0).powi(2);
@@ -366,8 +367,6 @@ mod tests {
     use crate::output::testutil;
     use crate::solve::Solution;
 
-    /// A closed box of uniform radiosity `b` (a furnace seen from inside): any sensor inside
-    /// receives `b`, whatever it faces.
     #[test]
     fn default_directions_grow_with_the_square_of_the_resolution_between_bounds() {
         assert_eq!(directions_for([32, 10, 20]), DIRECTIONS_AT_64);
@@ -378,6 +377,8 @@ mod tests {
         assert_eq!(directions_for([1024, 5, 5]), MOST_DIRECTIONS);
     }
 
+    /// A closed box of uniform radiosity `b` (a furnace seen from inside): any sensor inside
+    /// receives `b`, whatever it faces.
     #[test]
     fn a_sensor_inside_a_uniform_box_receives_its_radiosity() {
         let n = 8;
