@@ -63,6 +63,17 @@ fn options(directions: usize, dense: usize) -> SolveOptions {
     }
 }
 
+/// `B_r + B_g + B_b` of each probe row answered by gathering (`voxrad probe --gather`); `None`
+/// where the row found no surface.
+fn gathered_radiosity(field: &SensorField, rows: &[voxrad::output::ProbeRow]) -> Vec<Option<f64>> {
+    rows.iter()
+        .map(|row| {
+            let g = field.gather_row(row);
+            g.found.then(|| g.radiosity.iter().sum())
+        })
+        .collect()
+}
+
 /// Solves `scene` and returns the comparison with its reference (of the radiosity, of the
 /// irradiance `H` that `voxrad probe` reports beside it, and of the irradiance sensors gather at
 /// the probes) and the power balance.
@@ -112,14 +123,7 @@ fn run(
         })
         .collect();
     let sensed = irradiance_reference.compare(&sensed);
-    let gathered: Vec<Option<f64>> = rows
-        .iter()
-        .map(|row| {
-            let g = field.gather_row(row);
-            g.found.then(|| g.radiosity.iter().sum())
-        })
-        .collect();
-    let gathered = reference.compare(&gathered);
+    let gathered = reference.compare(&gathered_radiosity(&field, &rows));
     println!(
         "    gathered radiosity: mean {:.2} %, max {:.1} % over {} probes",
         100.0 * gathered.mean,
@@ -295,15 +299,12 @@ fn the_high_preset_meets_its_goal_when_read_by_gathering() {
         &results,
         voxrad::output::sensor::directions_for(set.grid.dims),
     );
-    let gathered: Vec<Option<f64>> = reference
+    let rows: Vec<_> = reference
         .points()
         .iter()
-        .map(|&(p, n)| {
-            let g = field.gather_row(&index.lookup(p, n));
-            g.found.then(|| g.radiosity.iter().sum())
-        })
+        .map(|&(p, n)| index.lookup(p, n))
         .collect();
-    let gathered = reference.compare(&gathered);
+    let gathered = reference.compare(&gathered_radiosity(&field, &rows));
     println!(
         "{name} at the high preset, gathered: mean {:.3} %, max {:.2} % over {} probes",
         100.0 * gathered.mean,
