@@ -297,7 +297,9 @@ fn grey_scene_solved_once_gives_the_three_channel_answer() {
 /// side facing back emits, behind from the first emitter's whose side facing along emits, and
 /// the emitters' own searches. On every line of an office (walls, desks, partitions, open-edged
 /// lamps) along 13 directions, for spans, one-sided spans and single further positions, those
-/// searches give exactly the links the full search gives from them, and no other.
+/// searches give exactly the links the full search gives from them, and no other. With target
+/// positions (`Toward::targets`: the pass's emitters), the searches that cannot reach a target
+/// are left out, and the links to targets are still exactly the full search's.
 #[test]
 fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
     use voxrad::geometry::lines::LineFrame;
@@ -313,7 +315,8 @@ fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
     };
     let orders = lexicographic_orders(&set);
     let (mut full, mut part) = (LineScratch::default(), LineScratch::default());
-    let mut checked = 0;
+    let (mut checked, mut pruned_checks) = (0, 0);
+    let mut all_links = Vec::new();
     for d in &voxrad::geometry::directions::DirectionSet::with_count(13).directions {
         let ordered = &orders[order::order_of(d.vector)];
         let mut lines = Lines::default();
@@ -350,7 +353,19 @@ fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
                     ..Toward::default()
                 },
             ];
-            for toward in cases {
+            // Targets: every third position from the first, then from the second (each a
+            // line's surfels picked regardless of what they are).
+            let target_sets: [Vec<bool>; 2] =
+                [0, 1].map(|from| (0..n).map(|k| k % 3 == from).collect());
+            for (toward, targets) in cases.iter().map(|&t| (t, None)).chain(
+                target_sets
+                    .iter()
+                    .map(|t| (Toward::span(0, n - 1), Some(t))),
+            ) {
+                let toward = Toward {
+                    targets: targets.map_or(&[][..], |t| &t[..]),
+                    ..toward
+                };
                 find_partners_toward(line, &props, d.unit, &mut part, Some(toward));
                 let mut expected = Vec::new();
                 for_each_link(&full, d.unit, |link| {
@@ -366,18 +381,41 @@ fn the_pass_finds_the_links_of_a_full_search_within_its_span() {
                             .is_some_and(|first| k >= first || voxel(k) == voxel(first))
                             || toward.also_behind.contains(&(k as u32))
                     };
-                    if wanted {
+                    // With targets, the links to them, and none that the full search lacks.
+                    let to_target = targets.is_none_or(|t| t[link.partner]);
+                    if wanted && to_target {
                         expected.push(key(&link));
                     }
                 });
                 let mut got = Vec::new();
-                for_each_link(&part, d.unit, |link| got.push(key(&link)));
+                for_each_link(&part, d.unit, |link| {
+                    if targets.is_none_or(|t| t[link.partner]) {
+                        got.push(key(&link));
+                    } else {
+                        all_links.push(key(&link));
+                    }
+                });
                 expected.sort_unstable();
                 got.sort_unstable();
                 assert_eq!(got, expected, "line {l} of {:?}, {toward:?}", d.vector);
                 checked += got.len();
+                if targets.is_some() {
+                    // The links to other surfels that the pruned search still found are links
+                    // of the full search.
+                    let mut full_links = Vec::new();
+                    for_each_link(&full, d.unit, |link| full_links.push(key(&link)));
+                    full_links.sort_unstable();
+                    for link in all_links.drain(..) {
+                        assert!(
+                            full_links.binary_search(&link).is_ok(),
+                            "line {l}: {link:?}"
+                        );
+                    }
+                    pruned_checks += 1;
+                }
             }
         }
     }
     assert!(checked > 10_000, "{checked} links compared");
+    assert!(pruned_checks > 1_000, "{pruned_checks} lines with targets");
 }

@@ -407,6 +407,8 @@ struct Buffers {
     /// The emitters' own searches a line needs besides its spans ([`Context::searches_wanted`]).
     also_ahead: Vec<u32>,
     also_behind: Vec<u32>,
+    /// By line position: whether the surfel emits ([`Toward::targets`]).
+    targets: Vec<bool>,
     /// This direction's emitting plane sides, and where each is in `senders`.
     senders: Vec<Sender>,
     /// By [`sender_key`]: the solver's hash, not SipHash, which took a twentieth of a direct
@@ -501,6 +503,7 @@ impl Context<'_> {
                     behind_from,
                     also_ahead: &b.also_ahead,
                     also_behind: &b.also_behind,
+                    targets: &b.targets,
                 };
                 // The line's own surfel indices: the search copies what it reads of each
                 // into its buffer, and its links are by line position.
@@ -551,7 +554,9 @@ impl Context<'_> {
     /// emitter's own search toward each side that emits tells the power that side sends (the
     /// senders' balance, [`Context::balance_line`]). A lamp that emits from its underside only
     /// thus needs no search from the floors above it: a line through a lamp of a building
-    /// crosses the whole building, and these searches were about half of the pass there.
+    /// crosses the whole building, and these searches were about half of the pass there. The
+    /// emitters are the line's targets too: of those searches, only the ones whose ray crosses
+    /// an emitter's plane run.
     fn searches_wanted(
         &self,
         d: &Direction,
@@ -561,6 +566,8 @@ impl Context<'_> {
         let (mut ahead_upto, mut behind_from) = (None, None);
         b.also_ahead.clear();
         b.also_behind.clear();
+        b.targets.clear();
+        b.targets.extend(b.members.iter().map(|&m| self.emits(m)));
         let mut any = false;
         for (k, &m) in b.members.iter().enumerate() {
             if !self.emits(m) {

@@ -346,6 +346,11 @@ pub struct Toward<'a> {
     /// Further positions searched ahead, and behind, in ascending order.
     pub also_ahead: &'a [u32],
     pub also_behind: &'a [u32],
+    /// By line position: whether links to that surfel are the ones wanted (the direct pass's
+    /// emitters). When given, a search from the spans above that cannot reach the plane of any
+    /// target is not run ([`crosses_a_target`]); the searches of `also_ahead` and `also_behind`
+    /// always run. Empty: every search of the spans runs.
+    pub targets: &'a [bool],
 }
 
 impl Toward<'_> {
@@ -506,17 +511,29 @@ pub fn find_partners_toward(
         ),
     };
     let also = |list: &[u32], k: usize| !list.is_empty() && list.binary_search(&(k as u32)).is_ok();
+    let targets = toward.map_or(&[][..], |t| t.targets);
+    // Whether the search of position `k` (voxel group `g`) ahead, or behind, is wanted.
+    let wanted_ahead = |g: usize, k: usize| {
+        also(also_ahead, k)
+            || g < ahead_to
+                && (targets.is_empty() || crosses_a_target::<true>(&view, targets, g, k))
+    };
+    let wanted_behind = |g: usize, k: usize| {
+        also(also_behind, k)
+            || g >= behind_from
+                && (targets.is_empty() || crosses_a_target::<false>(&view, targets, g, k))
+    };
     if !shared && open_ranges.is_empty() {
         // The common line: one surfel per voxel and no open edge (see `LineView::nearest_plain`).
         let none = (u32::MAX, 0.0);
         partners.extend((0..locals.len()).map(|k| {
             [
-                if k < ahead_to || also(also_ahead, k) {
+                if wanted_ahead(k, k) {
                     view.nearest_plain::<true>(k, sf)
                 } else {
                     none
                 },
-                if k >= behind_from || also(also_behind, k) {
+                if wanted_behind(k, k) {
                     view.nearest_plain::<false>(k, -sf)
                 } else {
                     none
@@ -531,12 +548,12 @@ pub fn find_partners_toward(
             // The chains are filled in place: returned by value, each was copied through the
             // stack with wide loads of narrower stores just written (a store-forwarding stall
             // that cost a tenth of the search).
-            if g < ahead_to || also(also_ahead, k) {
+            if wanted_ahead(g, k) {
                 view.nearest::<true>(g, k, sf, &mut ahead);
             } else {
                 ahead.len = 0;
             }
-            if g >= behind_from || also(also_behind, k) {
+            if wanted_behind(g, k) {
                 view.nearest::<false>(g, k, -sf, &mut behind);
             } else {
                 behind.len = 0;
@@ -558,6 +575,45 @@ pub fn find_partners_toward(
             }
         }
     }
+}
+
+/// Whether the ray of line position `k` (voxel group `g`), searching ahead (`FORWARD`) or
+/// behind, crosses the plane of some target in the voxels that search walks. Every partner a
+/// search returns (the piece it accepts, the piece of the same plane where the ray crosses it,
+/// an open sheet's piece before it) lies on a plane one of whose pieces passed the acceptance
+/// test ([`facing`]), whose first condition is that the ray crosses that plane ahead of the
+/// receiver; the pieces of a plane group share its plane (to rounding, hence the margin). So a
+/// search whose ray crosses no target's plane cannot return a target.
+///
+/// In the direct pass most searches of a line are from surfels the lamp cannot light along the
+/// line (the housing's top and sides beside a lamp, the surfaces above a lamp that emits
+/// downwards): this leaves them out, the same links from emitters being found.
+#[inline]
+fn crosses_a_target<const FORWARD: bool>(
+    view: &LineView,
+    targets: &[bool],
+    g: usize,
+    k: usize,
+) -> bool {
+    const MARGIN: f32 = 1e-3;
+    let x = &view.locals[k];
+    if x.ns == 0.0 {
+        // No search from a surfel along its own plane finds anything.
+        return false;
+    }
+    let walked = if FORWARD {
+        view.groups[g]..view.locals.len()
+    } else {
+        0..view.groups[g + 1]
+    };
+    walked.into_iter().any(|t| {
+        let c = &view.locals[t];
+        if !targets[t] || c.group == x.group || c.ns == 0.0 {
+            return false;
+        }
+        let d = if FORWARD { offset(x, c) } else { offset(c, x) };
+        c.normal.dot(d) * c.sgn > EPS - MARGIN
+    })
 }
 
 /// Area (voxel-size squared) of a surfel's piece of an open sheet, from its coverage of its
