@@ -556,7 +556,7 @@ impl Context<'_> {
     /// thus needs no search from the floors above it: a line through a lamp of a building
     /// crosses the whole building, and these searches were about half of the pass there. The
     /// emitters are the line's targets too: of those searches, only the ones whose ray crosses
-    /// an emitter's plane run.
+    /// an emitter's plane run (`Toward::targets`).
     fn searches_wanted(
         &self,
         d: &Direction,
