@@ -293,13 +293,13 @@ mod tests {
     #[test]
     fn a_direction_over_its_allowance_is_not_kept_and_stops_the_recording() {
         let dir = tempfile::tempdir().unwrap();
-        let mut store = LinkStore::new(dir.path(), 2, 40, 10, 4096);
+        let mut store = LinkStore::new(dir.path(), 2, 56, 10, 4096);
         let mut io = IoCounters::default();
         store.begin(0).unwrap();
         let links = DirectionLinks::default();
         match store.band_links() {
             BandLinks::Record(r) => {
-                // 16 bytes of head and 24 of empty links: just fits; a second band does not.
+                // 16 bytes of head and 32 of empty links: fits; a second band does not.
                 r.band(5, &links, &mut io).unwrap();
                 r.band(5, &links, &mut io).unwrap();
             }

@@ -10,11 +10,13 @@
 //! surfel lies on one line of a direction, so a surfel's links are all in one piece); the pieces
 //! replay in parallel, each touching only its own surfels, whatever the thread count.
 //!
-//! **Compact.** A replay streams the links (0.8 GB per iteration for the
-//! Cornell box at resolution 128, far beyond the caches), so a link is 12 bytes: its two sides
-//! and the index of its factor in its direction's table of distinct factors. A direction has few
-//! of them (the factor is the receiver's `cos W / pi`, the same for every surfel of one normal,
-//! times a share that is 1 but at open edges), so the table stays in the cache.
+//! **Compact.** A replay streams the links (0.5 GB per iteration for the Cornell box at
+//! resolution 128, far beyond the caches), and they are most of a solve's memory, so a link is
+//! one 64-bit word ([`Packed`]): its two sides and the index of its factor in its direction's
+//! table of distinct factors. A direction has few of them (the factor is the receiver's `cos W /
+//! pi`, the same for every surfel of one normal, times a share that is 1 but at open edges), so
+//! the table stays in the cache. Scenes of more than 2^27 surfels, or a direction with more than
+//! 256 distinct factors, keep that direction's links in 12 bytes each.
 //!
 //! What is kept is bounded by a budget ([`LinkBudget`]): a direction whose links do not fit is
 //! searched again in every iteration, as before.
@@ -25,9 +27,6 @@ use super::mix_hash::MixMap;
 use super::propagate::{prefetch, DirectionInput, Record};
 use super::update::{Gathered, Radiosity};
 use rayon::prelude::*;
-
-/// Bytes of one kept link.
-pub const LINK_BYTES: u64 = std::mem::size_of::<Link>() as u64;
 
 /// How many links ahead a replay asks for the surfels a link names.
 const PREFETCH_AHEAD: usize = 16;
@@ -101,20 +100,100 @@ impl Record for PieceRecorder {
     }
 }
 
+/// Side numbers a narrow link holds (surfel `n`'s side `s` is `2 n + s`): 2^27 surfels.
+const NARROW_SIDES: u32 = 1 << 28;
+/// Distinct factors of a direction that narrow links can name.
+const NARROW_FACTORS: usize = 1 << 8;
+
+/// The links of one direction as stored: narrow, 8 bytes a link (its receiving side in bits 0
+/// to 27, its sending side in bits 28 to 55, its factor's index in bits 56 to 63), where the
+/// side numbers and the factors fit, else wide (12 bytes a link).
+#[derive(Clone, Debug)]
+enum Packed {
+    Narrow(Vec<u64>),
+    Wide(Vec<Link>),
+}
+
+impl Default for Packed {
+    fn default() -> Self {
+        Packed::Narrow(Vec::new())
+    }
+}
+
+impl Packed {
+    fn len(&self) -> usize {
+        match self {
+            Packed::Narrow(v) => v.len(),
+            Packed::Wide(v) => v.len(),
+        }
+    }
+
+    fn link_bytes(&self) -> usize {
+        match self {
+            Packed::Narrow(_) => 8,
+            Packed::Wide(_) => 12,
+        }
+    }
+}
+
+/// The three numbers of a narrow link.
+#[inline(always)]
+fn unpack(word: u64) -> Link {
+    const MASK: u64 = NARROW_SIDES as u64 - 1;
+    Link {
+        to: (word & MASK) as u32,
+        from: (word >> 28 & MASK) as u32,
+        factor: (word >> 56) as u32,
+    }
+}
+
+/// A link as a narrow word (its numbers fit, see [`NARROW_SIDES`] and [`NARROW_FACTORS`]).
+fn narrow(link: &Link) -> u64 {
+    link.to as u64 | (link.from as u64) << 28 | (link.factor as u64) << 56
+}
+
 /// The links of one direction, in the pieces of lines its first gather dealt to the threads.
 #[derive(Clone, Debug, Default)]
 pub struct DirectionLinks {
-    links: Vec<Link>,
-    /// The distinct factors of every recorded piece, one table after the other.
+    packed: Packed,
+    /// The direction's distinct factors (by their bits).
     factors: Vec<f64>,
-    /// Piece `p` is `links[pieces[p]..pieces[p + 1]]`.
+    /// Piece `p` is links `pieces[p]..pieces[p + 1]`.
     pieces: Vec<usize>,
 }
 
 impl DirectionLinks {
+    /// Packs `links` (factor indices into `factors`), cut into `pieces`.
+    fn pack(
+        links: impl Iterator<Item = Link> + Clone,
+        factors: Vec<f64>,
+        pieces: Vec<usize>,
+    ) -> Self {
+        let largest_side = links.clone().map(|l| l.to.max(l.from)).max().unwrap_or(0);
+        let packed = if largest_side < NARROW_SIDES && factors.len() <= NARROW_FACTORS {
+            Packed::Narrow(links.map(|l| narrow(&l)).collect())
+        } else {
+            Packed::Wide(links.collect())
+        };
+        debug_assert_eq!(packed.len(), *pieces.last().unwrap_or(&0));
+        DirectionLinks {
+            packed,
+            factors,
+            pieces,
+        }
+    }
+
+    /// The links, in order.
+    fn links(&self) -> Box<dyn Iterator<Item = Link> + '_> {
+        match &self.packed {
+            Packed::Narrow(v) => Box::new(v.iter().map(|&w| unpack(w))),
+            Packed::Wide(v) => Box::new(v.iter().copied()),
+        }
+    }
+
     /// Bytes held.
     pub fn bytes(&self) -> u64 {
-        self.links.len() as u64 * LINK_BYTES
+        (self.packed.len() * self.packed.link_bytes()) as u64
             + self.factors.len() as u64 * 8
             + self.pieces.len() as u64 * 8
     }
@@ -128,7 +207,6 @@ impl DirectionLinks {
             "the radiosity holds every surfel the links name"
         );
         self.pieces.par_windows(2).for_each(|w| {
-            let piece = &self.links[w[0]..w[1]];
             let at = Arrays {
                 factors: &self.factors,
                 radiosity,
@@ -138,19 +216,28 @@ impl DirectionLinks {
             // SAFETY: the surfels of one piece's links are no other piece's (see the module
             // header), so the pieces write disjoint parts of `acc`; `AccPtr` is shared for that.
             unsafe {
-                match channels {
-                    1 => replay_piece::<1>(piece, &at),
-                    _ => replay_piece::<3>(piece, &at),
+                match (&self.packed, channels) {
+                    (Packed::Narrow(v), 1) => replay_piece::<1, _>(&v[w[0]..w[1]], unpack, &at),
+                    (Packed::Narrow(v), _) => replay_piece::<3, _>(&v[w[0]..w[1]], unpack, &at),
+                    (Packed::Wide(v), 1) => replay_piece::<1, _>(&v[w[0]..w[1]], |l| l, &at),
+                    (Packed::Wide(v), _) => replay_piece::<3, _>(&v[w[0]..w[1]], |l| l, &at),
                 }
             }
         });
     }
 
-    /// Appends the links to `out` as bytes (little-endian counts, then the factors, the piece
-    /// bounds and the links), for a file that [`Self::decode`] reads back.
+    /// Appends the links to `out` as bytes (little-endian counts and whether they are wide,
+    /// then the factors, the piece bounds and the links as held), for a file that
+    /// [`Self::decode`] reads back.
     pub fn encode(&self, out: &mut Vec<u8>) {
         out.reserve(self.encoded_len());
-        for count in [self.factors.len(), self.pieces.len(), self.links.len()] {
+        let wide = matches!(self.packed, Packed::Wide(_));
+        for count in [
+            self.factors.len(),
+            self.pieces.len(),
+            self.packed.len(),
+            wide as usize,
+        ] {
             out.extend_from_slice(&(count as u64).to_le_bytes());
         }
         for factor in &self.factors {
@@ -159,16 +246,24 @@ impl DirectionLinks {
         for &bound in &self.pieces {
             out.extend_from_slice(&(bound as u64).to_le_bytes());
         }
-        for link in &self.links {
-            for word in [link.to, link.from, link.factor] {
-                out.extend_from_slice(&word.to_le_bytes());
+        match &self.packed {
+            Packed::Narrow(v) => v
+                .iter()
+                .for_each(|w| out.extend_from_slice(&w.to_le_bytes())),
+            Packed::Wide(v) => {
+                for link in v {
+                    for word in [link.to, link.from, link.factor] {
+                        out.extend_from_slice(&word.to_le_bytes());
+                    }
+                }
             }
         }
     }
 
     /// Bytes [`Self::encode`] appends.
     pub fn encoded_len(&self) -> usize {
-        24 + 8 * (self.factors.len() + self.pieces.len()) + LINK_BYTES as usize * self.links.len()
+        32 + 8 * (self.factors.len() + self.pieces.len())
+            + self.packed.len() * self.packed.link_bytes()
     }
 
     /// Reads back into `self` what [`Self::encode`] wrote (the arrays' memory reused); `None`
@@ -177,15 +272,19 @@ impl DirectionLinks {
         let word = |at: usize| -> Option<u64> {
             Some(u64::from_le_bytes(bytes.get(at..at + 8)?.try_into().ok()?))
         };
-        let counts = [word(0)?, word(8)?, word(16)?].map(|c| c as usize);
-        let [factors, pieces, links] = counts;
+        let counts = [word(0)?, word(8)?, word(16)?, word(24)?].map(|c| c as usize);
+        let [factors, pieces, links, wide] = counts;
+        if wide > 1 {
+            return None;
+        }
+        let link_bytes = if wide == 1 { 12 } else { 8 };
         let expected = 8usize
-            .checked_mul(factors.checked_add(pieces)?.checked_add(3)?)?
-            .checked_add(links.checked_mul(LINK_BYTES as usize)?)?;
+            .checked_mul(factors.checked_add(pieces)?.checked_add(4)?)?
+            .checked_add(links.checked_mul(link_bytes)?)?;
         if bytes.len() != expected {
             return None;
         }
-        let mut at = 24;
+        let mut at = 32;
         self.factors.clear();
         for _ in 0..factors {
             self.factors.push(f64::from_bits(word(at)?));
@@ -202,9 +301,14 @@ impl DirectionLinks {
         if !bounds_ok {
             return None;
         }
-        self.links.clear();
-        self.links
-            .extend(bytes[at..].chunks_exact(LINK_BYTES as usize).map(|c| {
+        let chunks = bytes[at..].chunks_exact(link_bytes);
+        if wide == 1 {
+            let mut v = match std::mem::take(&mut self.packed) {
+                Packed::Wide(v) => v,
+                Packed::Narrow(_) => Vec::new(),
+            };
+            v.clear();
+            v.extend(chunks.map(|c| {
                 let w =
                     |k: usize| u32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes"));
                 Link {
@@ -213,14 +317,23 @@ impl DirectionLinks {
                     factor: w(2),
                 }
             }));
-        let in_table = self.links.iter().all(|l| (l.factor as usize) < factors);
+            self.packed = Packed::Wide(v);
+        } else {
+            let mut v = match std::mem::take(&mut self.packed) {
+                Packed::Narrow(v) => v,
+                Packed::Wide(_) => Vec::new(),
+            };
+            v.clear();
+            v.extend(chunks.map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes"))));
+            self.packed = Packed::Narrow(v);
+        }
+        let in_table = self.links().all(|l| (l.factor as usize) < factors);
         in_table.then_some(())
     }
 
     /// The largest surfel number the links name, plus one (0 for none).
     pub fn surfels_named(&self) -> usize {
-        self.links
-            .iter()
+        self.links()
             .map(|l| (l.to.max(l.from) >> 1) as usize + 1)
             .max()
             .unwrap_or(0)
@@ -236,23 +349,28 @@ struct Arrays<'a> {
     len: usize,
 }
 
-/// Adds to `at.acc` the first `CHANNELS` channels of what the links of `piece` bring from
-/// `at.radiosity`, in their order.
+/// Adds to `at.acc` the first `CHANNELS` channels of what the links of `piece` (read by
+/// `link`) bring from `at.radiosity`, in their order.
 ///
 /// # Safety
 /// `at.acc` points to `at.len` surfels, no other thread touches those the links of `piece`
 /// receive on, and `at.radiosity` holds at least `at.len` surfels.
 #[inline(never)]
-unsafe fn replay_piece<const CHANNELS: usize>(piece: &[Link], at: &Arrays) {
-    let surfel = |side: u32| (side >> 1) as usize;
-    for (k, link) in piece.iter().enumerate() {
+unsafe fn replay_piece<const CHANNELS: usize, T: Copy>(
+    piece: &[T],
+    link: impl Fn(T) -> Link,
+    at: &Arrays,
+) {
+    for (k, &item) in piece.iter().enumerate() {
         // The surfels a link names lie scattered over arrays far larger than the caches: ask
         // for those of a link a little ahead.
-        if let Some(ahead) = piece.get(k + PREFETCH_AHEAD) {
-            prefetch(at.radiosity.as_ptr(), surfel(ahead.from));
-            prefetch(at.acc as *const Gathered, surfel(ahead.to));
+        if let Some(&ahead) = piece.get(k + PREFETCH_AHEAD) {
+            let ahead = link(ahead);
+            prefetch(at.radiosity.as_ptr(), (ahead.from >> 1) as usize);
+            prefetch(at.acc as *const Gathered, (ahead.to >> 1) as usize);
         }
-        let (receiver, partner) = (surfel(link.to), surfel(link.from));
+        let link = link(item);
+        let (receiver, partner) = ((link.to >> 1) as usize, (link.from >> 1) as usize);
         assert!(
             receiver < at.len && partner < at.len,
             "a link names a surfel of the scene"
@@ -280,22 +398,38 @@ pub fn gather_and_record(
     threads: usize,
 ) -> DirectionLinks {
     let pieces: Vec<PieceRecorder> = super::jacobi::gather_pieces(lines, input, acc, threads);
-    let mut kept = DirectionLinks {
-        links: Vec::with_capacity(pieces.iter().map(|p| p.links.len()).sum()),
-        factors: Vec::with_capacity(pieces.iter().map(|p| p.factors.len()).sum()),
-        pieces: vec![0],
-    };
-    for piece in pieces {
-        // The piece's factor indices, moved into the one table of the direction.
-        let offset = kept.factors.len() as u32;
-        kept.factors.extend_from_slice(&piece.factors);
-        kept.links.extend(piece.links.iter().map(|link| Link {
-            factor: link.factor + offset,
-            ..*link
-        }));
-        kept.pieces.push(kept.links.len());
+    // The pieces' factor tables merged into one of distinct factors (by their bits), so that
+    // the direction's factor indices take as few bits as they can.
+    let mut factors: Vec<f64> = Vec::new();
+    let mut index: MixMap<u32> = MixMap::default();
+    let renumbered: Vec<Vec<u32>> = pieces
+        .iter()
+        .map(|piece| {
+            piece
+                .factors
+                .iter()
+                .map(|f| {
+                    let next = factors.len() as u32;
+                    let at = *index.entry(f.to_bits()).or_insert(next);
+                    if at == next {
+                        factors.push(*f);
+                    }
+                    at
+                })
+                .collect()
+        })
+        .collect();
+    let mut bounds = vec![0];
+    for piece in &pieces {
+        bounds.push(bounds.last().expect("a first bound") + piece.links.len());
     }
-    kept
+    let links = pieces.iter().zip(&renumbered).flat_map(|(piece, table)| {
+        piece.links.iter().map(|link| Link {
+            factor: table[link.factor as usize],
+            ..*link
+        })
+    });
+    DirectionLinks::pack(links, factors, bounds)
 }
 
 /// The default budget of the links: 4 GiB, at most a quarter of the memory available now (read
@@ -394,26 +528,97 @@ mod tests {
         recorder.link(3, 1, 7, 0, 0.25);
         recorder.link(7, 0, 3, 1, 0.125);
         recorder.link(4, 0, 9, 1, 0.25);
-        let links = DirectionLinks {
-            links: recorder.links.clone(),
-            factors: recorder.factors.clone(),
-            pieces: vec![0, 2, 3],
-        };
+        let links = DirectionLinks::pack(
+            recorder.links.iter().copied(),
+            recorder.factors.clone(),
+            vec![0, 2, 3],
+        );
+        assert!(matches!(links.packed, Packed::Narrow(_)));
+        assert_eq!(links.links().collect::<Vec<_>>(), recorder.links);
         let mut bytes = Vec::new();
         links.encode(&mut bytes);
         assert_eq!(bytes.len(), links.encoded_len());
         let mut back = DirectionLinks::default();
         assert_eq!(back.decode(&bytes), Some(()));
-        assert_eq!(back.links, links.links);
+        assert_eq!(back.links().collect::<Vec<_>>(), recorder.links);
         assert_eq!(back.factors, links.factors);
         assert_eq!(back.pieces, links.pieces);
         assert_eq!(back.surfels_named(), 10);
         // Cut short, or a factor index beyond the table: refused.
         assert_eq!(back.decode(&bytes[..bytes.len() - 1]), None);
         let mut wrong = bytes.clone();
-        let last = wrong.len() - 4;
-        wrong[last..].copy_from_slice(&9u32.to_le_bytes());
+        let last = wrong.len() - 1;
+        wrong[last] = 2;
         assert_eq!(back.decode(&wrong), None);
+    }
+
+    #[test]
+    fn links_too_large_for_narrow_words_are_kept_wide_and_read_back() {
+        for (largest, factors) in [
+            (NARROW_SIDES - 1, NARROW_FACTORS),
+            (NARROW_SIDES, 1),
+            (u32::MAX, 3),
+            (5, NARROW_FACTORS + 1),
+        ] {
+            let factor_values: Vec<f64> = (0..factors).map(|k| 1.0 / (k + 2) as f64).collect();
+            let links: Vec<Link> = (0..50u32)
+                .map(|k| Link {
+                    to: largest - k.min(largest),
+                    from: k.wrapping_mul(7919) % largest.max(1),
+                    factor: (k as usize * 31 % factors) as u32,
+                })
+                .collect();
+            let packed =
+                DirectionLinks::pack(links.iter().copied(), factor_values.clone(), vec![0, 50]);
+            let narrow = largest < NARROW_SIDES && factors <= NARROW_FACTORS;
+            assert_eq!(matches!(packed.packed, Packed::Narrow(_)), narrow);
+            assert_eq!(
+                packed.links().collect::<Vec<_>>(),
+                links,
+                "{largest} {factors}"
+            );
+            let mut bytes = Vec::new();
+            packed.encode(&mut bytes);
+            let mut back = DirectionLinks::default();
+            assert_eq!(back.decode(&bytes), Some(()));
+            assert_eq!(back.links().collect::<Vec<_>>(), links);
+        }
+    }
+
+    #[test]
+    fn a_replay_adds_each_link_s_light_times_its_factor() {
+        let radiosity: Vec<Radiosity> = (0..4)
+            .map(|k| [[k as f32, 2.0 * k as f32, 3.0], [10.0 + k as f32, 0.0, 1.0]])
+            .collect();
+        let links = [
+            Link {
+                to: 0 << 1,
+                from: 3 << 1 | 1,
+                factor: 0,
+            },
+            Link {
+                to: 2 << 1 | 1,
+                from: 1 << 1,
+                factor: 1,
+            },
+            Link {
+                to: 0 << 1,
+                from: 2 << 1,
+                factor: 1,
+            },
+        ];
+        let kept = DirectionLinks::pack(links.iter().copied(), vec![0.5, 0.25], vec![0, 3]);
+        let mut acc = vec![[[0.0f64; 3]; 2]; 4];
+        kept.replay(&radiosity, 3, &mut acc);
+        assert_eq!(
+            acc[0][0],
+            [13.0 * 0.5 + 2.0 * 0.25, 0.0 + 4.0 * 0.25, 0.5 + 0.75]
+        );
+        assert_eq!(acc[2][1], [0.25, 0.5, 0.75]);
+        assert_eq!(acc[1], [[0.0; 3]; 2]);
+        let mut grey = vec![[[0.0f64; 3]; 2]; 4];
+        kept.replay(&radiosity, 1, &mut grey);
+        assert_eq!(grey[0][0], [13.0 * 0.5 + 2.0 * 0.25, 0.0, 0.0]);
     }
 
     #[test]
