@@ -619,6 +619,15 @@ mod tests {
         let mut grey = vec![[[0.0f64; 3]; 2]; 4];
         kept.replay(&radiosity, 1, &mut grey);
         assert_eq!(grey[0][0], [13.0 * 0.5 + 2.0 * 0.25, 0.0, 0.0]);
+        // The same links kept wide (a table of more factors than a narrow word can name)
+        // bring the same light.
+        let mut many = vec![0.5, 0.25];
+        many.extend((0..NARROW_FACTORS).map(|k| k as f64));
+        let wide = DirectionLinks::pack(links.iter().copied(), many, vec![0, 3]);
+        assert!(matches!(wide.packed, Packed::Wide(_)));
+        let mut again = vec![[[0.0f64; 3]; 2]; 4];
+        wide.replay(&radiosity, 3, &mut again);
+        assert_eq!(again, acc);
     }
 
     #[test]
