@@ -280,6 +280,9 @@ fn thin_slab_and_grid_aligned_cube_under_side_light_match_the_reference() {
     // partner taken where the ray crosses a plane's run (`propagate`, `where_crossed`): mean
     // 3.27 %, max 16.5 %, balance +0.49 %; its first version measured slab top -5.70 %, its rims
     // -7.55 %, bottom -1.94 %, its rims -1.94 %, cube +x -6.46 %.
+    // With the sides inside closed solids dark and rays that meet one given the face they entered
+    // by or let pass the corner they grazed (`voxel::enclosed`, `propagate::LineView::entry_face`):
+    // mean 3.06 %, max 16.3 %, balance +0.31 %.
     assert!(c.mean < 0.035, "mean error {}", c.mean);
     assert!(c.max < 0.18, "largest error {}", c.max);
     let failures = faces_above("twin-slab", &c, slab_face_bound);
@@ -294,12 +297,14 @@ fn thin_slab_and_grid_aligned_cube_under_side_light_match_the_reference() {
 /// `examples/partners.rs`). Measured now (16 iterations): mean 2.94 %, max 21.6 % (the slab's top
 /// by its end nearest the lamp, as in the untilted twin: -16.5 % there); slab top -3.80 %, its
 /// rims -5.81 %, bottom -2.16 %, its rims -2.35 %; cube +x -6.58 %; floor under the slab +2.57 %,
-/// wall x = 1 -5.58 %; power balance +0.47 %.
+/// wall x = 1 -5.58 %; power balance +0.47 %. With the sides inside closed solids dark and rays
+/// that meet one given the face they entered by or let pass the corner they grazed: mean 2.59 %,
+/// max 15.1 %, power balance +0.25 %.
 #[test]
 fn tilted_thin_slab_under_side_light_matches_the_reference() {
     let (c, balance) = slab_case("twin-slab-tilted");
     assert!(c.mean < 0.035, "mean error {}", c.mean);
-    assert!(c.max < 0.24, "largest error {}", c.max);
+    assert!(c.max < 0.18, "largest error {}", c.max);
     // The far wall x = 1 is 1.3 points darker than in the untilted twin.
     let bound = |s: &str| {
         if s == "wall x=1" {

@@ -158,7 +158,8 @@ fn links_kept_in_files_out_of_core_give_the_bits_of_searching_again() {
                 (all.directions, "files"),
                 "{name}"
             );
-            assert!(all.bytes_per_surfel_direction > 8.0, "{name}: {all:?}");
+            // Two sides of each surfel search along each direction, less the sides inside solids.
+            assert!(all.bytes_per_surfel_direction > 4.0, "{name}: {all:?}");
             assert!(bits == searched, "{name}, {threads} threads");
             // Replaying reads the light and the links, not the surfels' static records.
             assert!(read < read_searching, "{name}: {read} >= {read_searching}");

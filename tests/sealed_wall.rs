@@ -114,7 +114,8 @@ fn sealed_room_stays_dark() {
 /// one L-shaped piece whose bounding box covers the whole voxel, and a little light still reaches
 /// hidden faces and the inner sides of the walls: at most 0.22 % of the lit room's brightest
 /// surface while faces in contact kept their covered area, 0.10 % since
-/// (`voxelize::merge_voxel`). The simpler rooms above, each closed by its own walls, are exact.
+/// (`voxelize::merge_voxel`), 0.04 % since the sides inside closed solids went dark
+/// (`voxel::enclosed`). The simpler rooms above, each closed by its own walls, are exact.
 #[test]
 fn generated_sealed_rooms_stay_dark() {
     let scene = voxrad::gen::sealed_rooms();
@@ -152,7 +153,7 @@ fn generated_sealed_rooms_stay_dark() {
     println!("dark max {dark} ({worst}), {dark_count} dark sides, lit max {lit}");
     assert!(lit > 1.0 && dark_count > 1000);
     assert!(
-        dark < 0.002 * lit,
+        dark < 0.001 * lit,
         "light reached a sealed surface: {worst}"
     );
 }

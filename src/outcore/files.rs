@@ -9,11 +9,13 @@
 //! ```text
 //! static record (72 bytes), one per surfel, in a copy's order
 //!   0 voxel    i32 x 3     8 ... see crate::voxel::Surfel
-//!  12 point    f32 x 3
+//!  12 point    f32 x 3     in [0, 1]; the sign bit of x set where the surfel has no area
+//!                          (PropSurfel::no_area)
 //!  24 normal   f32 x 3
 //!  36 extent   f32 x 6
 //!  60 group    u32
-//!  64 coverage f32         see solve::coverage
+//!  64 coverage f32         see solve::coverage; its sign bit set where the back side lies
+//!                          inside a closed solid (PropSurfel::inside_back)
 //!  68 id       u32         index of the surfel in the canonical (shard set) order
 //! radiosity (24 bytes): f32 x 6, side-major (front RGB, back RGB)
 //! gathered light (48 bytes): f64 x 6, side-major
@@ -51,8 +53,12 @@ pub fn encode_static(r: &StaticRecord, out: &mut [u8; STATIC_LEN]) {
     for v in p.voxel {
         put(out, &mut at, v.to_le_bytes());
     }
-    for v in p
-        .point
+    // The point lies in [0, 1]: the sign bit of its x carries the flag.
+    let mut point = p.point.map(f32::abs);
+    if p.no_area {
+        point[0] = -point[0];
+    }
+    for v in point
         .iter()
         .chain(&p.normal)
         .chain(p.extent.iter().flatten())
@@ -60,7 +66,13 @@ pub fn encode_static(r: &StaticRecord, out: &mut [u8; STATIC_LEN]) {
         put(out, &mut at, v.to_le_bytes());
     }
     put(out, &mut at, p.group.to_le_bytes());
-    put(out, &mut at, p.coverage.to_le_bytes());
+    // Coverage is positive: its sign bit carries the flag, so the record keeps its size.
+    let coverage = if p.inside_back {
+        -p.coverage.abs()
+    } else {
+        p.coverage.abs()
+    };
+    put(out, &mut at, coverage.to_le_bytes());
     put(out, &mut at, r.id.to_le_bytes());
     debug_assert_eq!(at, STATIC_LEN);
 }
@@ -82,11 +94,13 @@ pub fn decode_static(bytes: &[u8]) -> StaticRecord {
     StaticRecord {
         prop: PropSurfel {
             voxel: [i(0), i(1), i(2)],
-            point: [f(3), f(4), f(5)],
+            point: [f(3).abs(), f(4), f(5)],
             normal: [f(6), f(7), f(8)],
             extent: [[f(9), f(10), f(11)], [f(12), f(13), f(14)]],
             group: u(15),
-            coverage: f(16),
+            coverage: f(16).abs(),
+            inside_back: f(16).is_sign_negative(),
+            no_area: f(3).is_sign_negative(),
         },
         id: u(17),
     }
@@ -283,5 +297,38 @@ impl RecordFile {
         self.file
             .set_len(len)
             .map_err(|e| OocError::io(&self.path, "resize", e))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn static_records_read_back_with_their_inside_flag() {
+        let cases = [
+            (1.0, false, false),
+            (1.0, true, true),
+            (0.25, false, true),
+            (0.25, true, false),
+        ];
+        for (coverage, inside_back, no_area) in cases {
+            let r = StaticRecord {
+                prop: PropSurfel {
+                    voxel: [3, -7, 1 << 20],
+                    group: 12,
+                    point: [if no_area { 0.0 } else { 0.1 }, 0.5, 0.9],
+                    normal: [0.0, 0.6, 0.8],
+                    extent: [[0.0, 0.25, 0.5], [1.0, 0.75, 0.5]],
+                    coverage,
+                    inside_back,
+                    no_area,
+                },
+                id: 99,
+            };
+            let mut bytes = [0u8; STATIC_LEN];
+            encode_static(&r, &mut bytes);
+            assert_eq!(decode_static(&bytes), r);
+        }
     }
 }

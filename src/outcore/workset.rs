@@ -180,7 +180,11 @@ pub fn build(
             for k in 0..group.len() {
                 let s = &group[k];
                 let r = StaticRecord {
-                    prop: PropSurfel::new(s, coverage_in_voxel(&group, k)),
+                    prop: PropSurfel::new(
+                        s,
+                        coverage_in_voxel(&group, k),
+                        &source.info().materials,
+                    ),
                     id,
                 };
                 encode_static(&r, &mut record);

@@ -11,6 +11,9 @@ pub mod obj;
 use glam::DVec3;
 use std::path::PathBuf;
 
+/// The name of [`Material::inside_of_solids`] in a surfel set's materials.
+pub const INSIDE_OF_SOLIDS: &str = "(inside of a solid)";
+
 /// A diffuse material. Channels are RGB.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Material {
@@ -20,6 +23,9 @@ pub struct Material {
     /// Emitted radiosity `E` per channel (MTL `Ke`), in the scene's power-per-area unit.
     /// Emission leaves the front side of a triangle only (the side its winding's normal points to).
     pub emission: [f64; 3],
+    /// The back side of a closed solid's face, inside the solid: it gathers no light and sends
+    /// none (set by the voxelizer, `voxel::enclosed`; never by a scene file).
+    pub inside: bool,
 }
 
 impl Material {
@@ -28,6 +34,16 @@ impl Material {
             name: name.to_string(),
             reflectance,
             emission,
+            inside: false,
+        }
+    }
+
+    /// The material of the back sides inside closed solids (`voxel::enclosed`): black, dark,
+    /// and never searched from by propagation.
+    pub fn inside_of_solids() -> Self {
+        Material {
+            inside: true,
+            ..Material::new(INSIDE_OF_SOLIDS, [0.0; 3], [0.0; 3])
         }
     }
 

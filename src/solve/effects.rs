@@ -59,6 +59,8 @@ pub struct Analysis {
     pub surfels: usize,
     /// Voxels along the grid's longest axis.
     pub longest_axis: u32,
+    /// Surfels whose back side lies inside a closed solid (`voxel::enclosed`).
+    pub inside_sides: usize,
 }
 
 /// Analyses the materials on the surfels' sides.
@@ -76,9 +78,12 @@ pub fn analyse_sides(
     sides: impl Iterator<Item = [u32; 2]>,
 ) -> Analysis {
     let mut used = vec![false; materials.len()];
-    let (mut emitting_surfels, mut surfels) = (0, 0);
+    let (mut emitting_surfels, mut surfels, mut inside_sides) = (0, 0, 0);
     for pair in sides {
         surfels += 1;
+        inside_sides += materials
+            .get(pair[crate::voxel::BACK] as usize)
+            .is_some_and(|m| m.inside) as usize;
         let mut emits = false;
         for m in pair {
             if let Some(u) = used.get_mut(m as usize) {
@@ -102,6 +107,7 @@ pub fn analyse_sides(
         emitting_surfels,
         surfels,
         longest_axis: 0,
+        inside_sides,
     }
 }
 
@@ -198,6 +204,21 @@ impl Analysis {
             },
         ));
         list.push(self.direct_effect(requested, stats));
+        list.push(Effect::new(
+            "light inside solids",
+            false,
+            &if self.inside_sides > 0 {
+                format!(
+                    "{} of {} surfels have their back side inside a closed solid (a face of a box \
+                     wound outward with nothing inside it): nothing there is seen, so those sides \
+                     gather no light and their partner searches are skipped",
+                    self.inside_sides, self.surfels
+                )
+            } else {
+                "no surfel has a side inside a closed solid wound outward: every side gathers"
+                    .to_string()
+            },
+        ));
         if bounces {
             list.push(Effect::new(
                 "tail extrapolation",

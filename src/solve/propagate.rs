@@ -90,12 +90,22 @@ pub struct PropSurfel {
     /// Fraction of the voxel's slice of the surfel's plane that its piece covers, for a piece at
     /// the open edge of a surface (alone in its voxel, not filling it); 1 everywhere else.
     pub coverage: f32,
+    /// The back side lies inside a closed solid (its material is
+    /// `scene::Material::inside_of_solids`): no search runs from it.
+    pub inside_back: bool,
+    /// The surfel keeps no area (a face wholly pressed against another solid, or a voxel the
+    /// plane only touches): its point may lie inside a solid (see `LineView::entry_face`).
+    pub no_area: bool,
 }
 
 impl PropSurfel {
     /// What propagation reads of `surfel`, whose open-edge coverage is `coverage`
-    /// (`solve::coverage`).
-    pub fn new(surfel: &crate::voxel::Surfel, coverage: f32) -> Self {
+    /// (`solve::coverage`), with `materials` the surfel set's.
+    pub fn new(
+        surfel: &crate::voxel::Surfel,
+        coverage: f32,
+        materials: &[crate::scene::Material],
+    ) -> Self {
         PropSurfel {
             voxel: surfel.voxel,
             group: surfel.group,
@@ -103,6 +113,10 @@ impl PropSurfel {
             normal: surfel.normal,
             extent: surfel.extent,
             coverage,
+            inside_back: materials
+                .get(surfel.material[crate::voxel::BACK] as usize)
+                .is_some_and(|m| m.inside),
+            no_area: surfel.area <= 0.0,
         }
     }
 }
@@ -113,7 +127,7 @@ pub fn prop_surfels(set: &crate::voxel::SurfelSet) -> Vec<PropSurfel> {
     set.surfels
         .iter()
         .zip(&coverage)
-        .map(|(s, &coverage)| PropSurfel::new(s, coverage))
+        .map(|(s, &coverage)| PropSurfel::new(s, coverage, &set.materials))
         .collect()
 }
 
@@ -130,6 +144,16 @@ struct Local {
     lo: Vec3,
     hi: Vec3,
     coverage: f32,
+    inside_back: bool,
+    no_area: bool,
+}
+
+/// Whether the side of `x` that its search ahead (`FORWARD`) or behind gathers into (the side
+/// facing that way) is a back side inside a closed solid: nothing there is seen, so the search
+/// is not run and the side gathers nothing (`voxel::enclosed`).
+#[inline(always)]
+fn gathers_inside<const FORWARD: bool>(x: &Local) -> bool {
+    x.inside_back && if FORWARD { x.ns < 0.0 } else { x.ns > 0.0 }
 }
 
 /// Which side of `mate`'s plane `piece` lies on, from the piece's bounding box (+1 in front, -1
@@ -416,6 +440,8 @@ pub fn find_partners_toward(
             lo: Vec3::from(p.extent[0]),
             hi: Vec3::from(p.extent[1]),
             coverage: p.coverage,
+            inside_back: p.inside_back,
+            no_area: p.no_area,
         }
     }));
     groups.clear();
@@ -709,6 +735,22 @@ fn plane_runs(locals: &[Local], groups: &[usize], runs: &mut Vec<[u32; 2]>) {
         }
     }
 }
+
+/// What a search that met a plane ends with ([`LineView::entry_face`]).
+enum Entry {
+    /// This line position is the partner.
+    Hit(usize),
+    /// The ray passed by a closed solid, beside the face whose plane it crossed: go on.
+    PassedBy,
+}
+
+/// Distance (voxel units) along the ray within which a side inside a solid is taken as met
+/// from within the solid ([`LineView::entry_face`]).
+const NEAR_START: f32 = 1.0;
+
+/// How far (voxel units) outside a piece's bounding box a crossing of its plane must lie for a
+/// ray that met the piece's side inside a solid to count as having passed by the solid.
+const PASSED_BY: f32 = 1e-3;
 
 /// The plane of the last open edge a search took a share from. Open pieces of parallel planes
 /// in one layer of voxels usually do not overlap (a lamp set in an opening of the ceiling, its
@@ -1087,6 +1129,98 @@ impl LineView<'_> {
         }
     }
 
+    /// The partner of a search from receiver `x` (voxel group `g`) whose ray met a plane at line
+    /// position `hit`. A ray can reach a side inside a closed solid (`Local::inside_back`) only
+    /// through the solid's surface, yet at the scale of the voxels a search may end on one:
+    /// - it *entered through a face the search passed by*: a slab thinner than a voxel holds
+    ///   both faces in one voxel, and a ray crossing the near face just off its piece is caught
+    ///   on the far face's inner side. Its partner is that face: of the surfels from the
+    ///   receiver's voxel group to the hit's that turn their front to the receiver and pass its
+    ///   acceptance test no farther than the hit, the one crossed last;
+    /// - it *passed by the solid*: a ray grazing a box's corner crosses a face's plane beyond the
+    ///   face, where a voxel of the face's run catches it. Its crossing then lies outside the
+    ///   hit piece's bounding box, and the search goes on past that plane ([`Entry::PassedBy`]);
+    /// - otherwise, or within a voxel of the receiver, or from a receiver without area (either
+    ///   may lie inside the solid itself: a face pressed against it), it stays on the hit, whose
+    ///   side sends nothing.
+    ///
+    /// Before those sides went dark, they carried whatever such rays brought into them, which
+    /// hid these rays in a furnace; dark, each would be light lost (0.6 % of the power of the
+    /// thin-slab twin of `tests/hard_case_twins.rs`).
+    #[inline(always)]
+    fn entry_face<const FORWARD: bool>(&self, x: &Local, g: usize, hit: usize, dir: Vec3) -> Entry {
+        let h = &self.locals[hit];
+        // The side of the hit facing back toward the receiver is its back side.
+        let from_back = if FORWARD { h.ns > 0.0 } else { h.ns < 0.0 };
+        if !(h.inside_back && from_back) {
+            return Entry::Hit(hit);
+        }
+        self.entry_face_of::<FORWARD>(x, g, hit, dir)
+    }
+
+    #[inline(never)]
+    fn entry_face_of<const FORWARD: bool>(
+        &self,
+        x: &Local,
+        g: usize,
+        hit: usize,
+        dir: Vec3,
+    ) -> Entry {
+        let h = &self.locals[hit];
+        let Some(t_hit) = Self::test::<FORWARD>(x, h) else {
+            return Entry::Hit(hit);
+        };
+        // A ray that meets an inner side within a voxel of its start, or from a surfel without
+        // area (a face wholly pressed against another solid), may have started inside the solid:
+        // it stays.
+        if t_hit <= NEAR_START || x.no_area {
+            return Entry::Hit(hit);
+        }
+        let g_hit = self.groups.partition_point(|&start| start <= hit) - 1;
+        let (lo, hi) = if FORWARD { (g, g_hit) } else { (g_hit, g) };
+        let mut best: Option<(f32, usize)> = None;
+        for q in self.groups[lo]..self.groups[hi + 1] {
+            let c = &self.locals[q];
+            if q == hit || c.group == x.group || c.group == h.group {
+                continue;
+            }
+            // Its front turned to the receiver (a face of the solid seen from outside).
+            let front_to_receiver = if FORWARD { c.ns < 0.0 } else { c.ns > 0.0 };
+            if !front_to_receiver {
+                continue;
+            }
+            let Some(t) = Self::test::<FORWARD>(x, c) else {
+                continue;
+            };
+            if t > t_hit + EPS {
+                continue;
+            }
+            // The last crossed; equal distances by plane group, then voxel: the same choice
+            // whichever way the line is listed.
+            let better = match best {
+                None => true,
+                Some((bt, bq)) => {
+                    let b = &self.locals[bq];
+                    t > bt || t == bt && (c.group, c.voxel) < (b.group, b.voxel)
+                }
+            };
+            if better {
+                best = Some((t, q));
+            }
+        }
+        if let Some((_, q)) = best {
+            return Entry::Hit(q);
+        }
+        // Where the ray crosses the hit's plane, in the hit's voxel units.
+        let crossing = dir * t_hit - offset(x, h) + h.point;
+        let margin = Vec3::splat(PASSED_BY);
+        if crossing.cmplt(h.lo - margin).any() || crossing.cmpgt(h.hi + margin).any() {
+            Entry::PassedBy
+        } else {
+            Entry::Hit(hit)
+        }
+    }
+
     /// The acceptance test of candidate `c` for receiver `x`, looking ahead or behind: the distance
     /// from `x`'s point to `c`'s plane along the search direction.
     #[inline(always)]
@@ -1174,7 +1308,7 @@ impl LineView<'_> {
     #[inline(always)]
     fn nearest_plain<const FORWARD: bool>(&self, k: usize, dir: Vec3) -> (u32, f32) {
         let x = &self.locals[k];
-        if x.ns == 0.0 {
+        if x.ns == 0.0 || gathers_inside::<FORWARD>(x) {
             return (u32::MAX, 0.0);
         }
         let count = self.locals.len();
@@ -1202,7 +1336,13 @@ impl LineView<'_> {
                 continue;
             }
             if let Some(t) = Self::test::<FORWARD>(x, candidate) {
-                return (self.where_crossed::<FORWARD>(x, g2, g2, t, dir) as u32, 1.0);
+                let hit = self.where_crossed::<FORWARD>(x, g2, g2, t, dir);
+                match self.entry_face::<FORWARD>(x, k, hit, dir) {
+                    Entry::Hit(partner) => return (partner as u32, 1.0),
+                    // The ray passed by the solid: the next voxels of the plane's run are
+                    // judged alike, and the search goes on past them.
+                    Entry::PassedBy => continue,
+                }
             }
         }
     }
@@ -1225,9 +1365,10 @@ impl LineView<'_> {
     fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3, chain: &mut Chain) {
         chain.len = 0;
         let x = &self.locals[k];
-        if x.ns == 0.0 {
-            // The direction lies in the receiver's plane: it gathers nothing along it, and no
-            // candidate could pass the test anyway, so do not walk the line.
+        if x.ns == 0.0 || gathers_inside::<FORWARD>(x) {
+            // The direction lies in the receiver's plane (it gathers nothing along it, and no
+            // candidate could pass the test anyway), or the side gathering is inside a solid:
+            // do not walk the line.
             return;
         }
         let mut missed = Missed::default();
@@ -1264,6 +1405,16 @@ impl LineView<'_> {
                     search_here = true;
                     continue;
                 }
+                let hit = self.where_crossed::<FORWARD>(x, found, g2, t, dir);
+                let partner = match self.entry_face::<FORWARD>(x, g, hit, dir) {
+                    Entry::Hit(partner) => partner,
+                    Entry::PassedBy if missed.has_room() => {
+                        missed.insert(candidate.group);
+                        search_here = true;
+                        continue;
+                    }
+                    Entry::PassedBy => hit,
+                };
                 self.open_before_hit::<FORWARD>(
                     g,
                     x,
@@ -1275,7 +1426,6 @@ impl LineView<'_> {
                     chain,
                     &mut left,
                 );
-                let partner = self.where_crossed::<FORWARD>(x, found, g2, t, dir);
                 chain.push(partner, left);
                 return;
             }
@@ -1324,6 +1474,15 @@ impl LineView<'_> {
                         missed.insert(single);
                         continue;
                     }
+                    let hit = self.where_crossed::<FORWARD>(x, c, g2, t, dir);
+                    let partner = match self.entry_face::<FORWARD>(x, g, hit, dir) {
+                        Entry::Hit(partner) => partner,
+                        Entry::PassedBy if missed.has_room() => {
+                            missed.insert(single);
+                            continue;
+                        }
+                        Entry::PassedBy => hit,
+                    };
                     self.open_before_hit::<FORWARD>(
                         g,
                         x,
@@ -1335,7 +1494,6 @@ impl LineView<'_> {
                         chain,
                         &mut left,
                     );
-                    let partner = self.where_crossed::<FORWARD>(x, c, g2, t, dir);
                     chain.push(partner, left);
                     return;
                 }

@@ -8,8 +8,9 @@
 //! format          "voxrad-shardset"   (what the file is; the JSON equivalent of a magic number)
 //! format_version  2                   (this build reads MIN_VERSION..=VERSION)
 //! grid            { origin: [f64; 3], voxel_size: f64, dims: [u32; 3] }  scene bounds in world units
-//! materials       [{ name, reflectance: [f64; 3] in [0, 1), emission: [f64; 3] >= 0 }]
-//!                 indexed by a record's `material`
+//! materials       [{ name, reflectance: [f64; 3] in [0, 1), emission: [f64; 3] >= 0,
+//!                 inside: true (only on the material of back sides inside closed solids,
+//!                 voxel::enclosed; absent means false) }] indexed by a record's `material`
 //! normals         [[f32; 3]] unit normals, indexed by a record's `normal_id`
 //! order           0..4, the lexicographic order every shard is sorted in (geometry::order)
 //! shards          [{ file, records, bytes, crc32 }] in rank order: a plain file name inside the
@@ -61,6 +62,10 @@ pub struct MaterialEntry {
     pub name: String,
     pub reflectance: [f64; 3],
     pub emission: [f64; 3],
+    /// The back sides inside closed solids (`scene::Material::inside`); written only when true,
+    /// so that shard sets without such sides read and write as before.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub inside: bool,
 }
 
 impl From<&Material> for MaterialEntry {
@@ -69,13 +74,17 @@ impl From<&Material> for MaterialEntry {
             name: m.name.clone(),
             reflectance: m.reflectance,
             emission: m.emission,
+            inside: m.inside,
         }
     }
 }
 
 impl From<&MaterialEntry> for Material {
     fn from(m: &MaterialEntry) -> Self {
-        Material::new(&m.name, m.reflectance, m.emission)
+        Material {
+            inside: m.inside,
+            ..Material::new(&m.name, m.reflectance, m.emission)
+        }
     }
 }
 

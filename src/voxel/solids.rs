@@ -64,12 +64,12 @@ pub(crate) fn solid_backed(scene: &Scene) -> Vec<bool> {
 }
 
 /// The end points of edge `e` of a triangle: corners `e` and `e + 1`.
-fn edge_points(v: &[DVec3; 3], e: u8) -> (DVec3, DVec3) {
+pub(super) fn edge_points(v: &[DVec3; 3], e: u8) -> (DVec3, DVec3) {
     (v[e as usize], v[(e as usize + 1) % 3])
 }
 
 /// A hash of an edge's end points that does not depend on their order.
-fn edge_hash(a: DVec3, b: DVec3) -> u64 {
+pub(super) fn edge_hash(a: DVec3, b: DVec3) -> u64 {
     let bits = |p: DVec3| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()];
     let (lo, hi) = if bits(a) <= bits(b) {
         (bits(a), bits(b))

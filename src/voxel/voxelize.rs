@@ -244,6 +244,8 @@ pub(crate) struct PlaneGroups {
     normals: Vec<[f32; 3]>,
     /// Per triangle: whether it is a face of a solid lying behind it (`solids`).
     pub(crate) solid_backed: Vec<bool>,
+    /// Per triangle: whether its back side lies inside a closed solid (`enclosed`).
+    pub(crate) inside_backed: Vec<bool>,
 }
 
 impl PlaneGroups {
@@ -285,6 +287,7 @@ impl PlaneGroups {
             group_normal,
             normals,
             solid_backed: super::solids::solid_backed(scene),
+            inside_backed: super::enclosed::inside_backed(scene),
         }
     }
 
@@ -356,6 +359,9 @@ pub(crate) struct Tables {
     pub(crate) materials: Vec<Material>,
     /// Per scene material: the id of its unlit copy (emitters only).
     unlit: Vec<Option<u32>>,
+    /// The id of [`Material::inside_of_solids`], appended when some triangle's back side lies
+    /// inside a closed solid.
+    inside: Option<u32>,
 }
 
 impl Tables {
@@ -386,12 +392,17 @@ impl Tables {
                 })
             })
             .collect();
+        let inside = groups.inside_backed.iter().any(|&b| b).then(|| {
+            materials.push(Material::inside_of_solids());
+            (materials.len() - 1) as u32
+        });
         Tables {
             group_normal: groups.group_normal.clone(),
             normals,
             flipped,
             materials,
             unlit,
+            inside,
         }
     }
 }
@@ -593,6 +604,7 @@ pub(crate) fn merge_voxel(
     // Nothing can be hidden without a solid's face and a second surface in the voxel.
     if runs.len() < 2 || !pieces.iter().any(solid) {
         surfels.extend(runs.iter().map(|run| merge_run(run, tables)));
+        mark_inside(&mut surfels, &runs, groups, tables);
         return surfels;
     }
     let polygons: Vec<Vec<DVec3>> = pieces
@@ -636,7 +648,25 @@ pub(crate) fn merge_voxel(
             tables,
         ));
     }
+    mark_inside(&mut surfels, &runs, groups, tables);
     surfels
+}
+
+/// Gives the surfels whose pieces all have their back side inside a closed solid (`enclosed`)
+/// the material [`Material::inside_of_solids`] on that side: nothing there is ever seen, and
+/// propagation does not search from it. `surfels` and `runs` are parallel.
+fn mark_inside(surfels: &mut [Surfel], runs: &[&[Piece]], groups: &PlaneGroups, tables: &Tables) {
+    let Some(inside) = tables.inside else {
+        return;
+    };
+    for (surfel, run) in surfels.iter_mut().zip(runs) {
+        if run
+            .iter()
+            .all(|p| groups.inside_backed[p.triangle as usize])
+        {
+            surfel.material[BACK] = inside;
+        }
+    }
 }
 
 /// Whether a solid's face `polygon` stands on the plane through `origin` with `normal`: it meets

@@ -155,6 +155,8 @@ mod tests {
             normal: [0.0, 1.0, -f],
             extent: [[0.1, 0.2, 0.3], [f, 0.5, 0.6]],
             coverage: 0.75,
+            inside_back: k % 3 == 0,
+            no_area: k % 5 == 0,
         }
     }
 

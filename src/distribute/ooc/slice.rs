@@ -120,7 +120,7 @@ impl Solver<'_> {
         for (k, s) in group.iter().enumerate() {
             let mut w = [0u8; WIRE_LEN];
             let r = StaticRecord {
-                prop: PropSurfel::new(s, coverage_in_voxel(group, k)),
+                prop: PropSurfel::new(s, coverage_in_voxel(group, k), &info.materials),
                 id: (first_id + k as u64) as u32,
             };
             let mut statics = [0u8; STATIC_LEN];
