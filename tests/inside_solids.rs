@@ -18,22 +18,13 @@ const CABINET: [[f64; 3]; 2] = [[0.5, 0.0, 0.5], [1.3, 1.1, 1.0]];
 const BIN: [[f64; 3]; 2] = [[2.4, 0.0, 2.4], [3.2, 0.6, 3.2]];
 const SLAB: [[f64; 3]; 2] = [[2.2, 1.2, 0.4], [3.4, 1.25, 1.4]];
 
-/// The faces of the box `[lo, hi]`, wound outward, the top left out if `open`.
+/// The box `[lo, hi]` wound outward (`Scene::add_box`: two triangles a face, in the order -x,
+/// +x, -y, +y, -z, +z), its top (+y) left out if `open`.
 fn outward_box(scene: &mut Scene, b: [[f64; 3]; 2], m: u32, open: bool) {
-    let (lo, hi) = (DVec3::from(b[0]), DVec3::from(b[1]));
-    let c = |x: f64, y: f64, z: f64| lo + (hi - lo) * DVec3::new(x, y, z);
-    let faces = [
-        [c(0., 0., 0.), c(0., 0., 1.), c(0., 1., 1.), c(0., 1., 0.)],
-        [c(1., 0., 0.), c(1., 1., 0.), c(1., 1., 1.), c(1., 0., 1.)],
-        [c(0., 0., 0.), c(1., 0., 0.), c(1., 0., 1.), c(0., 0., 1.)],
-        [c(0., 1., 0.), c(0., 1., 1.), c(1., 1., 1.), c(1., 1., 0.)],
-        [c(0., 0., 0.), c(0., 1., 0.), c(1., 1., 0.), c(1., 0., 0.)],
-        [c(0., 0., 1.), c(1., 0., 1.), c(1., 1., 1.), c(0., 1., 1.)],
-    ];
-    for (k, f) in faces.iter().enumerate() {
-        if !(open && k == 3) {
-            scene.add_polygon(f, m);
-        }
+    let first = scene.triangles.len();
+    scene.add_box(DVec3::from(b[0]), DVec3::from(b[1]), m, false);
+    if open {
+        scene.triangles.drain(first + 6..first + 8);
     }
 }
 

@@ -258,8 +258,8 @@ mod tests {
         DVec3::new(x, y, z)
     }
 
-    /// The six faces of the box `[lo, lo + size]`, wound outward (inward if `inward`); `skip`
-    /// leaves out the face of that index (-x, +x, -y, +y, -z, +z).
+    /// The box `[lo, lo + size]` (`Scene::add_box`: two triangles a face, in the order -x, +x,
+    /// -y, +y, -z, +z), wound outward (inward if `inward`); `skip` leaves out that face.
     fn add_box(
         scene: &mut Scene,
         lo: DVec3,
@@ -268,23 +268,10 @@ mod tests {
         inward: bool,
         skip: Option<usize>,
     ) {
-        let b = |x: f64, y: f64, z: f64| lo + size * p(x, y, z);
-        let faces = [
-            [b(0., 0., 0.), b(0., 0., 1.), b(0., 1., 1.), b(0., 1., 0.)],
-            [b(1., 0., 0.), b(1., 1., 0.), b(1., 1., 1.), b(1., 0., 1.)],
-            [b(0., 0., 0.), b(1., 0., 0.), b(1., 0., 1.), b(0., 0., 1.)],
-            [b(0., 1., 0.), b(0., 1., 1.), b(1., 1., 1.), b(1., 1., 0.)],
-            [b(0., 0., 0.), b(0., 1., 0.), b(1., 1., 0.), b(1., 0., 0.)],
-            [b(0., 0., 1.), b(1., 0., 1.), b(1., 1., 1.), b(0., 1., 1.)],
-        ];
-        for (k, mut f) in faces.into_iter().enumerate() {
-            if skip == Some(k) {
-                continue;
-            }
-            if inward {
-                f.reverse();
-            }
-            scene.add_polygon(&f, m);
+        let first = scene.triangles.len();
+        scene.add_box(lo, lo + size, m, inward);
+        if let Some(k) = skip {
+            scene.triangles.drain(first + 2 * k..first + 2 * k + 2);
         }
     }
 
