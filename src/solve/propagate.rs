@@ -309,9 +309,6 @@ pub struct LineScratch {
     open_items: Vec<(u32, u32, f32)>,
     /// For each line position: the index of its open crossing in `open_ranges`, or `u32::MAX`.
     open_slot: Vec<u32>,
-    /// For each line position: the first and last voxel group of the run of consecutive voxel
-    /// groups holding its plane (see [`LineView::off_the_run`]).
-    runs: Vec<[u32; 2]>,
     /// [`side_of`] for the pairs of surfels of one voxel, filled as the searches ask
     /// ([`LineView::mate_side`]), and where each voxel group's square of pairs starts.
     sides: Vec<std::cell::Cell<u8>>,
@@ -413,7 +410,6 @@ pub fn find_partners_toward(
         open_ranges,
         open_items,
         open_slot,
-        runs,
         sides,
         side_start,
     } = scratch;
@@ -452,14 +448,13 @@ pub fn find_partners_toward(
     }
     groups.push(locals.len());
     let group_count = groups.len() - 1;
-    // Most lines hold one surfel per voxel: then no voxel has mates, and the plane runs that
-    // only judge mates at a run's ends (`LineView::off_the_run`) are not needed.
+    // Most lines hold one surfel per voxel: then no voxel has mates, and no run of a plane ends
+    // at a voxel-mate (`LineView::off_the_run`).
     let shared = group_count < locals.len();
     open_crossings(locals, groups, section, open_ranges, open_items, open_slot);
     side_start.clear();
     sides.clear();
     if shared {
-        plane_runs(locals, groups, runs);
         let mut pairs = 0u32;
         side_start.extend((0..group_count).map(|g| {
             let at = pairs;
@@ -470,8 +465,6 @@ pub fn find_partners_toward(
             at
         }));
         sides.resize(pairs as usize, std::cell::Cell::new(SIDE_UNKNOWN));
-    } else {
-        runs.clear();
     }
     single.clear();
     single.extend((0..group_count).map(|g| {
@@ -510,7 +503,6 @@ pub fn find_partners_toward(
         open_ranges,
         open_items,
         open_slot,
-        runs,
         sides,
         side_start,
         shared,
@@ -705,37 +697,6 @@ fn open_crossings(
     }
 }
 
-/// For every line position, the run of its plane on the line: the first and last of the
-/// consecutive voxel groups that hold a piece of the plane, around the position's own group.
-fn plane_runs(locals: &[Local], groups: &[usize], runs: &mut Vec<[u32; 2]>) {
-    let group_count = groups.len() - 1;
-    runs.clear();
-    runs.resize(locals.len(), [0, 0]);
-    let find =
-        |g: usize, plane: u32| (groups[g]..groups[g + 1]).find(|&k| locals[k].group == plane);
-    for g in 0..group_count {
-        for k in groups[g]..groups[g + 1] {
-            let lo = match g.checked_sub(1).and_then(|p| find(p, locals[k].group)) {
-                Some(p) => runs[p][0],
-                None => g as u32,
-            };
-            runs[k][0] = lo;
-        }
-    }
-    for g in (0..group_count).rev() {
-        for k in groups[g]..groups[g + 1] {
-            let hi = match (g + 1 < group_count)
-                .then(|| find(g + 1, locals[k].group))
-                .flatten()
-            {
-                Some(n) => runs[n][1],
-                None => g as u32,
-            };
-            runs[k][1] = hi;
-        }
-    }
-}
-
 /// What a search that met a plane ends with ([`LineView::entry_face`]).
 enum Entry {
     /// This line position is the partner.
@@ -820,7 +781,6 @@ struct LineView<'a> {
     open_ranges: &'a [(u32, u32, u32)],
     open_items: &'a [(u32, u32, f32)],
     open_slot: &'a [u32],
-    runs: &'a [[u32; 2]],
     sides: &'a [std::cell::Cell<u8>],
     side_start: &'a [u32],
     /// Whether some voxel of the line holds more than one surfel (else `runs` is empty).
@@ -942,6 +902,26 @@ impl LineView<'_> {
         chosen.unwrap_or(c)
     }
 
+    /// The run of line position `c`'s plane on the line: the first and last of the consecutive
+    /// voxel groups around `c`'s own that hold a piece of the plane. Found when a search asks
+    /// (a few times a line) rather than for every position of every line: the direct-light
+    /// pass runs only some searches of its long lines, and this was 6 % of it.
+    #[inline(always)]
+    fn run_of(&self, c: usize) -> [u32; 2] {
+        let plane = self.locals[c].group;
+        let holds =
+            |g: usize| (self.groups[g]..self.groups[g + 1]).any(|k| self.locals[k].group == plane);
+        let g = self.groups.partition_point(|&start| start <= c) - 1;
+        let (mut lo, mut hi) = (g, g);
+        while lo > 0 && holds(lo - 1) {
+            lo -= 1;
+        }
+        while hi + 2 < self.groups.len() && holds(hi + 1) {
+            hi += 1;
+        }
+        [lo as u32, hi as u32]
+    }
+
     /// Whether the ray from receiver `x`, which meets the plane of candidate `c` at distance `t`,
     /// crosses that plane off its pieces on this line: beyond the edge where the plane's run of
     /// voxels ends at a voxel-mate bounding it (a lamp's end under its housing's end face). The
@@ -956,7 +936,7 @@ impl LineView<'_> {
             return false;
         }
         let plane = self.locals[c].group;
-        let own = self.runs[c];
+        let own = self.run_of(c);
         let here = self.locals[c].voxel;
         for end in [own[0], own[1]] {
             let range = self.groups[end as usize]..self.groups[end as usize + 1];
