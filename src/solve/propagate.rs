@@ -56,6 +56,13 @@
 //! a tilted slab, sheared in its own plane, only touches the slab's top and bottom planes that
 //! its box crosses (`side_of`).
 //!
+//! **Sides inside solids.** The back side of a closed solid's face (`voxel::enclosed`, flagged
+//! in [`PropSurfel::inside_back`]) sees nothing: no search runs from it, and it gathers nothing.
+//! A ray from outside can only reach it through the solid's surface, so a search that ends on one
+//! is given the face turned to the receiver that it crossed just before (a slab thinner than a
+//! voxel), or goes on past the plane when it crossed it beside the piece (a box's corner grazed),
+//! and only otherwise stays on the dark side (`LineView::entry_face`).
+//!
 //! Every surfel side receives exactly one gather per line direction, so accumulating in direction
 //! order makes the result independent of how lines are spread over threads.
 //!

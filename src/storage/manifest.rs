@@ -337,6 +337,16 @@ impl Manifest {
                     m.name, m.emission
                 ));
             }
+            // The sides inside solids gather nothing and send nothing: such a material can only
+            // be black and dark, or the answer would silently lose its light.
+            let lit = m.reflectance.iter().chain(&m.emission).any(|&v| v != 0.0);
+            if m.inside && lit {
+                return bad(format!(
+                    "material {i} ({:?}) is marked inside a solid but reflects or emits \
+                     (reflectance {:?}, emission {:?})",
+                    m.name, m.reflectance, m.emission
+                ));
+            }
         }
         for (i, n) in self.normals.iter().enumerate() {
             let len = n.iter().map(|c| (*c as f64).powi(2)).sum::<f64>().sqrt();
@@ -439,6 +449,7 @@ mod tests {
             &[
                 Material::new("wall", [0.5, 0.6, 0.7], [0.0; 3]),
                 Material::new("lamp", [0.0; 3], [10.0, 9.0, 8.0]),
+                Material::inside_of_solids(),
             ],
             vec![[0.0, 0.0, 1.0], [0.6, 0.8, 0.0]],
             order,
@@ -457,6 +468,11 @@ mod tests {
         assert_eq!(back.records(), 21);
         assert_eq!(back.bounds(), [[-1.0, 0.0, 2.5], [1.0, 1.0, 3.0]]);
         assert_eq!(back.materials()[1].emission, [10.0, 9.0, 8.0]);
+        // The flag is written only where it is set, and read back.
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(text.matches("\"inside\"").count(), 1, "{text}");
+        let inside: Vec<bool> = back.materials().iter().map(|m| m.inside).collect();
+        assert_eq!(inside, [false, false, true]);
         assert_eq!(back.check_shards(dir.path()).unwrap().len(), 2);
     }
 
@@ -495,6 +511,8 @@ mod tests {
         assert!(e.to_string().contains("voxel size"), "{e}");
         let e = read_err(d, |v| v["materials"][0]["reflectance"][1] = 1.0.into());
         assert!(e.to_string().contains("reflectance"), "{e}");
+        let e = read_err(d, |v| v["materials"][0]["inside"] = true.into());
+        assert!(e.to_string().contains("inside a solid"), "{e}");
         let e = read_err(d, |v| v["normals"][1][0] = 0.7.into());
         assert!(e.to_string().contains("unit vector"), "{e}");
         let e = read_err(d, |v| v["shards"][0]["file"] = "../escape.vxs".into());
