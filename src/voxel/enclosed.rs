@@ -10,8 +10,11 @@
 //! **The rule.** A triangle's back side is inside when its triangle belongs to a connected piece
 //! of the mesh (triangles joined through shared edges, the same two end points exactly, as in
 //! `solids`) that is
-//! - *closed and consistently wound*: each edge of the piece is shared by exactly two of its
-//!   triangles, which run along it in opposite senses;
+//! - *closed and consistently wound*: every edge of each of its triangles is paired with one
+//!   other triangle of the piece. Around an edge the triangles that meet there are taken in
+//!   turn, and two neighbours pair when the wedge between them lies behind both (`pair_around`),
+//!   so boxes stacked on or beside each other, sharing edges, stay separate solids; a triangle
+//!   left unpaired (an open edge, a winding that flips) makes its piece open;
 //! - *wound outward*: its signed volume is positive. A room modelled as a box seen from inside
 //!   is closed but wound inward: its back sides face out of the room and are left alone;
 //! - *empty*: no corner of another triangle of the scene lies strictly inside its bounding box.
@@ -20,7 +23,7 @@
 //!
 //! Anything in doubt keeps its back side as it was (a side that gathers), which is never wrong,
 //! only slower: an open box, a box missing a face (the Cornell box's blocks have no bottom), a
-//! mesh whose pieces share edges with other pieces.
+//! mesh whose faces meet at T-junctions instead of shared edges.
 //!
 //! [`Material::inside_of_solids`]: crate::scene::Material::inside_of_solids
 

@@ -16,7 +16,10 @@
 //! single quad lit from both sides) one surfel with two sides. The surfel's front is the side its
 //! triangles face and takes one of their materials, drawn by area share where there are several
 //! (`drawn_material`: a window's rim in its wall); its back takes the same
-//! reflectance without emission (emission leaves the front of a triangle only). Where triangles of
+//! reflectance without emission (emission leaves the front of a triangle only), or, where every
+//! triangle of the surfel is a face of a closed solid wound outward with nothing inside it
+//! (`enclosed`), the black material `Material::inside_of_solids`, whose side sees nothing and is
+//! never searched from (`mark_inside`). Where triangles of
 //! one plane face both ways in one voxel (two solids pressed together, a sheet modelled twice back
 //! to back), each facing gets its own surfel with its own piece: merging them would put the surface
 //! point where neither piece is, and rays would be misjudged at the seam. Where either facing is
