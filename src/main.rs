@@ -286,7 +286,7 @@ enum Distribute {
 enum QualityArg {
     /// A first look in seconds (resolution 32, 109 directions, tolerance 1e-2).
     Draft,
-    /// Balanced (resolution 64, 193 directions, tolerance 1e-4).
+    /// Balanced (resolution 64, 301 directions, tolerance 1e-4).
     Default,
     /// Slow and accurate (resolution 256, 433 directions, tolerance 1e-4).
     High,

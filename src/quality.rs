@@ -4,13 +4,18 @@
 //! error dominated by direction aliasing, then resolution, with truncated iterations far below
 //! both once the tolerance is 1e-3 or less; extrapolation costs nothing and never hurts, so every
 //! preset uses it. The direction aliasing is the lamp's direct light: where the emitters are small
-//! the direct-light pass (`solve::direct`) gathers it along 5,000 (`draft`) or 20,000 (`default`,
-//! `high`) dense directions from the emitters' lines only, which lets the bounces use fewer
-//! directions (193 instead of 589 for `default`, 433 instead of 1201 for `high`) at a lower
+//! the direct-light pass (`solve::direct`) gathers it along 5,000 (`draft`), 16,000 (`default`)
+//! or 20,000 (`high`) dense directions from the emitters' lines only, which lets the bounces use
+//! fewer directions (301 instead of 589 for `default`, 433 instead of 1201 for `high`) at a lower
 //! error. On the realistic scenes (an office, a corridor, a furnished room: `tests/data/reference`)
 //! the resolution matters most, as their partitions, lamps and furniture are a fraction of a
 //! voxel at 32: since the links kept between iterations and the direct pass's bundled walks made
-//! solves several times faster, `default` runs at 64 (2026-12-02). `high` runs at 256
+//! solves several times faster, `default` runs at 64 (2026-12-02); since the searches from
+//! sides inside solids were left out, it affords 301 bounce directions (2026-12-04: the office
+//! went from 1.57 to 1.28 % mean error, read by gathering, in about the same time), with the
+//! dense directions capped at 16,000 (the office 1.28 % in 2.6 s, against 1.26 % in 3.3 s at
+//! 20,000; its error moves by a few tenths of a percent from one dense count to the next, the
+//! lamps' aliasing, measured in `docs/study.md`). `high` runs at 256
 //! (2026-12-03): read by gathering (`voxrad probe --gather`), it is within 0.5 % mean and 3 %
 //! largest error of the path-traced reference on all four reference scenes, where 128 left the
 //! office and the corridor at 0.9 %; 433 directions instead of 589 cost the office 0.06 % of
@@ -62,10 +67,10 @@ impl Quality {
             },
             Quality::Default => Preset {
                 resolution: 64,
-                directions: 193,
+                directions: 301,
                 tolerance: 1e-4,
                 accelerate: true,
-                direct: 20_000,
+                direct: 16_000,
             },
             Quality::High => Preset {
                 resolution: 256,

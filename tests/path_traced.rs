@@ -12,8 +12,9 @@
 //!   open-edge rules of `solve::propagate` were made (the figures are in the closing notes and
 //!   `docs/`); a change that makes voxrad worse against physics fails here.
 //! - The same probes answered by gathering (`voxrad probe --gather`, `output::sensor`): the
-//!   irradiance and the radiosity within 2 % on average of the reference; and the `high`
-//!   preset's gathered answer on the corridor within that preset's goal (0.5 % mean, 3 % most).
+//!   irradiance and the radiosity within 2 % on average of the reference; the `high` preset's
+//!   gathered answer on the corridor within that preset's goal (0.5 % mean, 3 % most), and the
+//!   `default` preset's on the office within its own (1.5 % mean, 10 % most).
 //! - Closed scenes absorb what they emit: lamps floating under a ceiling, the window room, the
 //!   corridor, the slab boxes.
 //!
@@ -280,8 +281,23 @@ fn realistic_rooms_and_the_cornell_box_against_the_reference() {
 /// corridor and the office were at 0.9 %).
 #[test]
 fn the_high_preset_meets_its_goal_when_read_by_gathering() {
-    let name = "corridor";
-    let preset = voxrad::quality::Quality::High.preset();
+    assert_preset_meets(voxrad::quality::Quality::High, "corridor", 0.005, 0.03);
+}
+
+/// `voxrad solve` at the `default` preset, read by gathering, meets that preset's goal (at most
+/// 1.5 % mean and 10 % largest error) on the office: the scene with the largest mean error of
+/// the four at that preset (measured 2026-12-04 with 301 bounce directions: office 1.28 % and
+/// 8.0 %, corridor 1.20 % and 9.2 %, window room 1.12 % and 5.0 %, Cornell box 0.92 % and
+/// 6.4 %; with 193 the office was at 1.57 %).
+#[test]
+fn the_default_preset_meets_its_goal_when_read_by_gathering() {
+    assert_preset_meets(voxrad::quality::Quality::Default, "office", 0.015, 0.10);
+}
+
+/// Solves reference scene `name` at preset `quality` as the command line does, reads its probes
+/// by gathering, and checks the mean and largest relative error against the reference.
+fn assert_preset_meets(quality: voxrad::quality::Quality, name: &str, mean: f64, max: f64) {
+    let preset = quality.preset();
     let reference = Reference::load(&data(name)).unwrap_or_else(|e| panic!("{e}"));
     let set = voxelize(&scene_of(name), GridSpec::Resolution(preset.resolution)).unwrap();
     let options = SolveOptions {
@@ -305,16 +321,17 @@ fn the_high_preset_meets_its_goal_when_read_by_gathering() {
         .map(|&(p, n)| index.lookup(p, n))
         .collect();
     let gathered = reference.compare(&gathered_radiosity(&field, &rows));
+    let label = quality.name();
     println!(
-        "{name} at the high preset, gathered: mean {:.3} %, max {:.2} % over {} probes",
+        "{name} at the {label} preset, gathered: mean {:.3} %, max {:.2} % over {} probes",
         100.0 * gathered.mean,
         100.0 * gathered.max,
         gathered.compared
     );
     assert!(gathered.compared * 10 >= reference.probes.len() * 8);
     assert!(
-        gathered.mean <= 0.005 && gathered.max <= 0.03,
-        "{name}: the high preset's gathered answer is {:.3} % off on average, {:.2} % at most",
+        gathered.mean <= mean && gathered.max <= max,
+        "{name}: the {label} preset's gathered answer is {:.3} % off on average, {:.2} % at most",
         100.0 * gathered.mean,
         100.0 * gathered.max
     );
