@@ -324,6 +324,10 @@ fn every_mode_gives_the_one_process_answer(name: &str, scene: &voxrad::scene::Sc
         pass,
         "{name}: the direct-light pass"
     );
+    // Both rooms are closed: every mode applies the scales that make them absorb what they
+    // emit (`solve::closed`), with the sums over every rank.
+    let closure = reference.stats.closure.expect("closure stats");
+    assert!(closure.verdict.closed, "{name}: {closure:?}");
     for (mode, ranks, memory) in [
         ("directions", 3, None),
         ("data", 2, None),
@@ -373,6 +377,15 @@ fn every_mode_gives_the_one_process_answer(name: &str, scene: &voxrad::scene::Sc
             worst <= 1e-5,
             "{mode}, {ranks} ranks, {memory:?}: {worst:e}"
         );
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+        let closed = report["effects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|e| e["name"] == "energy conservation of a closed scene")
+            .map(|e| e["simulated"] == true);
+        assert_eq!(closed, Some(true), "{mode}, {ranks} ranks, {memory:?}");
     }
 }
 

@@ -43,9 +43,10 @@ use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
 use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
 use crate::geometry::directions::DirectionSet;
+use crate::solve::closed::{ClosureSums, Scales};
 use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::normalize::cosine_sums;
-use crate::solve::update::{add_power, update_surfel};
+use crate::solve::update::{add_power, carried, update_surfel};
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
 use std::path::Path;
@@ -264,10 +265,12 @@ fn run(
         3,
         None,
         None,
+        UpdatePass::Update(&Scales::ONE),
         &mut io,
     )?;
     stats.update_seconds += t.elapsed().as_secs_f64();
     let any_light = first.sums.emitted.iter().any(|&e| e > 0.0);
+    let verdict = closure_verdict(source, &plan, &mut io)?;
     // The direct light, once (see `super::direct`); the iterations then gather only `B - E`.
     let shape = crate::solve::direct::Shape {
         emitting: first.emitting as usize,
@@ -372,6 +375,8 @@ fn run(
         last: first,
         lit: true,
         update_seconds: 0.0,
+        closed: verdict.closed,
+        scales: Scales::ONE,
     };
     let saver = checkpoints.map(|c| c.saver);
     iterate(
@@ -389,8 +394,10 @@ fn run(
         last,
         update_seconds,
         links,
+        scales,
         ..
     } = sweep;
+    stats.solve.closure = Some(crate::solve::stats::ClosureStats { verdict, scales });
     stats.solve.links = Some(links.stats(&crate::comm::SingleProcess));
     stats.update_seconds += update_seconds;
     stats.solve.emitted_power = last.sums.emitted;
@@ -456,6 +463,10 @@ struct OutOfCore<'a> {
     /// The axis copies hold what the lines carry of the current radiosity.
     lit: bool,
     update_seconds: f64,
+    /// The scene's light is sealed in: each update scales the light by `scales`
+    /// (`solve::closed`), found in a pass over the files before it.
+    closed: bool,
+    scales: Scales,
 }
 
 impl OutOfCore<'_> {
@@ -604,6 +615,22 @@ impl Sweep for OutOfCore<'_> {
         self.histogram = None;
         drop(std::mem::take(&mut self.buffers));
         let t = Instant::now();
+        if self.closed {
+            let mut sums = ClosureSums::new(&self.source.info().materials);
+            update(
+                self.source,
+                self.work,
+                self.plan,
+                &self.cosine_sum,
+                self.summed,
+                self.channels,
+                None,
+                self.direct.as_deref(),
+                UpdatePass::Closure(&mut sums),
+                &mut self.io,
+            )?;
+            self.scales = sums.scales(self.channels);
+        }
         let result = update(
             self.source,
             self.work,
@@ -613,6 +640,7 @@ impl Sweep for OutOfCore<'_> {
             self.channels,
             self.previous.as_deref(),
             self.direct.as_deref(),
+            UpdatePass::Update(&self.scales),
             &mut self.io,
         )?;
         self.update_seconds += t.elapsed().as_secs_f64();
@@ -915,6 +943,24 @@ fn restore(
     Ok(at)
 }
 
+/// Whether the scene of `source` is closed (`solve::enclosure`), the check taking at most half
+/// the working memory (the rest of the budget is free while it runs).
+pub(crate) fn closure_verdict(
+    source: &dyn SurfelSource,
+    plan: &MemoryPlan,
+    io: &mut IoCounters,
+) -> Result<crate::solve::enclosure::Verdict, OocError> {
+    source.enclosure(plan.working / 2, plan.io_bytes as u64, io)
+}
+
+/// What a pass of [`update`] does.
+enum UpdatePass<'a> {
+    /// Updates `B` with a closed scene's scales (else 1).
+    Update(&'a Scales),
+    /// Adds a closed scene's sums only and writes nothing.
+    Closure(&'a mut ClosureSums),
+}
+
 /// What one update of the radiosity found.
 #[derive(Clone, Copy, Debug, Default)]
 struct Update {
@@ -1028,6 +1074,9 @@ fn fold_gathered(
 /// `channels` is 1 when only the first channel was gathered (a grey scene): the other two are
 /// the same numbers. With `previous`, the radiosity it replaces is kept there (for the tail
 /// extrapolation). The caller sends the new radiosity to the copies ([`send_to_copies`]).
+///
+/// With [`UpdatePass::Closure`] it reads the same files and only adds a closed scene's sums
+/// (`solve::closed`), writing nothing: the pass before such a scene's update.
 #[allow(clippy::too_many_arguments)]
 fn update(
     source: &dyn SurfelSource,
@@ -1038,8 +1087,10 @@ fn update(
     channels: usize,
     previous: Option<&Path>,
     direct: Option<&Path>,
+    mut pass: UpdatePass,
     io: &mut IoCounters,
 ) -> Result<Update, OocError> {
+    let writes = matches!(pass, UpdatePass::Update(..));
     let info = source.info();
     let kept = previous.map(RecordFile::open).transpose()?;
     let direct = direct.map(RecordFile::open).transpose()?;
@@ -1105,6 +1156,22 @@ fn update(
             let d = d_slots.next().map(decode_gathered);
             let sides = s.material.map(|m| &info.materials[m as usize]);
             let (h, norm) = (decode_gathered(h_slot), cosine_sum[s.normal_id as usize]);
+            let scales = match &mut pass {
+                UpdatePass::Update(scales) => *scales,
+                UpdatePass::Closure(sums) => {
+                    let b = decode_radiosity(slot);
+                    sums.add(
+                        &emission,
+                        &carried(&b, &emission, direct.is_some()),
+                        &h,
+                        d.as_ref(),
+                        channels,
+                        norm,
+                        s.area as f64,
+                    );
+                    continue;
+                }
+            };
             let b_new = update_surfel(
                 &sides.map(|m| m.emission.map(|e| e as f32)),
                 &sides.map(|m| m.reflectance),
@@ -1114,6 +1181,7 @@ fn update(
                 &decode_radiosity(slot),
                 norm,
                 s.area as f64,
+                scales,
                 &mut result.sums,
             );
             add_power(
@@ -1124,14 +1192,17 @@ fn update(
                 norm,
                 s.area as f64,
                 area_unit,
+                scales,
                 &mut result.sums,
             );
             encode_radiosity(&b_new, slot);
         }
-        if let Some(kept) = &kept {
-            kept.write_at(start * RADIOSITY_LEN as u64, &old, io)?;
+        if writes {
+            if let Some(kept) = &kept {
+                kept.write_at(start * RADIOSITY_LEN as u64, &old, io)?;
+            }
+            canonical.write_at(start * RADIOSITY_LEN as u64, prev, io)?;
         }
-        canonical.write_at(start * RADIOSITY_LEN as u64, prev, io)?;
         io.read += len * crate::storage::RECORD_LEN as u64;
         start += len;
     }

@@ -8,6 +8,7 @@
 
 use super::OocError;
 use crate::scene::Material;
+use crate::solve::enclosure::{Enclosure, Verdict};
 use crate::storage::{Manifest, ShardReader, WindowedRecords};
 use crate::voxel::{Grid, Surfel, SurfelSet};
 use std::path::{Path, PathBuf};
@@ -42,6 +43,29 @@ pub trait SurfelSource: Sync {
     }
     /// What to call the source in messages.
     fn describe(&self) -> String;
+    /// Whether the scene's light is sealed in (`solve::enclosure`), the check taking at most
+    /// `max_bytes`. By default a pass over the surfels, which must come sorted by `z` first (a
+    /// shard set's order).
+    fn enclosure(
+        &self,
+        max_bytes: u64,
+        window_bytes: u64,
+        io: &mut super::files::IoCounters,
+    ) -> Result<Verdict, OocError> {
+        let info = self.info();
+        let Some(mut enclosure) = Enclosure::new(info.grid.dims, max_bytes) else {
+            return Ok(Verdict::too_large());
+        };
+        for s in self.stream(window_bytes)? {
+            let s = s?;
+            let emits = s
+                .material
+                .map(|m| info.materials[m as usize].emission.iter().any(|&e| e > 0.0));
+            enclosure.add(s.voxel, s.normal, emits);
+            io.read += crate::storage::RECORD_LEN as u64;
+        }
+        Ok(enclosure.verdict())
+    }
     /// A CRC-32 of everything of the source that the radiosity depends on (it names the run in
     /// a checkpoint). By default a pass over the surfels; a source that knows checksums of its
     /// contents gives one made from them.
@@ -96,6 +120,17 @@ impl SurfelSource for InMemorySource<'_> {
 
     fn describe(&self) -> String {
         "the voxelized scene".to_string()
+    }
+
+    /// The set is in memory already (in Morton order): checked as the in-memory solvers check
+    /// it, whatever the budget.
+    fn enclosure(
+        &self,
+        _max_bytes: u64,
+        _window_bytes: u64,
+        _io: &mut super::files::IoCounters,
+    ) -> Result<Verdict, OocError> {
+        Ok(Enclosure::verdict_of_set(self.set))
     }
 }
 

@@ -219,6 +219,9 @@ impl Analysis {
                     .to_string()
             },
         ));
+        if let Some(effect) = closure_effect(stats) {
+            list.push(effect);
+        }
         if bounces {
             list.push(Effect::new(
                 "tail extrapolation",
@@ -334,6 +337,43 @@ impl Analysis {
         };
         Effect::new(NAME, false, &why)
     }
+}
+
+/// The report's word on a closed scene's energy conservation (`closed`), where the solve says
+/// whether it checked.
+fn closure_effect(stats: &SolveStats) -> Option<Effect> {
+    let c = stats.closure?;
+    let v = c.verdict;
+    let why = if v.unchecked {
+        "not checked: the check needed more memory than the solve could give it (four \
+         slices of the grid, a label per room and slice, the emitting sides waiting for the \
+         slices ahead), and the scene is solved as an open one (the light its rays lose is \
+         lost)"
+            .to_string()
+    } else if v.closed {
+        let k = c.scales;
+        format!(
+            "no emitting side faces air that reaches outside the scene's grid: the light is \
+             sealed in, so each update scaled the light gathered along the lines by {:.4} / \
+             {:.4} / {:.4} (red, green, blue) and the direct-light pass's by {:.4} / {:.4} / \
+             {:.4}, so that the surfaces receive what they send and absorb what the lamps \
+             emit (docs/accuracy.md, \"Closed scenes\")",
+            k.gathered[0], k.gathered[1], k.gathered[2], k.direct[0], k.direct[1], k.direct[2]
+        )
+    } else if v.emitting_sides == 0 {
+        "nothing emits".to_string()
+    } else {
+        format!(
+            "{} of {} emitting sides face air that reaches outside the scene's grid: the scene \
+             is open, and the light its rays lose leaves it",
+            v.open_sides, v.emitting_sides
+        )
+    };
+    Some(Effect::new(
+        "energy conservation of a closed scene",
+        v.closed,
+        &why,
+    ))
 }
 
 #[cfg(test)]

@@ -227,6 +227,7 @@ fn run(
     } else {
         3
     };
+    let verdict = super::enclosure::Enclosure::verdict_of_set(set);
     let mut stats = SolveStats {
         channels,
         directions: directions.len(),
@@ -275,6 +276,8 @@ fn run(
             false;
             crate::comm::dealt(directions.len(), comm.rank(), comm.size()).len()
         ],
+        closed: verdict.closed,
+        scales: super::closed::Scales::ONE,
     };
     let mut start = Start::fresh();
     if let Some(mut loaded) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
@@ -346,8 +349,10 @@ fn run(
         mut acc,
         cosine_sum,
         direct,
+        scales,
         ..
     } = sweep;
+    stats.closure = Some(super::stats::ClosureStats { verdict, scales });
     if channels == 1 {
         for (b, a) in radiosity.iter_mut().zip(acc.iter_mut()) {
             for side in 0..2 {
@@ -367,7 +372,7 @@ fn run(
         comm.sum_in_place(&mut table);
         stats.per_rank_seconds = table.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
     }
-    energy(set, &acc, &cosine_sum, direct.as_ref(), &mut stats);
+    energy(set, &acc, &cosine_sum, direct.as_ref(), &scales, &mut stats);
     if let Some(d) = direct {
         stats.direct = Some(d.stats);
     }
@@ -409,6 +414,9 @@ struct InMemory<'a> {
     /// Which of this rank's directions have had their links written down once (kept where
     /// they fitted): the others are tried at their next gather.
     link_tried: Vec<bool>,
+    /// The scene's light is sealed in: each update scales the light by `scales` (`closed`).
+    closed: bool,
+    scales: super::closed::Scales,
 }
 
 impl Sweep for InMemory<'_> {
@@ -510,6 +518,25 @@ impl Sweep for InMemory<'_> {
             }
             self.seconds[2] += t.elapsed().as_secs_f64();
         }
+        if self.closed {
+            let mut sums = super::closed::ClosureSums::new(&self.set.materials);
+            for (k, s) in self.set.surfels.iter().enumerate() {
+                sums.add(
+                    &self.emission[k],
+                    &super::update::carried(
+                        &self.radiosity[k],
+                        &self.emission[k],
+                        self.direct.is_some(),
+                    ),
+                    &self.acc[k],
+                    super::update::direct_of(self.direct.as_ref(), k),
+                    self.channels,
+                    self.cosine_sum[s.normal_id as usize],
+                    s.area as f64,
+                );
+            }
+            self.scales = sums.scales(self.channels);
+        }
         // B = E + rho H / S, and the change it makes.
         if self.accelerate {
             self.previous.clone_from(&self.radiosity);
@@ -525,6 +552,7 @@ impl Sweep for InMemory<'_> {
                 &self.radiosity[k],
                 self.cosine_sum[s.normal_id as usize],
                 s.area as f64,
+                &self.scales,
                 &mut sums,
             );
         }
@@ -623,6 +651,7 @@ fn energy(
     acc: &[[[f64; 3]; 2]],
     cosine_sum: &[f64],
     direct: Option<&super::direct::DirectLight>,
+    scales: &super::closed::Scales,
     stats: &mut SolveStats,
 ) {
     let area_unit = set.grid.voxel_size * set.grid.voxel_size;
@@ -636,6 +665,7 @@ fn energy(
             cosine_sum[s.normal_id as usize],
             s.area as f64,
             area_unit,
+            scales,
             &mut sums,
         );
     }

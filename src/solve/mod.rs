@@ -6,10 +6,12 @@
 //! iteration loop of every solve path and the stopping rule; `jacobi` is its in-memory sweep.
 
 pub mod accelerate;
+pub mod closed;
 pub mod coverage;
 pub mod direct;
 pub mod dispatch;
 pub mod effects;
+pub mod enclosure;
 pub mod iterate;
 pub mod jacobi;
 pub mod links;

@@ -51,6 +51,15 @@ pub struct SolveStats {
     /// The partner links kept between iterations (the in-memory solver's; `None` where every
     /// iteration searches again).
     pub links: Option<LinkStats>,
+    /// Whether the scene's light is sealed in, and the scales of its last update (see `closed`).
+    pub closure: Option<ClosureStats>,
+}
+
+/// A closed scene's check and the scales its last update applied (see `closed`).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize, serde::Deserialize, PartialEq)]
+pub struct ClosureStats {
+    pub verdict: super::enclosure::Verdict,
+    pub scales: super::closed::Scales,
 }
 
 /// The partner links kept between iterations (see `links`).

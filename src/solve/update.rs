@@ -1,9 +1,11 @@
 //! The update of one surfel's radiosity after an iteration's gather, written once for every
 //! iteration loop (in memory, the data and hybrid modes, out of core, the data mode out of
-//! core): `B = E + rho (H / S(n) + H_direct)` by side and channel, with the sums the stopping
-//! rule and the tail extrapolation read; and the power a surfel emits and absorbs, for the
-//! loops that add it up as they update.
+//! core): `B = E + rho (k H / S(n) + k_direct H_direct)` by side and channel (`k`, `k_direct`:
+//! a closed scene's scales, `closed`; 1 in an open one), with the sums the stopping rule and the
+//! tail extrapolation read; and the power a surfel emits and absorbs, for the loops that add it
+//! up as they update.
 
+use super::closed::Scales;
 use super::direct::DirectLight;
 /// Light by side and channel as gathered (f64), radiosity as stored (f32).
 pub use crate::checkpoint::{Gathered, Radiosity};
@@ -34,10 +36,21 @@ pub fn reflected_part(b: &Radiosity, emission: &Radiosity) -> Radiosity {
     r
 }
 
+/// What the lines carried from a surfel this iteration: `B - E` where the direct-light pass
+/// ran (`direct`), else `B`.
+pub fn carried(previous: &Radiosity, emission: &Radiosity, direct: bool) -> Radiosity {
+    if direct {
+        reflected_part(previous, emission)
+    } else {
+        *previous
+    }
+}
+
 /// One surfel's new radiosity `B = E + rho H / S(n)` (`norm` is `S(n)`) from the light `h` it
 /// gathered (only the first channel when `channels` is 1: a grey scene), plus `rho` times its
-/// `direct` light where the direct-light pass ran; adds its change, falling part and total
-/// (area-weighted) to `sums`. `emission` is `E` as stored (f32), `reflectance` `rho`.
+/// `direct` light where the direct-light pass ran, each scaled by `scales` (a closed scene's,
+/// `closed`; else 1); adds its change, falling part and total (area-weighted) to `sums`.
+/// `emission` is `E` as stored (f32), `reflectance` `rho`.
 #[allow(clippy::too_many_arguments)]
 pub fn update_surfel(
     emission: &Radiosity,
@@ -48,6 +61,7 @@ pub fn update_surfel(
     previous: &Radiosity,
     norm: f64,
     area: f64,
+    scales: &Scales,
     sums: &mut UpdateSums,
 ) -> Radiosity {
     if channels == 1 {
@@ -59,9 +73,10 @@ pub fn update_surfel(
     for side in 0..2 {
         for ch in 0..3 {
             let rho = reflectance[side][ch];
-            let mut b = emission[side][ch] as f64 + rho * h[side][ch] / norm;
+            let mut b =
+                emission[side][ch] as f64 + rho * (h[side][ch] * scales.gathered[ch]) / norm;
             if let Some(d) = direct {
-                b += rho * d[side][ch];
+                b += rho * (d[side][ch] * scales.direct[ch]);
             }
             let d = b - previous[side][ch] as f64;
             sums.change += area * d.abs();
@@ -80,8 +95,9 @@ pub fn direct_of(direct: Option<&DirectLight>, k: usize) -> Option<&Gathered> {
 
 /// Adds to `sums` the power a surfel whose sides have the materials `sides` emits and absorbs
 /// (world units: `area` in voxel units times `area_unit`), from the light `h` it gathered (the
-/// first channel only when `channels` is 1) over `norm` and its `direct` light. The loops that
-/// stream their surfels add it as they update; the in-memory ones from their last gather.
+/// first channel only when `channels` is 1) over `norm` and its `direct` light, scaled as the
+/// update scaled them. The loops that stream their surfels add it as they update; the in-memory
+/// ones from their last gather.
 #[allow(clippy::too_many_arguments)]
 pub fn add_power(
     sides: [&crate::scene::Material; 2],
@@ -91,6 +107,7 @@ pub fn add_power(
     norm: f64,
     area: f64,
     area_unit: f64,
+    scales: &Scales,
     sums: &mut UpdateSums,
 ) {
     if channels == 1 {
@@ -101,11 +118,15 @@ pub fn add_power(
     for (side, m) in sides.iter().enumerate() {
         for ch in 0..3 {
             if let Some(d) = direct {
-                sums.absorbed_direct[ch] +=
-                    (1.0 - m.reflectance[ch]) * d[side][ch] * (area * area_unit);
+                sums.absorbed_direct[ch] += (1.0 - m.reflectance[ch])
+                    * (d[side][ch] * scales.direct[ch])
+                    * (area * area_unit);
             }
             sums.emitted[ch] += m.emission[ch] * area * area_unit;
-            sums.absorbed[ch] += (1.0 - m.reflectance[ch]) * h[side][ch] / norm * area * area_unit;
+            sums.absorbed[ch] += (1.0 - m.reflectance[ch]) * (h[side][ch] * scales.gathered[ch])
+                / norm
+                * area
+                * area_unit;
         }
     }
 }

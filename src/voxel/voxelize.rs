@@ -25,7 +25,10 @@
 //! point where neither piece is, and rays would be misjudged at the seam. Where either facing is
 //! a solid's face, the two are in contact and each keeps only what the other does not cover; a
 //! solid standing on a plane without a face on it hides the plane's part behind its faces
-//! (`merge_voxel`; `solids` tells a solid's faces).
+//! (`merge_voxel`; `solids` tells a solid's faces). Where neither is, the sheet is modelled
+//! twice: each facing's back side, when the other facing covers most of it, faces into the other
+//! copy and takes `Material::inside_of_solids` (`mark_doubled`), so the sheet is seen, lit and
+//! counted once.
 //!
 //! Numbering: plane groups and their normals are numbered in triangle order; the flipped normals
 //! of back-facing surfels and the unlit copies of emitting materials are fixed before any surfel
@@ -249,6 +252,9 @@ pub(crate) struct PlaneGroups {
     pub(crate) solid_backed: Vec<bool>,
     /// Per triangle: whether its back side lies inside a closed solid (`enclosed`).
     pub(crate) inside_backed: Vec<bool>,
+    /// Some plane holds triangles of both facings, none a solid's face: a sheet that may be
+    /// modelled twice, back to back (`mark_doubled`).
+    pub(crate) two_facings: bool,
 }
 
 impl PlaneGroups {
@@ -284,13 +290,22 @@ impl PlaneGroups {
             });
             planes.push(entry);
         }
+        let solid_backed = super::solids::solid_backed(scene);
+        // Facings met per group (bit 0: side 0, bit 1: side 1), of triangles of no solid.
+        let mut facings = vec![0u8; group_normal.len()];
+        for (entry, &solid) in planes.iter().zip(&solid_backed) {
+            if let (Some((plane, group)), false) = (entry, solid) {
+                facings[*group as usize] |= 1 << plane.side;
+            }
+        }
         PlaneGroups {
             grid,
             planes,
             group_normal,
             normals,
-            solid_backed: super::solids::solid_backed(scene),
+            solid_backed,
             inside_backed: super::enclosed::inside_backed(scene),
+            two_facings: facings.contains(&3),
         }
     }
 
@@ -395,7 +410,7 @@ impl Tables {
                 })
             })
             .collect();
-        let inside = groups.inside_backed.iter().any(|&b| b).then(|| {
+        let inside = (groups.inside_backed.iter().any(|&b| b) || groups.two_facings).then(|| {
             materials.push(Material::inside_of_solids());
             (materials.len() - 1) as u32
         });
@@ -608,6 +623,7 @@ pub(crate) fn merge_voxel(
     if runs.len() < 2 || !pieces.iter().any(solid) {
         surfels.extend(runs.iter().map(|run| merge_run(run, tables)));
         mark_inside(&mut surfels, &runs, groups, tables);
+        mark_doubled(&mut surfels, &runs, groups, scene, tables);
         return surfels;
     }
     let polygons: Vec<Vec<DVec3>> = pieces
@@ -652,7 +668,67 @@ pub(crate) fn merge_voxel(
         ));
     }
     mark_inside(&mut surfels, &runs, groups, tables);
+    mark_doubled(&mut surfels, &runs, groups, scene, tables);
     surfels
+}
+
+/// Gives the back side of a run the material [`Material::inside_of_solids`] where pieces of the
+/// same plane facing the other way, of no solid, cover most of it: a sheet modelled twice, back
+/// to back (as exports of two-sided faces often do). Each copy's back side faces into the other
+/// copy, where nothing is seen; its front is the sheet's side. Left as they were, both copies'
+/// sides would gather and absorb, counting the sheet twice in the power balance, while the
+/// lines meet only one of each pair: a closed scene's scales (`solve::closed`) would then move
+/// every surface's light by the sheet's imbalance.
+fn mark_doubled(
+    surfels: &mut [Surfel],
+    runs: &[&[Piece]],
+    groups: &PlaneGroups,
+    scene: &Scene,
+    tables: &Tables,
+) {
+    let Some(inside) = tables.inside else {
+        return;
+    };
+    if runs.len() < 2 {
+        return;
+    }
+    let solid = |p: &Piece| groups.solid_backed[p.triangle as usize];
+    for (surfel, run) in surfels.iter_mut().zip(runs) {
+        let other: Vec<&Piece> = runs
+            .iter()
+            .filter(|r| r[0].group == run[0].group && r[0].side != run[0].side)
+            .flat_map(|r| r.iter())
+            .collect();
+        if other.is_empty()
+            || surfel.area <= 0.0
+            || run.iter().chain(other.iter().copied()).any(solid)
+        {
+            continue;
+        }
+        let covers: Vec<Vec<DVec3>> = other
+            .iter()
+            .map(|p| groups.piece_polygon(scene, p))
+            .collect();
+        let (mut area, mut uncovered) = (0.0, 0.0);
+        for piece in run.iter() {
+            let polygon = groups.piece_polygon(scene, piece);
+            area += polygon_area_centroid(&polygon).0;
+            let mut visible = vec![polygon];
+            for cover in &covers {
+                visible = visible
+                    .iter()
+                    .flat_map(|part| outside_of(part, cover))
+                    .collect();
+            }
+            uncovered += visible
+                .iter()
+                .map(|part| polygon_area_centroid(part).0)
+                .sum::<f64>();
+        }
+        if area > NEGLIGIBLE_AREA && uncovered < 0.5 * area {
+            surfel.material[BACK] = inside;
+        }
+    }
 }
 
 /// Gives the surfels whose pieces all have their back side inside a closed solid (`enclosed`)

@@ -161,6 +161,8 @@ struct DataSolver<'a> {
     channels: usize,
     /// The direct light of every surfel by id (`solve::direct`); the lines then carry `B - E`.
     direct: Option<DirectLight>,
+    /// Whether the scene's light is sealed in (`solve::closed`).
+    closure: crate::solve::enclosure::Verdict,
 }
 
 /// Per-rank bookkeeping of the phases and of what moved.
@@ -216,6 +218,7 @@ impl<'a> DataSolver<'a> {
                 3
             },
             direct: None,
+            closure: crate::solve::enclosure::Enclosure::verdict_of_set(set),
         }
     }
 
@@ -460,6 +463,28 @@ impl<'a> DataSolver<'a> {
             }
             sharing.asked.push(ids);
         }
+        if self.closure.closed {
+            // A closed scene's scales, from the light of every owner (`solve::closed`).
+            let mut closure = crate::solve::closed::ClosureSums::new(&self.set.materials);
+            for (i, id) in owned.ids.clone().enumerate() {
+                let s = &self.set.surfels[id];
+                closure.add(
+                    &self.emission[id],
+                    &crate::solve::update::carried(
+                        &owned.radiosity[i],
+                        &self.emission[id],
+                        self.direct.is_some(),
+                    ),
+                    &owned.acc[i],
+                    crate::solve::update::direct_of(self.direct.as_ref(), id),
+                    self.channels,
+                    self.cosine_sum[s.normal_id as usize],
+                    s.area as f64,
+                );
+            }
+            closure.add_over(world);
+            owned.scales = closure.scales(self.channels);
+        }
         let mut sums = crate::solve::update::UpdateSums::default();
         for (i, id) in owned.ids.clone().enumerate() {
             let s = &self.set.surfels[id];
@@ -472,6 +497,7 @@ impl<'a> DataSolver<'a> {
                 &owned.radiosity[i],
                 self.cosine_sum[s.normal_id as usize],
                 s.area as f64,
+                &owned.scales,
                 &mut sums,
             );
         }
@@ -610,6 +636,7 @@ impl<'a> DataSolver<'a> {
                 self.cosine_sum[s.normal_id as usize],
                 s.area as f64,
                 area_unit,
+                &owned.scales,
                 &mut sums,
             );
         }
@@ -623,6 +650,10 @@ impl<'a> DataSolver<'a> {
         if let Some(direct) = &self.direct {
             stats.direct = Some(direct.stats.clone());
         }
+        stats.closure = Some(crate::solve::stats::ClosureStats {
+            verdict: self.closure,
+            scales: owned.scales,
+        });
         flat[..n * 6]
             .chunks_exact(6)
             .map(|c| {
@@ -646,6 +677,8 @@ struct Owned {
     radiosity: Vec<Radiosity>,
     acc: Vec<Gathered>,
     previous: Vec<Radiosity>,
+    /// The scales of the last update (a closed scene's; else 1), the same on every rank.
+    scales: crate::solve::closed::Scales,
 }
 
 impl Owned {
@@ -655,6 +688,7 @@ impl Owned {
             radiosity: emission[ids.clone()].to_vec(),
             acc: vec![[[0.0; 3]; 2]; ids.len()],
             previous: Vec::new(),
+            scales: crate::solve::closed::Scales::ONE,
             ids,
         }
     }

@@ -192,6 +192,7 @@ pub fn solve_data_out_of_core(
         pool: &pool,
         channels: std::cell::Cell::new(3),
         direct: std::cell::Cell::new(false),
+        closed: std::cell::Cell::new(false),
     };
     solver.run(budget, work_parent, checkpoints)
 }
@@ -217,6 +218,8 @@ struct Solver<'a> {
     channels: std::cell::Cell<usize>,
     /// The direct-light pass ran: the held records carry its light and the lines `B - E`.
     direct: std::cell::Cell<bool>,
+    /// The scene's light is sealed in (`solve::closed`; rank 0 checks it on the whole source).
+    closed: std::cell::Cell<bool>,
 }
 
 /// What one update of `B` found on this rank.
@@ -260,6 +263,15 @@ impl Solver<'_> {
             .install(|| cosine_sums(&info.normals, self.directions));
         let normalize_seconds = t.elapsed().as_secs_f64();
         let slice = self.read_slice(&plan, dir, &cosine_sum, &mut io)?;
+        // Whether the scene is closed: rank 0 reads the whole source once, as for the direct
+        // pass, and tells the others.
+        let verdict = if me == 0 {
+            crate::outcore::solver::closure_verdict(self.source, &plan, &mut io)?
+        } else {
+            crate::solve::enclosure::Verdict::default()
+        };
+        self.closed
+            .set(self.comm.max_u64(u64::from(verdict.closed)) == 1);
         // Every group holds the whole scene.
         let mut counts = [slice.voxels as f64, slice.held.count as f64];
         self.group.sum_in_place(&mut counts);
@@ -386,6 +398,7 @@ impl Solver<'_> {
             seconds: PhaseSeconds::default(),
             io,
             last: Update::default(),
+            scales: crate::solve::closed::Scales::ONE,
             earlier_any: false,
             pending: false,
             in_copy_order: false,
@@ -411,8 +424,16 @@ impl Solver<'_> {
             last,
             largest_share,
             links,
+            scales,
             ..
         } = sweep;
+        stats.closure = Some(crate::solve::stats::ClosureStats {
+            verdict: crate::solve::enclosure::Verdict {
+                closed: self.closed.get(),
+                ..verdict
+            },
+            scales,
+        });
         stats.links = Some(links.stats(self.comm));
         let held = held.expect("held files between steps");
         // Group 0 speaks for every surfel once.
@@ -577,6 +598,7 @@ impl Solver<'_> {
         plan: &MemoryPlan,
         cosine_sum: &[f64],
         fold: Option<bool>,
+        scales: &crate::solve::closed::Scales,
         io: &mut IoCounters,
     ) -> Result<(Held, Update), OocError> {
         let info = self.source.info();
@@ -641,6 +663,7 @@ impl Solver<'_> {
                     &previous,
                     norm,
                     area as f64,
+                    scales,
                     &mut result,
                 );
                 crate::solve::update::add_power(
@@ -651,6 +674,7 @@ impl Solver<'_> {
                     norm,
                     area as f64,
                     area_unit,
+                    scales,
                     &mut result,
                 );
                 encode_radiosity(&b_new, &mut w[held::RADIOSITY_AT..]);
@@ -668,6 +692,54 @@ impl Solver<'_> {
         held.remove()?;
         let (held, _) = writer.finish(io)?;
         Ok((held, result))
+    }
+
+    /// A closed scene's scales for the update of `held` (`solve::closed`): its light folded as
+    /// the update folds it, the sums added over every rank (collective). In the hybrid mode the
+    /// ranks of every group hold the same surfels, each with its group's light: every rank adds
+    /// what its surfels gathered, group 0 alone what they sent, emit and took from the direct
+    /// pass.
+    fn closure_scales(
+        &self,
+        held: &Held,
+        plan: &MemoryPlan,
+        cosine_sum: &[f64],
+        fold: Option<bool>,
+        io: &mut IoCounters,
+    ) -> Result<crate::solve::closed::Scales, OocError> {
+        let info = self.source.info();
+        let mut sums = crate::solve::closed::ClosureSums::new(&info.materials);
+        let mut reader = HeldReader::open(held, plan.io_bytes)?;
+        while let Some(mut w) = reader.next(io)? {
+            if let Some(first) = fold {
+                fold_axis(&mut w, first);
+            }
+            let (normal_id, area, material) = held::scene_data(&w);
+            let (h, norm) = (
+                decode_gathered(&w[EARLIER_AT..]),
+                cosine_sum[normal_id as usize],
+            );
+            if self.group_index != 0 {
+                sums.add_gathered(&h, self.channels(), norm, area as f64);
+                continue;
+            }
+            let emission = material.map(|m| info.materials[m as usize].emission.map(|e| e as f32));
+            let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
+            let direct = self
+                .direct()
+                .then(|| decode_gathered(&w[held::DIRECT_AT..]));
+            sums.add(
+                &emission,
+                &crate::solve::update::carried(&previous, &emission, self.direct()),
+                &h,
+                direct.as_ref(),
+                self.channels(),
+                norm,
+                area as f64,
+            );
+        }
+        sums.add_over(self.comm);
+        Ok(sums.scales(self.channels()))
     }
 
     /// Channels gathered: 1 for a grey scene (asked for by `options.grey` and checked on the
@@ -757,6 +829,8 @@ struct DataOocSweep<'s, 'a> {
     io: IoCounters,
     /// The last update's sums on this rank (its energy).
     last: Update,
+    /// The scales of the last update (a closed scene's; else 1), the same on every rank.
+    scales: crate::solve::closed::Scales,
     largest_share: u64,
     /// `earlier` holds the light of an axis done this iteration.
     earlier_any: bool,
@@ -941,6 +1015,15 @@ impl Sweep for DataOocSweep<'_, '_> {
         self.generation += 1;
         let fold = self.pending.then_some(!self.earlier_any);
         let held = self.take_held();
+        if self.solver.closed.get() {
+            self.scales = self.solver.closure_scales(
+                &held,
+                self.plan,
+                self.cosine_sum,
+                fold,
+                &mut self.io,
+            )?;
+        }
         let (next, result) = self.solver.update(
             held,
             self.generation,
@@ -948,6 +1031,7 @@ impl Sweep for DataOocSweep<'_, '_> {
             self.plan,
             self.cosine_sum,
             fold,
+            &self.scales,
             &mut self.io,
         )?;
         self.held = Some(next);
