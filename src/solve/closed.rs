@@ -90,8 +90,8 @@ impl ClosureSums {
     /// Adds the light one surfel's sides gathered along the lines.
     pub fn add_gathered(&mut self, h: &[[f64; 3]; 2], channels: usize, norm: f64, area: f64) {
         for side in h {
-            for ch in 0..channels {
-                self.sums[3 + ch] += self.step(area * side[ch] / norm);
+            for (ch, &light) in side.iter().enumerate().take(channels) {
+                self.sums[3 + ch] += self.step(area * light / norm);
             }
         }
     }
