@@ -8,7 +8,9 @@
 //!
 //! ```text
 //! static record (72 bytes), one per surfel, in a copy's order
-//!   0 voxel    i32 x 3     8 ... see crate::voxel::Surfel
+//!   0 voxel    i32 x 3     see crate::voxel::Surfel; below 2^24, so the top bytes hold
+//!                          PropSurfel::rank (in x) and PropSurfel::mate_sides (low byte in y,
+//!                          high byte in z)
 //!  12 point    f32 x 3     in [0, 1]; the sign bit of x set where the surfel has no area
 //!                          (PropSurfel::no_area)
 //!  24 normal   f32 x 3
@@ -50,8 +52,16 @@ fn put(out: &mut [u8], at: &mut usize, word: [u8; 4]) {
 pub fn encode_static(r: &StaticRecord, out: &mut [u8; STATIC_LEN]) {
     let p = &r.prop;
     let mut at = 0;
-    for v in p.voxel {
-        put(out, &mut at, v.to_le_bytes());
+    // Voxel coordinates stay below 2^24: the top bytes carry the rank in the voxel and the
+    // sides of the voxel-mates' planes, so the record keeps its size.
+    const _: () = assert!(crate::voxel::voxelize::MAX_GRID_EDGE <= 1 << 24);
+    let sides = [
+        p.rank as u32,
+        p.mate_sides as u32 & 0xff,
+        p.mate_sides as u32 >> 8,
+    ];
+    for (v, side) in p.voxel.into_iter().zip(sides) {
+        put(out, &mut at, (v as u32 | side << 24).to_le_bytes());
     }
     // The point lies in [0, 1]: the sign bit of its x carries the flag.
     let mut point = p.point.map(f32::abs);
@@ -87,13 +97,18 @@ fn word(bytes: &[u8], k: usize) -> [u8; 4] {
     ]
 }
 
+/// The voxel of an encoded static record (without the bytes that [`encode_static`] puts in
+/// its top bits).
+pub fn static_voxel(bytes: &[u8]) -> [i32; 3] {
+    [0, 1, 2].map(|k| i32::from_le_bytes(word(bytes, k)) & 0xff_ffff)
+}
+
 pub fn decode_static(bytes: &[u8]) -> StaticRecord {
     let f = |k: usize| f32::from_le_bytes(word(bytes, k));
-    let i = |k: usize| i32::from_le_bytes(word(bytes, k));
     let u = |k: usize| u32::from_le_bytes(word(bytes, k));
     StaticRecord {
         prop: PropSurfel {
-            voxel: [i(0), i(1), i(2)],
+            voxel: static_voxel(bytes),
             point: [f(3).abs(), f(4), f(5)],
             normal: [f(6), f(7), f(8)],
             extent: [[f(9), f(10), f(11)], [f(12), f(13), f(14)]],
@@ -101,6 +116,8 @@ pub fn decode_static(bytes: &[u8]) -> StaticRecord {
             coverage: f(16).abs(),
             inside_back: f(16).is_sign_negative(),
             no_area: f(3).is_sign_negative(),
+            rank: (u(0) >> 24) as u8,
+            mate_sides: (u(1) >> 24 | u(2) >> 24 << 8) as u16,
         },
         id: u(17),
     }
@@ -305,7 +322,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn static_records_read_back_with_their_inside_flag() {
+    fn static_records_read_back_with_their_flags_and_mate_sides() {
         let cases = [
             (1.0, false, false),
             (1.0, true, true),
@@ -315,7 +332,7 @@ mod tests {
         for (coverage, inside_back, no_area) in cases {
             let r = StaticRecord {
                 prop: PropSurfel {
-                    voxel: [3, -7, 1 << 20],
+                    voxel: [3, 7, (1 << 20) - 1],
                     group: 12,
                     point: [if no_area { 0.0 } else { 0.1 }, 0.5, 0.9],
                     normal: [0.0, 0.6, 0.8],
@@ -323,6 +340,8 @@ mod tests {
                     coverage,
                     inside_back,
                     no_area,
+                    rank: if no_area { 200 } else { 3 },
+                    mate_sides: if inside_back { 0xb1e4 } else { 0x00ff },
                 },
                 id: 99,
             };

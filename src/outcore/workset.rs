@@ -17,7 +17,6 @@ use super::files::{
 use super::scatter::Scatter;
 use super::source::{SurfelSource, VoxelGroups};
 use super::OocError;
-use crate::solve::coverage::coverage_in_voxel;
 use crate::solve::propagate::PropSurfel;
 use std::path::{Path, PathBuf};
 use tempfile::TempDir;
@@ -177,16 +176,9 @@ pub fn build(
         let mut id = 0u32;
         let mut record = [0u8; STATIC_LEN];
         while groups.next_group(&mut group)? {
-            for k in 0..group.len() {
-                let s = &group[k];
-                let r = StaticRecord {
-                    prop: PropSurfel::new(
-                        s,
-                        coverage_in_voxel(&group, k),
-                        &source.info().materials,
-                    ),
-                    id,
-                };
+            let props = PropSurfel::of_voxel(&group, &source.info().materials);
+            for (s, prop) in group.iter().zip(props) {
+                let r = StaticRecord { prop, id };
                 encode_static(&r, &mut record);
                 let row = row_of(&copy, s.voxel);
                 let b = bucket_rows.partition_point(|&first| first <= row) - 1;

@@ -103,6 +103,41 @@ pub struct PropSurfel {
     /// The surfel keeps no area (a face wholly pressed against another solid, or a voxel the
     /// plane only touches): its point may lie inside a solid (see `LineView::entry_face`).
     pub no_area: bool,
+    /// Its place among the surfels of its voxel, in the order of the surfel set (at most 255).
+    pub rank: u8,
+    /// Which side of the planes of the first [`RANKED_MATES`] surfels of its voxel (by
+    /// [`PropSurfel::rank`]) this piece lies on, as [`side_of`] tells: two bits each, [`SIDE_UNKNOWN`] (not kept: computed when a
+    /// search asks), [`SIDE_FRONT`], [`SIDE_BEHIND`] or [`SIDE_THROUGH`]. It depends on the two
+    /// pieces alone, and the searches of every direction ask it again ([`with_mate_sides`]).
+    pub mate_sides: u16,
+}
+
+/// Voxel-mates whose sides a [`PropSurfel`] keeps.
+pub const RANKED_MATES: usize = 8;
+
+/// Fills [`PropSurfel::mate_sides`] of the surfels of one voxel, listed in the order of their
+/// surfel set.
+pub fn with_mate_sides(voxel: &mut [PropSurfel]) {
+    let unit = Vec3::X;
+    let locals: Vec<Local> = voxel.iter().map(|p| local_of(p, unit)).collect();
+    for (piece, p) in voxel.iter_mut().enumerate() {
+        p.rank = piece.min(u8::MAX as usize) as u8;
+        p.mate_sides = 0;
+        for (rank, mate) in locals.iter().enumerate().take(RANKED_MATES) {
+            if rank != piece {
+                p.mate_sides |= (side_code(side_of(mate, &locals[piece])) as u16) << (2 * rank);
+            }
+        }
+    }
+}
+
+/// [`side_of`]'s answer as kept in [`PropSurfel::mate_sides`].
+fn side_code(side: Option<f32>) -> u8 {
+    match side {
+        Some(v) if v > 0.0 => SIDE_FRONT,
+        Some(_) => SIDE_BEHIND,
+        None => SIDE_THROUGH,
+    }
 }
 
 impl PropSurfel {
@@ -124,18 +159,77 @@ impl PropSurfel {
                 .get(surfel.material[crate::voxel::BACK] as usize)
                 .is_some_and(|m| m.inside),
             no_area: surfel.area <= 0.0,
+            rank: 0,
+            mate_sides: 0,
         }
+    }
+
+    /// What propagation reads of the surfels of one voxel (`voxel`, in surfel-set order), with
+    /// their open-edge coverage and the sides of each other's planes.
+    pub fn of_voxel(
+        voxel: &[crate::voxel::Surfel],
+        materials: &[crate::scene::Material],
+    ) -> Vec<PropSurfel> {
+        let mut props: Vec<PropSurfel> = voxel
+            .iter()
+            .enumerate()
+            .map(|(k, s)| {
+                PropSurfel::new(s, super::coverage::coverage_in_voxel(voxel, k), materials)
+            })
+            .collect();
+        with_mate_sides(&mut props);
+        props
     }
 }
 
 /// What propagation reads of every surfel of `set` (with its open-edge coverage).
 pub fn prop_surfels(set: &crate::voxel::SurfelSet) -> Vec<PropSurfel> {
     let coverage = super::coverage::coverages(set);
-    set.surfels
+    let mut props: Vec<PropSurfel> = set
+        .surfels
         .iter()
         .zip(&coverage)
         .map(|(s, &coverage)| PropSurfel::new(s, coverage, &set.materials))
-        .collect()
+        .collect();
+    // A voxel's surfels are adjacent in a surfel set.
+    let mut first = 0;
+    while first < props.len() {
+        let voxel = set.surfels[first].voxel;
+        let end = first + set.surfels[first..].partition_point(|s| s.voxel == voxel);
+        if end - first > 1 {
+            with_mate_sides(&mut props[first..end]);
+        }
+        first = end;
+    }
+    props
+}
+
+/// A surfel as the search of direction `sf` reads it.
+#[inline(always)]
+fn local_of(p: &PropSurfel, sf: Vec3) -> Local {
+    let normal = Vec3::from(p.normal);
+    let ns = normal.dot(sf);
+    Local {
+        voxel: p.voxel,
+        group: p.group,
+        point: Vec3::from(p.point),
+        normal,
+        ns,
+        sgn: if ns > 0.0 {
+            1.0
+        } else if ns < 0.0 {
+            -1.0
+        } else {
+            0.0
+        },
+        lo: Vec3::from(p.extent[0]),
+        hi: Vec3::from(p.extent[1]),
+        coverage: p.coverage,
+        inside_back: p.inside_back,
+        no_area: p.no_area,
+        rank: p.rank,
+        mate_sides: p.mate_sides,
+    }
 }
 
 /// A surfel of the line being processed, with its cosine to the direction.
@@ -153,6 +247,8 @@ struct Local {
     coverage: f32,
     inside_back: bool,
     no_area: bool,
+    rank: u8,
+    mate_sides: u16,
 }
 
 /// Whether the side of `x` that its search ahead (`FORWARD`) or behind gathers into (the side
@@ -316,13 +412,9 @@ pub struct LineScratch {
     open_items: Vec<(u32, u32, f32)>,
     /// For each line position: the index of its open crossing in `open_ranges`, or `u32::MAX`.
     open_slot: Vec<u32>,
-    /// [`side_of`] for the pairs of surfels of one voxel, filled as the searches ask
-    /// ([`LineView::mate_side`]), and where each voxel group's square of pairs starts.
-    sides: Vec<std::cell::Cell<u8>>,
-    side_start: Vec<u32>,
 }
 
-/// What [`LineView::mate_side`] keeps of [`side_of`]: not yet computed, in front, behind, or
+/// What [`PropSurfel::mate_sides`] keeps of [`side_of`]: not kept, in front, behind, or
 /// running through the mate's plane.
 const SIDE_UNKNOWN: u8 = 0;
 const SIDE_FRONT: u8 = 1;
@@ -417,36 +509,9 @@ pub fn find_partners_toward(
         open_ranges,
         open_items,
         open_slot,
-        sides,
-        side_start,
     } = scratch;
     locals.clear();
-    locals.extend(line.iter().map(|&m| {
-        let p = &surfels[m as usize];
-        let normal = Vec3::from(p.normal);
-        Local {
-            voxel: p.voxel,
-            group: p.group,
-            point: Vec3::from(p.point),
-            normal,
-            ns: normal.dot(sf),
-            sgn: {
-                let ns = normal.dot(sf);
-                if ns > 0.0 {
-                    1.0
-                } else if ns < 0.0 {
-                    -1.0
-                } else {
-                    0.0
-                }
-            },
-            lo: Vec3::from(p.extent[0]),
-            hi: Vec3::from(p.extent[1]),
-            coverage: p.coverage,
-            inside_back: p.inside_back,
-            no_area: p.no_area,
-        }
-    }));
+    locals.extend(line.iter().map(|&m| local_of(&surfels[m as usize], sf)));
     groups.clear();
     for k in 0..locals.len() {
         if k == 0 || locals[k].voxel != locals[k - 1].voxel {
@@ -459,20 +524,6 @@ pub fn find_partners_toward(
     // at a voxel-mate (`LineView::off_the_run`).
     let shared = group_count < locals.len();
     open_crossings(locals, groups, section, open_ranges, open_items, open_slot);
-    side_start.clear();
-    sides.clear();
-    if shared {
-        let mut pairs = 0u32;
-        side_start.extend((0..group_count).map(|g| {
-            let at = pairs;
-            let m = (groups[g + 1] - groups[g]) as u32;
-            if m > 1 {
-                pairs += m * m;
-            }
-            at
-        }));
-        sides.resize(pairs as usize, std::cell::Cell::new(SIDE_UNKNOWN));
-    }
     single.clear();
     single.extend((0..group_count).map(|g| {
         if groups[g + 1] - groups[g] == 1 {
@@ -510,8 +561,6 @@ pub fn find_partners_toward(
         open_ranges,
         open_items,
         open_slot,
-        sides,
-        side_start,
         shared,
         main: {
             let a = sf.abs();
@@ -788,8 +837,6 @@ struct LineView<'a> {
     open_ranges: &'a [(u32, u32, u32)],
     open_items: &'a [(u32, u32, f32)],
     open_slot: &'a [u32],
-    sides: &'a [std::cell::Cell<u8>],
-    side_start: &'a [u32],
     /// Whether some voxel of the line holds more than one surfel (else `runs` is empty).
     shared: bool,
     /// The line's main axis (the largest component of the direction).
@@ -797,31 +844,24 @@ struct LineView<'a> {
 }
 
 impl LineView<'_> {
-    /// [`side_of`] for two surfels of voxel group `g` at line positions `mate` and `piece`,
-    /// computed once per line: it depends on the two pieces alone, and every receiver whose
-    /// search reaches the voxel asks it again (a voxel of a building's thin walls and floors
-    /// holds two to a dozen surfels, and this was a sixth of the search there).
+    /// [`side_of`] for two surfels of one voxel at line positions `mate` and `piece`: kept
+    /// with the piece where the mate is among the first [`RANKED_MATES`] of the voxel, else
+    /// computed. Every receiver whose search reaches the voxel asks it again, along every
+    /// direction (a voxel of a building's thin walls and floors holds two to a dozen surfels;
+    /// computing it was a sixth of the search there, and caching it per line still a tenth).
     #[inline(always)]
-    fn mate_side(&self, g: usize, mate: usize, piece: usize) -> Option<f32> {
-        let first = self.groups[g];
-        let m = self.groups[g + 1] - first;
-        let cell = &self.sides[self.side_start[g] as usize + (mate - first) * m + (piece - first)];
-        let known = match cell.get() {
-            SIDE_UNKNOWN => {
-                let side = side_of(&self.locals[mate], &self.locals[piece]);
-                cell.set(match side {
-                    Some(v) if v > 0.0 => SIDE_FRONT,
-                    Some(_) => SIDE_BEHIND,
-                    None => SIDE_THROUGH,
-                });
-                return side;
-            }
-            known => known,
+    fn mate_side(&self, mate: usize, piece: usize) -> Option<f32> {
+        let rank = self.locals[mate].rank as usize;
+        let code = if rank < RANKED_MATES {
+            (self.locals[piece].mate_sides >> (2 * rank) & 3) as u8
+        } else {
+            SIDE_UNKNOWN
         };
-        match known {
+        match code {
             SIDE_FRONT => Some(1.0),
             SIDE_BEHIND => Some(-1.0),
-            _ => None,
+            SIDE_THROUGH => None,
+            _ => side_of(&self.locals[mate], &self.locals[piece]),
         }
     }
 
@@ -909,16 +949,15 @@ impl LineView<'_> {
         chosen.unwrap_or(c)
     }
 
-    /// The run of line position `c`'s plane on the line: the first and last of the consecutive
-    /// voxel groups around `c`'s own that hold a piece of the plane. Found when a search asks
+    /// The run of line position `c`'s plane on the line (`g` its voxel group): the first and
+    /// last of the consecutive voxel groups around `g` that hold a piece of the plane. Found when a search asks
     /// (a few times a line) rather than for every position of every line: the direct-light
     /// pass runs only some searches of its long lines, and this was 6 % of it.
     #[inline(always)]
-    fn run_of(&self, c: usize) -> [u32; 2] {
+    fn run_of(&self, c: usize, g: usize) -> [u32; 2] {
         let plane = self.locals[c].group;
         let holds =
             |g: usize| (self.groups[g]..self.groups[g + 1]).any(|k| self.locals[k].group == plane);
-        let g = self.groups.partition_point(|&start| start <= c) - 1;
         let (mut lo, mut hi) = (g, g);
         while lo > 0 && holds(lo - 1) {
             lo -= 1;
@@ -937,13 +976,20 @@ impl LineView<'_> {
     /// is judged like a voxel-mate in [`LineView::best_in`], and the candidate's own voxel is
     /// judged there already.
     #[inline(always)]
-    fn off_the_run(&self, x: &Local, c: usize, t: f32, dir: Vec3) -> bool {
+    fn off_the_run(&self, x: &Local, c: usize, g_c: usize, t: f32, dir: Vec3) -> bool {
         if !self.shared {
             // No run end holds mates.
             return false;
         }
         let plane = self.locals[c].group;
-        let own = self.run_of(c);
+        // Most hits are on a plane the line crosses in one voxel (a wall seen across a room):
+        // then both ends are the candidate's own voxel, judged in `best_in` already.
+        let holds =
+            |g: usize| (self.groups[g]..self.groups[g + 1]).any(|k| self.locals[k].group == plane);
+        if !(g_c > 0 && holds(g_c - 1) || g_c + 2 < self.groups.len() && holds(g_c + 1)) {
+            return false;
+        }
+        let own = self.run_of(c, g_c);
         let here = self.locals[c].voxel;
         for end in [own[0], own[1]] {
             let range = self.groups[end as usize]..self.groups[end as usize + 1];
@@ -975,7 +1021,7 @@ impl LineView<'_> {
                     // candidate's piece, where the ray was caught, on the same side as the end's
                     // (a wall pressed up against a ceiling, its face on the voxel boundary, does
                     // not end the ceiling that goes on over it).
-                    let Some(piece_side) = self.mate_side(end as usize, k, at) else {
+                    let Some(piece_side) = self.mate_side(k, at) else {
                         return true;
                     };
                     if side_of(mate, candidate) != Some(piece_side) {
@@ -1264,7 +1310,7 @@ impl LineView<'_> {
                 }
                 // Which side of the mate's plane the candidate's piece lies on; a piece running
                 // through the plane (a T-junction) is not bounded by it.
-                let Some(piece_side) = self.mate_side(g2, k3, k2) else {
+                let Some(piece_side) = self.mate_side(k3, k2) else {
                     return true;
                 };
                 let n = mate.normal;
@@ -1387,7 +1433,7 @@ impl LineView<'_> {
                     continue;
                 }
                 // `t`: the distance the acceptance test gave for the candidate.
-                if missed.has_room() && self.off_the_run(x, found, t, dir) {
+                if missed.has_room() && self.off_the_run(x, found, g2, t, dir) {
                     missed.insert(candidate.group);
                     search_here = true;
                     continue;
@@ -1457,7 +1503,7 @@ impl LineView<'_> {
                         }
                         continue;
                     }
-                    if missed.has_room() && self.off_the_run(x, c, t, dir) {
+                    if missed.has_room() && self.off_the_run(x, c, g2, t, dir) {
                         missed.insert(single);
                         continue;
                     }

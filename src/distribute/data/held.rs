@@ -157,6 +157,8 @@ mod tests {
             coverage: 0.75,
             inside_back: k % 3 == 0,
             no_area: k % 5 == 0,
+            rank: (k % 7) as u8,
+            mate_sides: (k * 37) as u16,
         }
     }
 

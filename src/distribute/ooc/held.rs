@@ -57,7 +57,7 @@ fn word(w: &[u8], at: usize) -> [u8; 4] {
 }
 
 pub fn voxel(w: &[u8]) -> [i32; 3] {
-    [0, 4, 8].map(|at| i32::from_le_bytes(word(w, at)))
+    crate::outcore::files::static_voxel(w)
 }
 
 pub fn id(w: &[u8]) -> u32 {

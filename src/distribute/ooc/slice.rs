@@ -9,7 +9,6 @@ use crate::outcore::files::{
     encode_radiosity, encode_static, IoCounters, StaticRecord, STATIC_LEN,
 };
 use crate::outcore::OocError;
-use crate::solve::coverage::coverage_in_voxel;
 use crate::solve::propagate::PropSurfel;
 use crate::voxel::Surfel;
 use std::path::Path;
@@ -117,10 +116,11 @@ impl Solver<'_> {
         }
         let info = self.source.info();
         slice.voxels += 1;
-        for (k, s) in group.iter().enumerate() {
+        let props = PropSurfel::of_voxel(group, &info.materials);
+        for (k, (s, prop)) in group.iter().zip(props).enumerate() {
             let mut w = [0u8; WIRE_LEN];
             let r = StaticRecord {
-                prop: PropSurfel::new(s, coverage_in_voxel(group, k), &info.materials),
+                prop,
                 id: (first_id + k as u64) as u32,
             };
             let mut statics = [0u8; STATIC_LEN];
