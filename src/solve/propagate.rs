@@ -76,8 +76,8 @@
 //! sums of the lines a little ahead are prefetched ([`gather_lines`]): they lie scattered over
 //! arrays far larger than the caches (about a sixth of the kernel's time went to waiting).
 //! Which side of each other's planes two pieces of one voxel lie on depends on them alone: it is
-//! computed once per line, when a search first asks (`LineView::mate_side`). A caller that needs
-//! only some searches of a line (the direct-light pass) says which ([`Toward`]).
+//! computed once per solve and kept with each piece ([`PropSurfel::mate_sides`]). A caller that
+//! needs only some searches of a line (the direct-light pass) says which ([`Toward`]).
 
 use crate::voxel::{BACK, FRONT};
 use glam::{DVec3, Vec3};
@@ -106,9 +106,10 @@ pub struct PropSurfel {
     /// Its place among the surfels of its voxel, in the order of the surfel set (at most 255).
     pub rank: u8,
     /// Which side of the planes of the first [`RANKED_MATES`] surfels of its voxel (by
-    /// [`PropSurfel::rank`]) this piece lies on, as [`side_of`] tells: two bits each, [`SIDE_UNKNOWN`] (not kept: computed when a
-    /// search asks), [`SIDE_FRONT`], [`SIDE_BEHIND`] or [`SIDE_THROUGH`]. It depends on the two
-    /// pieces alone, and the searches of every direction ask it again ([`with_mate_sides`]).
+    /// [`PropSurfel::rank`]) this piece lies on, as [`side_of`] tells: two bits each,
+    /// [`SIDE_UNKNOWN`] (not kept: computed when a search asks), [`SIDE_FRONT`],
+    /// [`SIDE_BEHIND`] or [`SIDE_THROUGH`]. It depends on the two pieces alone, and the
+    /// searches of every direction ask it again ([`with_mate_sides`]).
     pub mate_sides: u16,
 }
 
@@ -950,9 +951,9 @@ impl LineView<'_> {
     }
 
     /// The run of line position `c`'s plane on the line (`g` its voxel group): the first and
-    /// last of the consecutive voxel groups around `g` that hold a piece of the plane. Found when a search asks
-    /// (a few times a line) rather than for every position of every line: the direct-light
-    /// pass runs only some searches of its long lines, and this was 6 % of it.
+    /// last of the consecutive voxel groups around `g` that hold a piece of the plane. Found
+    /// when a search asks (a few times a line) rather than for every position of every line:
+    /// the direct-light pass runs only some searches of its long lines, and this was 6 % of it.
     #[inline(always)]
     fn run_of(&self, c: usize, g: usize) -> [u32; 2] {
         let plane = self.locals[c].group;
