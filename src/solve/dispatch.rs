@@ -104,19 +104,63 @@ pub fn dispatch<F: LineNumbering>(
                 counts[frame.line_index(e.voxel) as usize] += 1;
             }
         });
-    // 2. Slot ranges: line by line, thread by thread (partial lists laid end to end).
+    // 2. Slot ranges: line by line, thread by thread (partial lists laid end to end). A prefix
+    // sum over the lines, in blocks of lines on the threads: each block's total, then the
+    // blocks' starts, then each block's slots (in one thread, the other threads waited: at
+    // resolution 256 a direction has up to a million lines).
     lines.starts.clear();
-    lines.starts.reserve(line_count + 1);
+    lines.starts.resize(line_count + 1, 0);
+    let block_len = line_count.div_ceil(parts * 8).max(1);
+    let block_totals: Vec<u32> = (0..line_count.div_ceil(block_len))
+        .into_par_iter()
+        .map(|b| {
+            let range = b * block_len..((b + 1) * block_len).min(line_count);
+            lines
+                .counters
+                .iter()
+                .map(|counts| counts[range.clone()].iter().sum::<u32>())
+                .sum()
+        })
+        .collect();
+    let mut block_starts = Vec::with_capacity(block_totals.len());
     let mut next = 0u32;
-    for l in 0..line_count {
-        lines.starts.push(next);
-        for counts in lines.counters.iter_mut() {
-            let c = counts[l];
-            counts[l] = next;
-            next += c;
-        }
+    for total in &block_totals {
+        block_starts.push(next);
+        next += total;
     }
-    lines.starts.push(next);
+    lines.starts[line_count] = next;
+    // Each block gets its part of `starts` and of every thread's counters.
+    let mut blocks: Vec<LineBlock> = Vec::new();
+    let mut starts_rest = &mut lines.starts[..line_count];
+    let mut counts_rest: Vec<&mut [u32]> = lines
+        .counters
+        .iter_mut()
+        .map(|c| c.as_mut_slice())
+        .collect();
+    for &start in &block_starts {
+        let len = block_len.min(starts_rest.len());
+        let (starts, tail) = std::mem::take(&mut starts_rest).split_at_mut(len);
+        starts_rest = tail;
+        let mut counts = Vec::with_capacity(counts_rest.len());
+        for rest in counts_rest.iter_mut() {
+            let (head, tail) = std::mem::take(rest).split_at_mut(len);
+            counts.push(head);
+            *rest = tail;
+        }
+        blocks.push((start, starts, counts));
+    }
+    blocks
+        .into_par_iter()
+        .for_each(|(mut next, starts, mut counts)| {
+            for (l, start) in starts.iter_mut().enumerate() {
+                *start = next;
+                for thread_counts in counts.iter_mut() {
+                    let c = thread_counts[l];
+                    thread_counts[l] = next;
+                    next += c;
+                }
+            }
+        });
     // 3. Each thread appends its part to its partial lists, keeping the order.
     lines.members.clear();
     lines.members.resize(ordered.len(), 0);
@@ -137,6 +181,10 @@ pub fn dispatch<F: LineNumbering>(
             }
         });
 }
+
+/// A block of lines in step 2 of [`dispatch`]: its first slot, its part of `starts`, and its
+/// part of each thread's counters.
+type LineBlock<'a> = (u32, &'a mut [u32], Vec<&'a mut [u32]>);
 
 /// A pointer to slots that threads fill at provably disjoint indices.
 #[derive(Clone, Copy)]
