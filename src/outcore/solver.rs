@@ -480,6 +480,24 @@ impl OutOfCore<'_> {
     }
 }
 
+impl OutOfCore<'_> {
+    /// One pass of [`update`] over the canonical files.
+    fn update_canonical(&mut self, pass: UpdatePass) -> Result<Update, OocError> {
+        update(
+            self.source,
+            self.work,
+            self.plan,
+            &self.cosine_sum,
+            self.summed,
+            self.channels,
+            self.previous.as_deref(),
+            self.direct.as_deref(),
+            pass,
+            &mut self.io,
+        )
+    }
+}
+
 impl Sweep for OutOfCore<'_> {
     type Error = OocError;
 
@@ -617,32 +635,11 @@ impl Sweep for OutOfCore<'_> {
         let t = Instant::now();
         if self.closed {
             let mut sums = ClosureSums::new(&self.source.info().materials);
-            update(
-                self.source,
-                self.work,
-                self.plan,
-                &self.cosine_sum,
-                self.summed,
-                self.channels,
-                None,
-                self.direct.as_deref(),
-                UpdatePass::Closure(&mut sums),
-                &mut self.io,
-            )?;
+            self.update_canonical(UpdatePass::Closure(&mut sums))?;
             self.scales = sums.scales(self.channels);
         }
-        let result = update(
-            self.source,
-            self.work,
-            self.plan,
-            &self.cosine_sum,
-            self.summed,
-            self.channels,
-            self.previous.as_deref(),
-            self.direct.as_deref(),
-            UpdatePass::Update(&self.scales),
-            &mut self.io,
-        )?;
+        let scales = self.scales;
+        let result = self.update_canonical(UpdatePass::Update(&scales))?;
         self.update_seconds += t.elapsed().as_secs_f64();
         self.last = result;
         self.lit = false;
@@ -1092,7 +1089,11 @@ fn update(
 ) -> Result<Update, OocError> {
     let writes = matches!(pass, UpdatePass::Update(..));
     let info = source.info();
-    let kept = previous.map(RecordFile::open).transpose()?;
+    // The replaced radiosity is kept only by a pass that replaces it.
+    let kept = previous
+        .filter(|_| writes)
+        .map(RecordFile::open)
+        .transpose()?;
     let direct = direct.map(RecordFile::open).transpose()?;
     let mut d_bytes = vec![
         0u8;
