@@ -23,6 +23,7 @@
 //! and 16 per distinct label faced. A check that would take more than the memory it is given
 //! gives up, and the scene is solved as an open one, which the report says.
 
+use crate::voxel::disjoint::DisjointSets;
 use crate::voxel::SurfelSet;
 use glam::Vec3;
 use std::collections::HashMap;
@@ -60,8 +61,8 @@ pub struct Enclosure {
     held: Vec<Vec<u64>>,
     /// Labels of the same slices' voxels (labelled once a slice is complete).
     labels: Vec<Vec<u32>>,
-    /// The union-find over labels; `parent[OUTSIDE]` is the outside's set.
-    parent: Vec<u32>,
+    /// The sets of labels; [`OUTSIDE`] is the outside's (its smallest label, so its root).
+    sets: DisjointSets,
     /// The slice surfels are being added to; those below it are labelled.
     current: i64,
     /// Emitting sides waiting for the slice their walk needs: voxel and emitting normal.
@@ -87,7 +88,7 @@ impl Enclosure {
             dims: dims.map(|d| d as i64),
             held: vec![vec![0; slice.div_ceil(64) as usize]; RING],
             labels: vec![vec![HELD; slice as usize]; RING],
-            parent: vec![HELD, OUTSIDE],
+            sets: DisjointSets::new(2),
             current: 0,
             pending: Vec::new(),
             faced: HashMap::new(),
@@ -151,11 +152,11 @@ impl Enclosure {
         }
         // Sides facing past the last slice.
         self.resolve(i64::MAX);
-        let outside = self.find(OUTSIDE);
+        let outside = self.sets.find(OUTSIDE);
         let mut open_sides = self.faced_past_grid;
         let faced: Vec<(u32, u64)> = self.faced.iter().map(|(&l, &c)| (l, c)).collect();
         for (label, count) in faced {
-            if self.find(label) == outside {
+            if self.sets.find(label) == outside {
                 open_sides += count;
             }
         }
@@ -173,7 +174,7 @@ impl Enclosure {
         if self.allowance.is_none() {
             self.pending = Vec::new();
             self.faced = HashMap::new();
-            self.parent = Vec::new();
+            self.sets = DisjointSets::default();
         }
     }
 
@@ -186,24 +187,6 @@ impl Enclosure {
 
     fn is_held(&self, z: i64, i: usize) -> bool {
         self.held[z as usize % RING][i / 64] >> (i % 64) & 1 == 1
-    }
-
-    fn find(&mut self, mut l: u32) -> u32 {
-        while self.parent[l as usize] != l {
-            let grand = self.parent[self.parent[l as usize] as usize];
-            self.parent[l as usize] = grand;
-            l = grand;
-        }
-        l
-    }
-
-    fn union(&mut self, a: u32, b: u32) {
-        let (a, b) = (self.find(a), self.find(b));
-        // The smaller label roots the set, so the outside (label 1) stays a root.
-        if a != b {
-            let (lo, hi) = (a.min(b), a.max(b));
-            self.parent[hi as usize] = lo;
-        }
     }
 
     /// Labels slice `current`, whose surfels are all in, then resolves the sides that can be
@@ -230,8 +213,7 @@ impl Enclosure {
                     .find(|&l| l != HELD)
                     .unwrap_or(HELD);
                 if label == HELD {
-                    label = self.parent.len() as u32;
-                    self.parent.push(label);
+                    label = self.sets.push();
                     self.spend(4);
                     if self.allowance.is_none() {
                         return;
@@ -239,12 +221,12 @@ impl Enclosure {
                 }
                 for other in [left, up, back] {
                     if other != HELD && other != label {
-                        self.union(label, other);
+                        self.sets.union(label, other);
                     }
                 }
                 let boundary = x == 0 || y == 0 || z == 0 || x == nx - 1 || y == ny - 1;
                 if boundary || z == nz - 1 {
-                    self.union(label, OUTSIDE);
+                    self.sets.union(label, OUTSIDE);
                 }
                 labels[i] = label;
             }

@@ -27,6 +27,7 @@
 //!
 //! [`Material::inside_of_solids`]: crate::scene::Material::inside_of_solids
 
+use super::disjoint::DisjointSets;
 use super::solids::{edge_hash, edge_points};
 use crate::scene::Scene;
 use glam::DVec3;
@@ -57,7 +58,7 @@ pub(crate) fn inside_backed(scene: &Scene) -> Vec<bool> {
         }
     }
     edges.sort_unstable();
-    let mut pieces = Pieces::new(n);
+    let mut pieces = DisjointSets::new(n);
     // Per triangle: how many of its edges were paired with a neighbour of the same solid (each
     // must be, once), and whether it has area.
     let mut paired = vec![0u8; n];
@@ -85,7 +86,7 @@ pub(crate) fn inside_backed(scene: &Scene) -> Vec<bool> {
             }
         }
         pair_around(&mut around, |i, j| {
-            pieces.join(i, j);
+            pieces.union(i, j);
             paired[i as usize] += 1;
             paired[j as usize] += 1;
         });
@@ -95,7 +96,7 @@ pub(crate) fn inside_backed(scene: &Scene) -> Vec<bool> {
             *flag = true;
         }
     }
-    let piece_of: Vec<u32> = (0..n as u32).map(|i| pieces.root(i)).collect();
+    let piece_of: Vec<u32> = (0..n as u32).map(|i| pieces.find(i)).collect();
     // Per piece (by root): open, signed volume, bounding box.
     let mut closed = vec![true; n];
     let mut volume = vec![0.0f64; n];
@@ -213,42 +214,6 @@ fn pair_around(around: &mut [(f64, i8, u32)], mut join: impl FnMut(u32, u32)) {
         if x.1 < 0 && y.1 > 0 {
             join(x.2, y.2);
         }
-    }
-}
-
-/// Triangles joined into pieces (union by size, with path halving).
-struct Pieces {
-    parent: Vec<u32>,
-    size: Vec<u32>,
-}
-
-impl Pieces {
-    fn new(n: usize) -> Self {
-        Pieces {
-            parent: (0..n as u32).collect(),
-            size: vec![1; n],
-        }
-    }
-
-    fn root(&mut self, mut i: u32) -> u32 {
-        while self.parent[i as usize] != i {
-            let up = self.parent[self.parent[i as usize] as usize];
-            self.parent[i as usize] = up;
-            i = up;
-        }
-        i
-    }
-
-    fn join(&mut self, a: u32, b: u32) {
-        let (mut a, mut b) = (self.root(a), self.root(b));
-        if a == b {
-            return;
-        }
-        if self.size[a as usize] < self.size[b as usize] {
-            std::mem::swap(&mut a, &mut b);
-        }
-        self.parent[b as usize] = a;
-        self.size[a as usize] += self.size[b as usize];
     }
 }
 

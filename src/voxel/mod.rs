@@ -10,6 +10,7 @@
 //! Positions inside the solver are in voxel units: voxel `v` covers `[v, v + 1)` on each axis and
 //! a surfel's surface point is `v + point`. World position = `grid.origin + (v + point) * voxel_size`.
 
+pub(crate) mod disjoint;
 mod enclosed;
 pub(crate) mod polygon;
 mod solids;
