@@ -1751,7 +1751,75 @@ impl LineScratch {
 
 #[cfg(test)]
 mod tests {
-    use super::floor_to_i32;
+    use super::*;
+
+    /// The sides kept with each piece are what `side_of` says, for every pair of every voxel
+    /// of a scene of slabs thinner than a voxel, tilted and meeting, and a voxel holding two
+    /// small boxes (a dozen surfels), whose pairs past the kept ranks are left to be computed.
+    #[test]
+    fn kept_mate_sides_are_side_of() {
+        use crate::scene::{Material, Scene};
+        use crate::voxel::voxelize::{voxelize, GridSpec};
+        let mut scene = Scene::default();
+        let m = scene.add_material(Material::new("grey", [0.5; 3], [0.0; 3]));
+        let p = DVec3::new;
+        scene.add_box(p(0.0, 0.0, 0.0), p(1.0, 1.0, 0.02), m, false);
+        scene.add_box(p(0.0, 0.0, 0.0), p(0.02, 1.0, 1.0), m, false);
+        scene.add_box(p(0.3, 0.0, 0.4), p(0.7, 0.03, 0.45), m, false);
+        // Two small boxes in one voxel: a dozen surfels there.
+        scene.add_box(p(0.905, 0.905, 0.905), p(0.915, 0.915, 0.915), m, false);
+        scene.add_box(p(0.92, 0.905, 0.92), p(0.93, 0.915, 0.93), m, false);
+        let first = scene.triangles.len();
+        scene.add_box(p(0.2, 0.2, 0.2), p(0.8, 0.8, 0.23), m, false);
+        let tilt = glam::DMat3::from_rotation_x(0.3) * glam::DMat3::from_rotation_y(0.2);
+        for t in &mut scene.triangles[first..] {
+            for v in &mut t.vertices {
+                *v = tilt * (*v - p(0.5, 0.5, 0.5)) + p(0.5, 0.5, 0.5);
+            }
+        }
+        let set = voxelize(&scene, GridSpec::Resolution(24)).expect("voxelize");
+        let props = prop_surfels(&set);
+        let (mut kept, mut beyond, mut most) = (0, 0, 0);
+        let mut first = 0;
+        while first < props.len() {
+            let voxel = set.surfels[first].voxel;
+            let end = first + set.surfels[first..].partition_point(|s| s.voxel == voxel);
+            most = most.max(end - first);
+            // What the out-of-core work files are made with, one voxel at a time.
+            assert_eq!(
+                PropSurfel::of_voxel(&set.surfels[first..end], &set.materials),
+                props[first..end]
+            );
+            let locals: Vec<Local> = props[first..end]
+                .iter()
+                .map(|q| local_of(q, Vec3::Z))
+                .collect();
+            for (piece, q) in props[first..end].iter().enumerate() {
+                assert_eq!(q.rank as usize, piece);
+                for (rank, mate) in locals.iter().enumerate() {
+                    let code = if rank < RANKED_MATES {
+                        (q.mate_sides >> (2 * rank) & 3) as u8
+                    } else {
+                        SIDE_UNKNOWN
+                    };
+                    if rank == piece {
+                        assert_eq!(code, SIDE_UNKNOWN);
+                    } else if rank < RANKED_MATES {
+                        assert_eq!(code, side_code(side_of(mate, &locals[piece])));
+                        kept += 1;
+                    } else {
+                        assert_eq!(code, SIDE_UNKNOWN);
+                        beyond += 1;
+                    }
+                }
+            }
+            first = end;
+        }
+        assert!(
+            kept > 1000 && most > RANKED_MATES && beyond > 0,
+            "{kept} pairs kept, {beyond} beyond the kept ranks, {most} surfels at most"
+        );
+    }
 
     #[test]
     fn floor_to_i32_is_floor() {
