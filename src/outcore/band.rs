@@ -249,8 +249,7 @@ impl DirectionPass<'_> {
         let mut w = [0u8; 4];
         let offset = index * STATIC_LEN as u64 + 4 * self.copy.u as u64;
         self.files.statics.read_at(offset, &mut w, io)?;
-        // Without the top byte, which `files::encode_static` fills.
-        Ok((i32::from_le_bytes(w) & 0xff_ffff) as i64)
+        Ok(super::files::static_coordinate(w) as i64)
     }
 
     /// Solves a column `j0` holding `surfels`, in blocks of rows `i` that fit the budget. In each

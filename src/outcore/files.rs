@@ -97,10 +97,15 @@ fn word(bytes: &[u8], k: usize) -> [u8; 4] {
     ]
 }
 
-/// The voxel of an encoded static record (without the bytes that [`encode_static`] puts in
-/// its top bits).
+/// One voxel coordinate of an encoded static record, from its 4 bytes (without the top byte
+/// that [`encode_static`] fills).
+pub fn static_coordinate(bytes: [u8; 4]) -> i32 {
+    i32::from_le_bytes(bytes) & 0xff_ffff
+}
+
+/// The voxel of an encoded static record.
 pub fn static_voxel(bytes: &[u8]) -> [i32; 3] {
-    [0, 1, 2].map(|k| i32::from_le_bytes(word(bytes, k)) & 0xff_ffff)
+    [0, 1, 2].map(|k| static_coordinate(word(bytes, k)))
 }
 
 pub fn decode_static(bytes: &[u8]) -> StaticRecord {

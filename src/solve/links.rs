@@ -152,6 +152,20 @@ fn unpack(word: u64) -> Link {
     }
 }
 
+/// Whether links naming sides up to `largest_side` with `factors` distinct factors fit narrow
+/// words.
+fn fits_narrow(largest_side: u32, factors: usize) -> bool {
+    largest_side < NARROW_SIDES && factors <= NARROW_FACTORS
+}
+
+/// `link` with its piece's factor index replaced by the direction's (`table`).
+fn renumbered(link: &Link, table: &[u32]) -> Link {
+    Link {
+        factor: table[link.factor as usize],
+        ..*link
+    }
+}
+
 /// A link as a narrow word (its numbers fit, see [`NARROW_SIDES`] and [`NARROW_FACTORS`]).
 fn narrow(link: &Link) -> u64 {
     link.to as u64 | (link.from as u64) << 28 | (link.factor as u64) << 56
@@ -175,7 +189,7 @@ impl DirectionLinks {
         pieces: Vec<usize>,
     ) -> Self {
         let largest_side = links.clone().map(|l| l.to.max(l.from)).max().unwrap_or(0);
-        let packed = if largest_side < NARROW_SIDES && factors.len() <= NARROW_FACTORS {
+        let packed = if fits_narrow(largest_side, factors.len()) {
             Packed::Narrow(links.map(|l| narrow(&l)).collect())
         } else {
             Packed::Wide(links.collect())
@@ -407,7 +421,7 @@ pub fn gather_and_record(
     // the direction's factor indices take as few bits as they can.
     let mut factors: Vec<f64> = Vec::new();
     let mut index: MixMap<u32> = MixMap::default();
-    let renumbered: Vec<Vec<u32>> = pieces
+    let tables: Vec<Vec<u32>> = pieces
         .iter()
         .map(|piece| {
             piece
@@ -429,7 +443,7 @@ pub fn gather_and_record(
         bounds.push(bounds.last().expect("a first bound") + piece.links.len());
     }
     let largest_side = pieces.iter().map(|p| p.largest_side).max().unwrap_or(0);
-    if largest_side < NARROW_SIDES && factors.len() <= NARROW_FACTORS {
+    if fits_narrow(largest_side, factors.len()) {
         // Each piece packs its own links into its part of the direction's array, on the worker
         // threads (done in one thread after the gather, this was about a seventh of the first
         // pass on two threads). Zeroed memory comes from the system untouched, so its pages
@@ -444,13 +458,10 @@ pub fn gather_and_record(
         }
         parts
             .into_par_iter()
-            .zip(pieces.par_iter().zip(&renumbered))
+            .zip(pieces.par_iter().zip(&tables))
             .for_each(|(part, (piece, table))| {
                 for (word, link) in part.iter_mut().zip(&piece.links) {
-                    *word = narrow(&Link {
-                        factor: table[link.factor as usize],
-                        ..*link
-                    });
+                    *word = narrow(&renumbered(link, table));
                 }
             });
         return DirectionLinks {
@@ -459,12 +470,10 @@ pub fn gather_and_record(
             pieces: bounds,
         };
     }
-    let links = pieces.iter().zip(&renumbered).flat_map(|(piece, table)| {
-        piece.links.iter().map(|link| Link {
-            factor: table[link.factor as usize],
-            ..*link
-        })
-    });
+    let links = pieces
+        .iter()
+        .zip(&tables)
+        .flat_map(|(piece, table)| piece.links.iter().map(|link| renumbered(link, table)));
     DirectionLinks::pack(links, factors, bounds)
 }
 
