@@ -123,6 +123,12 @@ enum Command {
         /// (several times smaller, a few ns per byte: worth it on a slow network only).
         #[arg(long, requires = "distribute")]
         compress_exchange: bool,
+        /// Where the tail extrapolation finds no geometric tail (scenes of many rooms), iterate
+        /// by Chebyshev semi-iteration, which follows several slow modes at once: about a
+        /// third fewer iterations on such scenes (docs/throughput.md). In memory only so far
+        /// (one process or --distribute directions).
+        #[arg(long)]
+        chebyshev: bool,
         /// Continue from OUT/checkpoint.bin if there is one (left by an interrupted or killed
         /// solve of the same scene and options), at the iteration or the direction it holds;
         /// without one, start from the beginning. A checkpoint written inside an iteration by
@@ -476,6 +482,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             distribute,
             groups,
             compress_exchange,
+            chebyshev,
             resume,
             checkpoint_every,
         } => {
@@ -543,6 +550,9 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 },
                 links_memory,
                 links_disk,
+                chebyshev: chebyshev
+                    && preset.accelerate
+                    && (tolerance.is_some() || iterations.is_none()),
                 ..Default::default()
             };
             let cmd = SolveCommand {

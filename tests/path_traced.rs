@@ -281,7 +281,13 @@ fn realistic_rooms_and_the_cornell_box_against_the_reference() {
 /// corridor and the office were at 0.9 %).
 #[test]
 fn the_high_preset_meets_its_goal_when_read_by_gathering() {
-    assert_preset_meets(voxrad::quality::Quality::High, "corridor", 0.005, 0.03);
+    assert_preset_meets(
+        voxrad::quality::Quality::High,
+        "corridor",
+        0.005,
+        0.03,
+        false,
+    );
 }
 
 /// `voxrad solve` at the `default` preset, read by gathering, meets that preset's goal (at most
@@ -292,12 +298,34 @@ fn the_high_preset_meets_its_goal_when_read_by_gathering() {
 /// directions).
 #[test]
 fn the_default_preset_meets_its_goal_when_read_by_gathering() {
-    assert_preset_meets(voxrad::quality::Quality::Default, "office", 0.015, 0.10);
+    assert_preset_meets(
+        voxrad::quality::Quality::Default,
+        "office",
+        0.015,
+        0.10,
+        false,
+    );
 }
 
-/// Solves reference scene `name` at preset `quality` as the command line does, reads its probes
-/// by gathering, and checks the mean and largest relative error against the reference.
-fn assert_preset_meets(quality: voxrad::quality::Quality, name: &str, mean: f64, max: f64) {
+/// The same with `--chebyshev` on the corridor (six rooms off a corridor: the semi-iteration
+/// runs there, 12 iterations instead of 14), and on the office.
+#[test]
+fn the_default_preset_with_chebyshev_meets_its_goal_when_read_by_gathering() {
+    for name in ["corridor", "office"] {
+        assert_preset_meets(voxrad::quality::Quality::Default, name, 0.015, 0.10, true);
+    }
+}
+
+/// Solves reference scene `name` at preset `quality` as the command line does (with
+/// `--chebyshev` if `chebyshev`, which must then run), reads its probes by gathering, and checks
+/// the mean and largest relative error against the reference.
+fn assert_preset_meets(
+    quality: voxrad::quality::Quality,
+    name: &str,
+    mean: f64,
+    max: f64,
+    chebyshev: bool,
+) {
     let preset = quality.preset();
     let reference = Reference::load(&data(name)).unwrap_or_else(|e| panic!("{e}"));
     let set = voxelize(&scene_of(name), GridSpec::Resolution(preset.resolution)).unwrap();
@@ -305,11 +333,17 @@ fn assert_preset_meets(quality: voxrad::quality::Quality, name: &str, mean: f64,
         directions: preset.directions,
         tolerance: Some(preset.tolerance),
         accelerate: preset.accelerate,
+        chebyshev,
         direct: DirectPass::Auto(preset.direct),
         threads: 2,
         ..Default::default()
     };
     let solution = solve(&set, &options).unwrap();
+    assert_eq!(
+        solution.stats.chebyshev_updates.is_some(),
+        chebyshev,
+        "{name}: Chebyshev ran or not as asked"
+    );
     let results = Results::from_solution(&set, &solution).unwrap();
     let index = ProbeIndex::new(&results);
     let field = SensorField::new(
@@ -404,10 +438,20 @@ fn luminaires() -> Scene {
 /// Solves closed `scene` (named `name` in the output) at each (resolution, dense directions,
 /// bound) with 589 directions, and asserts its power balance within the bound.
 fn assert_balance(name: &str, scene: &Scene, cases: &[(u32, usize, f64)]) {
+    assert_balance_with(name, scene, cases, false);
+}
+
+/// [`assert_balance`], with the Chebyshev semi-iteration if `chebyshev` (which must then run).
+fn assert_balance_with(name: &str, scene: &Scene, cases: &[(u32, usize, f64)], chebyshev: bool) {
     let mut failures = Vec::new();
     for &(resolution, dense, bound) in cases {
         let set = voxelize(scene, GridSpec::Resolution(resolution)).unwrap();
-        let stats = solve(&set, &options(589, dense)).unwrap().stats;
+        let options = SolveOptions {
+            chebyshev,
+            ..options(589, dense)
+        };
+        let stats = solve(&set, &options).unwrap().stats;
+        assert_eq!(stats.chebyshev_updates.is_some(), chebyshev, "{name}");
         let (e, a) = (
             stats.emitted_power.iter().sum::<f64>(),
             stats.absorbed_power.iter().sum::<f64>(),
@@ -450,5 +494,17 @@ fn floating_lamps_in_a_closed_room_conserve_energy() {
         "floating lamps",
         &floating_lamps(),
         &[(32, 20_000, 0.005), (64, 20_000, 0.005), (64, 0, 0.005)],
+    );
+}
+
+#[test]
+fn a_closed_room_conserves_energy_under_the_chebyshev_semi_iteration() {
+    // Its updates mix each new value with the one before last; the closed scene's scales are
+    // taken from each plain gather as before, so the balance holds as without it.
+    assert_balance_with(
+        "floating lamps, Chebyshev",
+        &floating_lamps(),
+        &[(32, 20_000, 0.005), (64, 0, 0.005)],
+        true,
     );
 }

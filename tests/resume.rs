@@ -188,6 +188,25 @@ fn sigkill_inside_long_iterations_then_resume_gives_the_same_bytes() {
     assert!(inside >= 1, "no run continued inside an iteration");
 }
 
+/// The same through the binary with `--chebyshev`, checkpoints inside the iterations too: its
+/// checkpoints hold the radiosity before last beside the radiosity.
+#[test]
+fn sigkill_then_resume_gives_the_same_bytes_with_chebyshev() {
+    let every = ["--checkpoint-every", "0.05", "--chebyshev"];
+    let options = [&LONG_ITERATIONS[..], &every].concat();
+    killed_and_resumed(&options, 0x5eed_0005, 8, 0.15);
+    // The semi-iteration did run in this solve (the report's effects say so).
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("out");
+    run_to_end(solve_command(&out, &options), &tmp.path().join("log"));
+    let effects = report(&out)["effects"].as_array().unwrap().clone();
+    let effect = effects
+        .iter()
+        .find(|e| e["name"] == "Chebyshev semi-iteration")
+        .expect("the effect is listed");
+    assert_eq!(effect["simulated"], true, "{effect}");
+}
+
 #[test]
 fn sigkill_at_random_moments_then_resume_gives_the_same_bytes_out_of_core() {
     // 1 MiB for about 6,700 surfels: every array in files, several bands per direction.
@@ -670,16 +689,23 @@ fn damaged_or_foreign_checkpoints_are_refused_and_lose_nothing() {
 /// default preset's extrapolation is on, so boundaries before, at and after a jump are covered.
 #[test]
 fn resuming_from_every_iteration_boundary_is_bit_identical() {
-    resume_from_every_boundary(DirectPass::Off);
+    resume_from_every_boundary(DirectPass::Off, false);
 }
 
 /// The same with the direct-light pass, which a resumed solve recomputes (`solve::direct`).
 #[test]
 fn resuming_with_the_direct_pass_from_every_boundary_is_bit_identical() {
-    resume_from_every_boundary(DirectPass::On(3000));
+    resume_from_every_boundary(DirectPass::On(3000), false);
 }
 
-fn resume_from_every_boundary(direct: DirectPass) {
+/// The same with the Chebyshev semi-iteration, whose checkpoints also hold the radiosity
+/// before last and the recurrence's state (`solve::accelerate`).
+#[test]
+fn resuming_a_chebyshev_semi_iteration_from_every_boundary_is_bit_identical() {
+    resume_from_every_boundary(DirectPass::On(3000), true);
+}
+
+fn resume_from_every_boundary(direct: DirectPass, chebyshev: bool) {
     let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
     let set = voxelize(&scene, GridSpec::Resolution(16)).unwrap();
     let directions = DirectionSet::with_count(49);
@@ -688,21 +714,28 @@ fn resume_from_every_boundary(direct: DirectPass) {
         tolerance: Some(1e-6),
         threads: 2,
         accelerate: true,
+        chebyshev,
         direct,
         ..SolveOptions::default()
     };
     let reference = solve_with(&set, &directions, &options).unwrap();
     let total = reference.stats.iterations;
-    assert!(
-        reference.stats.extrapolations >= 1,
-        "no extrapolation to cross"
-    );
+    if chebyshev {
+        let updates = reference.stats.chebyshev_updates.unwrap_or(0);
+        assert!(updates >= 3, "{updates} Chebyshev updates to cross");
+    } else {
+        assert!(
+            reference.stats.extrapolations >= 1,
+            "no extrapolation to cross"
+        );
+    }
     let bits = |r: &[[[f32; 3]; 2]]| -> Vec<u32> {
         r.iter().flatten().flatten().map(|v| v.to_bits()).collect()
     };
     let tmp = tempfile::tempdir().unwrap();
     let identity = Identity::in_memory(&set, &directions, 3, true)
-        .with_direct_pass(direct.directions_for(&set, directions.len()).as_ref());
+        .with_direct_pass(direct.directions_for(&set, directions.len()).as_ref())
+        .with_chebyshev(chebyshev);
     let saver = |dir: &Path, resumed: Option<u64>| {
         Saver::new(dir, identity.clone(), true, Duration::ZERO, 1, resumed)
     };
@@ -733,7 +766,7 @@ fn resume_from_every_boundary(direct: DirectPass) {
                         .map(|m| set.materials[m as usize].emission.map(|e| e as f32))
                 })
                 .collect();
-            s.save_memory(state, &emission).unwrap();
+            s.save_memory(state, &emission, None).unwrap();
         }
         let loaded = checkpoint::load_shared(&SingleProcess, &path, &identity, 1000)
             .unwrap()
@@ -747,6 +780,10 @@ fn resume_from_every_boundary(direct: DirectPass) {
         let resumed = solve_checkpointed(&set, &directions, &options, &SingleProcess, c).unwrap();
         assert_eq!(resumed.stats.iterations, total, "from {k}");
         assert_eq!(resumed.stats.extrapolations, reference.stats.extrapolations);
+        assert_eq!(
+            resumed.stats.chebyshev_updates,
+            reference.stats.chebyshev_updates
+        );
         assert_eq!(
             resumed.stats.residual.to_bits(),
             reference.stats.residual.to_bits()
@@ -786,6 +823,7 @@ fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
         directions_checksum: checkpoint::directions_checksum(&directions),
         channels: 3,
         accelerate: false,
+        chebyshev: false,
         scene_checksum: 1,
     };
     let solve = |dir: &PathBuf, max: usize, resume: Option<CheckpointFile>| {
@@ -853,6 +891,7 @@ fn out_of_core_checkpoint_with_a_position_that_does_not_match_its_sums_is_refuse
         directions_checksum: checkpoint::directions_checksum(&directions),
         channels: 3,
         accelerate: false,
+        chebyshev: false,
         scene_checksum: 1,
     };
     let first_axis = voxrad::outcore::solver::walk_by_axis(&directions)[0].len() as u64;

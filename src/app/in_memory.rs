@@ -144,6 +144,7 @@ pub(super) fn solve_in_memory(
         3
     };
     let identity = Identity::in_memory(set, directions, channels, options.accelerate)
+        .with_chebyshev(options.chebyshev)
         .with_direct_pass(
             options
                 .direct

@@ -189,6 +189,16 @@ fn run_solve_checked(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<
         }
         other => other,
     };
+    let in_memory = matches!(mode, Mode::Single | Mode::Directions)
+        && cmd.memory.is_none()
+        && !cmd.scene.is_dir();
+    if cmd.solve.chebyshev && !in_memory {
+        return Err(AppError::BadInput(format!(
+            "{}: --chebyshev runs in memory only so far (one process or --distribute \
+             directions, a scene file, no --memory); leave it out for this solve",
+            cmd.scene.display()
+        )));
+    }
     match (mode, cmd.memory) {
         (Mode::Data { .. }, Some(budget)) => {
             return run_solve_data_out_of_core(cmd, comm, 1, budget, started)

@@ -2,16 +2,21 @@
 //!
 //! ```text
 //!  0  magic         8 bytes  "VXRDCKPT"
-//!  8  version       u32      FORMAT_VERSION (5; versions 1 to 4 are still read)
+//!  8  version       u32      FORMAT_VERSION (6; versions 1 to 5 are still read)
 //! 12  header_len    u32      bytes of the header body that follows
 //! 16  header body            Identity then State (see `encode_header`), little-endian;
 //!                            version 2 ends it with the mid-iteration position, version 3
 //!                            then with the layout of the partial sums (`State::data_groups`),
 //!                            version 4 then with `State::axis_in_progress` (version 5
-//!                            also with `data_groups`: the layout by groups out of core)
+//!                            also with `data_groups`: the layout by groups out of core),
+//!                            version 6 then with the Chebyshev semi-iteration's state
+//!                            (present flag, ratio, updates: `solve::accelerate`) and
+//!                            whether the run allows it (`Identity::chebyshev`)
 //!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
 //!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
 //!                            back RGB), in the solver's surfel order
+//!  .  older radiosity        only while Chebyshev runs: the radiosity before the last
+//!                            iteration's, surfels x 24 bytes alike
 //!  .  partial sums           only in mid-iteration: ranks x surfels x 48 bytes, the light each
 //!                            rank had gathered (f64 x 6 per surfel, side-major), rank 0 first;
 //!                            with `axis_in_progress`, one more array of surfels x 48 bytes
@@ -39,7 +44,7 @@ use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
 /// The version written; [`OLDEST_VERSION`] up to it are read.
-pub const FORMAT_VERSION: u32 = 5;
+pub const FORMAT_VERSION: u32 = 6;
 /// Version 1: iteration boundaries only (no position, no partial sums).
 pub const OLDEST_VERSION: u32 = 1;
 /// Bytes per surfel of the radiosity payload.
@@ -98,7 +103,8 @@ pub fn decode_gathered(bytes: &[u8]) -> Gathered {
 
 /// Bytes of the payload (radiosity and partial sums) of a checkpoint with this header.
 fn payload_len(header: &Header) -> Option<u64> {
-    let per_surfel = RADIOSITY_LEN as u64 + header.partial_arrays() as u64 * PARTIAL_LEN as u64;
+    let per_surfel = header.radiosity_arrays() as u64 * RADIOSITY_LEN as u64
+        + header.partial_arrays() as u64 * PARTIAL_LEN as u64;
     header.identity.surfels.checked_mul(per_surfel)
 }
 
@@ -145,6 +151,12 @@ fn encode_header(header: &Header) -> Vec<u8> {
     u32s(&mut b, state.data_groups);
     // Version 4: whether the light of an out-of-core axis in progress follows the sums.
     u32s(&mut b, state.axis_in_progress as u32);
+    // Version 6: the Chebyshev semi-iteration (present flag, ratio, updates).
+    let (ratio, updates) = state.extrapolation.chebyshev.unwrap_or((0.0, 0));
+    u32s(&mut b, state.extrapolation.chebyshev.is_some() as u32);
+    u64s(&mut b, ratio.to_bits());
+    u64s(&mut b, updates);
+    u32s(&mut b, id.chebyshev as u32);
     b
 }
 
@@ -201,6 +213,8 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
             1 => true,
             _ => return None,
         },
+        // Read at the end of the header (version 6).
+        chebyshev: false,
         scene_checksum: f.u32()?,
     };
     let iteration = f.u64()?;
@@ -237,6 +251,27 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
     } else {
         false
     };
+    let (chebyshev, allowed) = if version >= 6 {
+        let present = f.u32()?;
+        let ratio = f.f64()?;
+        let updates = f.u64()?;
+        let allowed = match f.u32()? {
+            0 => false,
+            1 => true,
+            _ => return None,
+        };
+        match present {
+            0 => (None, allowed),
+            1 if allowed && ratio > 0.0 && ratio < 1.0 => (Some((ratio, updates)), allowed),
+            _ => return None,
+        }
+    } else {
+        (None, false)
+    };
+    let identity = Identity {
+        chebyshev: allowed,
+        ..identity
+    };
     if f.at != body.len() {
         return None;
     }
@@ -246,7 +281,10 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
             iteration,
             ranks,
             previous_change,
-            extrapolation: ExtrapolationState::from_parts(changes, count, last_ratio),
+            extrapolation: ExtrapolationState {
+                chebyshev,
+                ..ExtrapolationState::from_parts(changes, count, last_ratio)
+            },
             within,
             data_groups,
             axis_in_progress,
@@ -313,6 +351,9 @@ fn parse_prefix(path: &Path, bytes: &[u8]) -> Result<(Header, usize), Checkpoint
 pub struct Parsed {
     pub header: Header,
     pub radiosity: Vec<Radiosity>,
+    /// The radiosity before the last iteration's, while Chebyshev runs (see
+    /// [`Header::radiosity_arrays`]).
+    pub older: Option<Vec<Radiosity>>,
     /// The partial sums of the rank asked for (`None` at a boundary, or if the checkpoint has no
     /// sums for that rank).
     pub partial: Option<Vec<Gathered>>,
@@ -331,11 +372,9 @@ pub fn parse(path: &Path, bytes: &[u8], rank: usize) -> Result<Parsed, Checkpoin
         return Err(bad(path, "damaged checkpoint (payload checksum mismatch)"));
     }
     let surfels = header.identity.surfels as usize;
-    let (radiosity, sums) = payload.split_at(surfels * RADIOSITY_LEN);
-    let radiosity = radiosity
-        .chunks_exact(RADIOSITY_LEN)
-        .map(decode_radiosity)
-        .collect();
+    let (arrays, sums) =
+        payload.split_at(surfels * RADIOSITY_LEN * header.radiosity_arrays() as usize);
+    let (radiosity, older) = decode_radiosity_arrays(arrays, surfels);
     let partial = (rank < header.partial_ranks() as usize).then(|| {
         let one = surfels * PARTIAL_LEN;
         sums[rank * one..(rank + 1) * one]
@@ -346,11 +385,30 @@ pub fn parse(path: &Path, bytes: &[u8], rank: usize) -> Result<Parsed, Checkpoin
     Ok(Parsed {
         header,
         radiosity,
+        older,
         partial,
     })
 }
 
-/// The file of a checked checkpoint up to the end of its radiosity (what [`parse_head`] reads).
+/// The radiosity, and the older radiosity if `bytes` holds a second array of `surfels`.
+fn decode_radiosity_arrays(
+    bytes: &[u8],
+    surfels: usize,
+) -> (Vec<Radiosity>, Option<Vec<Radiosity>>) {
+    let decode = |b: &[u8]| {
+        b.chunks_exact(RADIOSITY_LEN)
+            .map(decode_radiosity)
+            .collect()
+    };
+    let (radiosity, older) = bytes.split_at((surfels * RADIOSITY_LEN).min(bytes.len()));
+    (
+        decode(radiosity),
+        (!older.is_empty()).then(|| decode(older)),
+    )
+}
+
+/// The file of a checked checkpoint up to the end of its radiosity and older radiosity (what
+/// [`parse_head`] reads).
 pub fn head<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
     &bytes[..radiosity_end(bytes, header)]
 }
@@ -366,7 +424,10 @@ pub fn sums<'a>(bytes: &'a [u8], header: &Header) -> &'a [u8] {
 
 fn radiosity_end(bytes: &[u8], header: &Header) -> usize {
     let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap_or_default()) as usize;
-    PREFIX_LEN + header_len + 4 + header.identity.surfels as usize * RADIOSITY_LEN
+    PREFIX_LEN
+        + header_len
+        + 4
+        + header.identity.surfels as usize * RADIOSITY_LEN * header.radiosity_arrays() as usize
 }
 
 /// The [`head`] of a checkpoint that rank 0 checked whole (its payload checksum too): the prefix
@@ -374,7 +435,7 @@ fn radiosity_end(bytes: &[u8], header: &Header) -> usize {
 pub fn parse_head(path: &Path, head: &[u8]) -> Result<Parsed, CheckpointError> {
     let (header, at) = parse_prefix(path, head)?;
     let expected = (header.identity.surfels as usize)
-        .checked_mul(RADIOSITY_LEN)
+        .checked_mul(RADIOSITY_LEN * header.radiosity_arrays() as usize)
         .and_then(|r| r.checked_add(at));
     if expected != Some(head.len()) {
         return Err(bad(
@@ -382,13 +443,11 @@ pub fn parse_head(path: &Path, head: &[u8]) -> Result<Parsed, CheckpointError> {
             "checkpoint damaged between the ranks (its length)",
         ));
     }
-    let radiosity = head[at..]
-        .chunks_exact(RADIOSITY_LEN)
-        .map(decode_radiosity)
-        .collect();
+    let (radiosity, older) = decode_radiosity_arrays(&head[at..], header.identity.surfels as usize);
     Ok(Parsed {
         header,
         radiosity,
+        older,
         partial: None,
     })
 }
@@ -467,6 +526,14 @@ impl CheckpointFile {
         mut sums: impl FnMut(&[u8]) -> Result<(), E>,
         mut axis: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
+        if self.header.radiosity_arrays() > 1 {
+            return Err(bad(
+                &self.path,
+                "it holds the state of a Chebyshev semi-iteration, which the out-of-core \
+                 solvers do not run",
+            )
+            .into());
+        }
         let mut file = self.open_at(self.payload_at)?;
         let mut crc = crc32fast::Hasher::new();
         let surfels = self.header.identity.surfels;
@@ -502,7 +569,7 @@ impl CheckpointFile {
         }
         let surfels = self.header.identity.surfels;
         let at = self.payload_at
-            + surfels * RADIOSITY_LEN as u64
+            + surfels * RADIOSITY_LEN as u64 * self.header.radiosity_arrays() as u64
             + index as u64 * surfels * PARTIAL_LEN as u64;
         let mut file = self.open_at(at)?;
         self.read_records(
@@ -694,6 +761,7 @@ mod tests {
                 directions_checksum: 7,
                 channels: 3,
                 accelerate: true,
+                chebyshev: false,
                 scene_checksum: 0xdead_beef,
             },
             state: State {
@@ -727,10 +795,21 @@ mod tests {
             .collect()
     }
 
+    /// The older radiosity of a Chebyshev checkpoint: other values than [`radiosity`]'s.
+    fn older(n: usize) -> Vec<Radiosity> {
+        radiosity(n).iter().rev().map(|b| [b[1], b[0]]).collect()
+    }
+
     fn write_one(path: &Path, header: &Header, values: &[Radiosity]) {
         write(path, header, 64, |w| {
             let mut bytes = [0u8; RADIOSITY_LEN];
-            for b in values {
+            let older = older(values.len());
+            let arrays = [values, &older[..]];
+            for b in arrays[..header.radiosity_arrays() as usize]
+                .iter()
+                .copied()
+                .flatten()
+            {
                 encode_radiosity(b, &mut bytes);
                 w.write_all(&bytes)?;
             }
@@ -830,10 +909,12 @@ mod tests {
     fn as_version(current: &[u8], version: u32) -> Vec<u8> {
         let header_len = u32::from_le_bytes(current[12..16].try_into().unwrap()) as usize;
         let end = PREFIX_LEN + header_len;
+        // Version 6 added 24 bytes (the Chebyshev state and whether the run allows it).
         let cut = match version {
-            1 => 20,
-            2 => 8,
-            3 => 4,
+            1 => 44,
+            2 => 32,
+            3 => 28,
+            4 | 5 => 24,
             _ => 0,
         };
         let mut old = current[..end - cut].to_vec();
@@ -846,13 +927,13 @@ mod tests {
     }
 
     #[test]
-    fn versions_1_to_4_are_read_and_an_unknown_version_is_refused() {
+    fn versions_1_to_5_are_read_and_an_unknown_version_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
         let h = header(5, None);
         write_one(&path, &h, &radiosity(5));
         let current = std::fs::read(&path).unwrap();
-        for old in [1, 2, 3, 4] {
+        for old in [1, 2, 3, 4, 5] {
             let bytes = as_version(&current, old);
             let got = parse(&path, &bytes, 0).unwrap();
             assert_eq!(got.header, h);
@@ -888,6 +969,55 @@ mod tests {
                 "{text}"
             );
         }
+    }
+
+    /// A Chebyshev semi-iteration's checkpoint (format version 6) holds the older radiosity
+    /// after the radiosity, and its state in the header; whole reads give both back bit for
+    /// bit, on one rank and handed between ranks (`head`), and the streaming readers of the
+    /// out-of-core solvers, which do not run it, refuse it by name.
+    #[test]
+    fn a_chebyshev_checkpoint_keeps_the_older_radiosity() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("checkpoint.bin");
+        for within in [None, Some(17)] {
+            let mut h = header(37, within);
+            h.identity.chebyshev = true;
+            h.state.extrapolation.chebyshev = Some((0.625, 3));
+            assert_eq!(h.radiosity_arrays(), 2);
+            write_one(&path, &h, &radiosity(37));
+            let bytes = std::fs::read(&path).unwrap();
+            let got = parse(&path, &bytes, 1).unwrap();
+            assert_eq!(got.header, h);
+            assert_eq!(bits(&got.radiosity), bits(&radiosity(37)));
+            assert_eq!(got.older.as_deref().map(bits), Some(bits(&older(37))));
+            assert_eq!(
+                got.partial.as_deref().map(sum_bits),
+                within.map(|_| sum_bits(&sums(37, 1)))
+            );
+            let shared = parse_head(&path, head(&bytes, &h)).unwrap();
+            assert_eq!(bits(&shared.radiosity), bits(&radiosity(37)));
+            assert_eq!(shared.older.as_deref().map(bits), Some(bits(&older(37))));
+            let file = CheckpointFile::open(&path).unwrap();
+            let err = file
+                .read_radiosity::<CheckpointError>(100, |_| Ok(()))
+                .unwrap_err();
+            assert!(err.to_string().contains("Chebyshev"), "{err}");
+        }
+        // A Chebyshev state in a run that does not allow it is damage, as is a ratio of 1.
+        for (allowed, ratio) in [(false, 0.625), (true, 1.0)] {
+            let mut h = header(5, None);
+            h.identity.chebyshev = allowed;
+            h.state.extrapolation.chebyshev = Some((ratio, 0));
+            write_one(&path, &h, &radiosity(5));
+            let err = parse(&path, &std::fs::read(&path).unwrap(), 0).unwrap_err();
+            assert!(err.to_string().contains("does not decode"), "{err}");
+        }
+        // Without a running Chebyshev the file holds one radiosity array, as before.
+        let mut h = header(5, None);
+        h.identity.chebyshev = true;
+        write_one(&path, &h, &radiosity(5));
+        let got = parse(&path, &std::fs::read(&path).unwrap(), 0).unwrap();
+        assert_eq!((got.header, got.older), (h, None));
     }
 
     #[test]

@@ -33,6 +33,8 @@ pub struct Identity {
     pub channels: u32,
     /// Tail extrapolation on.
     pub accelerate: bool,
+    /// The Chebyshev semi-iteration allowed (`--chebyshev`; format version 6, false before).
+    pub chebyshev: bool,
     /// CRC-32 of the voxelized scene (see [`scene_checksum`]) or of the shard set.
     pub scene_checksum: u32,
 }
@@ -54,6 +56,7 @@ impl Identity {
             directions_checksum: directions_checksum(directions),
             channels: channels as u32,
             accelerate,
+            chebyshev: false,
             scene_checksum: scene_checksum(&set.grid, &set.normals, &set.materials, |h| {
                 set.surfels.iter().for_each(|s| hash_surfel(h, s))
             }),
@@ -71,6 +74,13 @@ impl Identity {
             h.update(&directions_checksum(dense).to_le_bytes());
             self.directions_checksum = h.finalize();
         }
+        self
+    }
+
+    /// The identity of a solve that may run the Chebyshev semi-iteration (see
+    /// `solve::accelerate`): it iterates differently from one that may not.
+    pub fn with_chebyshev(mut self, chebyshev: bool) -> Self {
+        self.chebyshev = chebyshev;
         self
     }
 
@@ -121,6 +131,14 @@ impl Identity {
                 if self.accelerate { "on" } else { "off" },
                 this.channels,
                 if this.accelerate { "on" } else { "off" }
+            ));
+        }
+        if self.chebyshev != this.chebyshev {
+            let on = |c: bool| if c { "with" } else { "without" };
+            return Some(format!(
+                "it was made {} --chebyshev, and this run is {} it",
+                on(self.chebyshev),
+                on(this.chebyshev)
             ));
         }
         None

@@ -54,6 +54,8 @@ pub struct Loaded {
     pub path: PathBuf,
     pub state: State,
     pub radiosity: Vec<Radiosity>,
+    /// The radiosity before the last iteration's, while the Chebyshev semi-iteration runs.
+    pub older: Option<Vec<Radiosity>>,
     /// In mid-iteration, written by as many ranks as this run has: this rank's partial sums.
     pub partial: Option<Vec<Gathered>>,
 }
@@ -160,6 +162,7 @@ pub fn load_shared(
         path: path.to_path_buf(),
         state: parsed.header.state,
         radiosity: parsed.radiosity,
+        older: parsed.older,
         partial: parsed.partial,
     }))
 }

@@ -198,7 +198,7 @@ mod tests {
         let mut saver = Saver::new(dir.path(), this.clone(), true, Duration::ZERO, 1, None);
         let state = saver.state(4, Some(0.5), ExtrapolationState::default());
         let radiosity = vec![[[1.0f32; 3]; 2]; set.surfels.len()];
-        saver.save_memory(state.clone(), &radiosity).unwrap();
+        saver.save_memory(state.clone(), &radiosity, None).unwrap();
         let path = path_in(dir.path());
         let loaded = load_shared(&SingleProcess, &path, &this, 10)
             .unwrap()
@@ -249,7 +249,7 @@ mod tests {
             .collect();
         let state = saver.state(2, Some(0.25), ExtrapolationState::default());
         saver
-            .save_within(&SingleProcess, state, 5, &radiosity, &acc)
+            .save_within(&SingleProcess, state, 5, (&radiosity, None), &acc)
             .unwrap();
         let path = path_in(dir.path());
         let mut loaded = load_shared(&SingleProcess, &path, &this, 10)
@@ -283,7 +283,7 @@ mod tests {
         // A position past the iteration's end is refused.
         let state = saver.state(2, None, ExtrapolationState::default());
         saver
-            .save_within(&SingleProcess, state, 13, &radiosity, &acc)
+            .save_within(&SingleProcess, state, 13, (&radiosity, None), &acc)
             .unwrap();
         let err = load_shared(&SingleProcess, &path, &this, 10).unwrap_err();
         assert!(

@@ -139,13 +139,20 @@ impl Saver {
         Ok(())
     }
 
-    /// [`Saver::save`] of radiosity held in memory.
+    /// [`Saver::save`] of radiosity held in memory; `older`, the radiosity before the last
+    /// iteration's, is written while the state's Chebyshev semi-iteration runs (and must be
+    /// given then).
     pub fn save_memory(
         &mut self,
         state: State,
         radiosity: &[Radiosity],
+        older: Option<&[Radiosity]>,
     ) -> Result<(), CheckpointError> {
-        self.save(state, 1 << 20, |w| write_radiosity(w, radiosity))
+        let older = kept_older(&state, older);
+        self.save(state, 1 << 20, |w| {
+            write_radiosity(w, radiosity)?;
+            older.map_or(Ok(()), |o| write_radiosity(w, o))
+        })
     }
 
     /// A mid-iteration checkpoint, `done` directions into iteration `state.iteration + 1`:
@@ -157,10 +164,11 @@ impl Saver {
         comm: &dyn Comm,
         mut state: State,
         done: u64,
-        radiosity: &[Radiosity],
+        (radiosity, older): (&[Radiosity], Option<&[Radiosity]>),
         acc: &[Gathered],
     ) -> Result<(), CheckpointError> {
         state.within = Some(done);
+        let older = kept_older(&state, older);
         let pieces = acc.len().div_ceil(GATHER_PIECE);
         let exchanges = (comm.size() - 1) * pieces;
         let made = std::cell::Cell::new(0usize);
@@ -181,6 +189,9 @@ impl Saver {
         };
         let result = self.save(state, 1 << 20, |w| {
             write_radiosity(w, radiosity)?;
+            if let Some(o) = older {
+                write_radiosity(w, o)?;
+            }
             w.write_all(&encode_sums(acc))?;
             while made.get() < exchanges {
                 w.write_all(&exchange())?;
@@ -264,6 +275,16 @@ impl Saver {
 }
 
 /// Writes radiosity held in memory as a checkpoint's payload.
+/// The older radiosity a checkpoint of `state` holds: `older` while its Chebyshev
+/// semi-iteration runs, else none.
+fn kept_older<'a>(state: &State, older: Option<&'a [Radiosity]>) -> Option<&'a [Radiosity]> {
+    debug_assert!(
+        state.extrapolation.chebyshev.is_none() || older.is_some(),
+        "a checkpoint of a Chebyshev semi-iteration needs the older radiosity"
+    );
+    older.filter(|_| state.extrapolation.chebyshev.is_some())
+}
+
 pub(super) fn write_radiosity(
     w: &mut dyn std::io::Write,
     radiosity: &[Radiosity],

@@ -13,6 +13,10 @@ pub struct ExtrapolationState {
     pub changes: Vec<f64>,
     pub count: usize,
     pub last_ratio: Option<f64>,
+    /// The Chebyshev semi-iteration once it runs (format version 6): the ratio it started
+    /// with and its updates so far. The next update then also needs the radiosity before the
+    /// last, which the file holds after the radiosity.
+    pub chebyshev: Option<(f64, u64)>,
 }
 
 impl ExtrapolationState {
@@ -27,6 +31,7 @@ impl ExtrapolationState {
             changes,
             count,
             last_ratio,
+            chebyshev: None,
         }
     }
 }
@@ -75,6 +80,12 @@ impl Header {
     /// [`State::axis_in_progress`]).
     pub fn by_groups_out_of_core(&self) -> bool {
         self.state.within.is_some() && self.state.axis_in_progress && self.state.data_groups > 0
+    }
+
+    /// Radiosity arrays the file holds before the partial sums: the radiosity, and while the
+    /// Chebyshev semi-iteration runs the radiosity before the last iteration's.
+    pub fn radiosity_arrays(&self) -> u32 {
+        1 + self.state.extrapolation.chebyshev.is_some() as u32
     }
 
     /// Arrays of partial sums the file holds before the axes in progress: one per rank that

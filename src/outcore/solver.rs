@@ -629,7 +629,8 @@ impl Sweep for OutOfCore<'_> {
         save(saver, state, self.work, self.plan)
     }
 
-    fn end(&mut self) -> Result<[f64; 3], OocError> {
+    fn end(&mut self, omega: f64) -> Result<[f64; 4], OocError> {
+        debug_assert_eq!(omega, 1.0, "the out-of-core solver does not run Chebyshev");
         self.histogram = None;
         drop(std::mem::take(&mut self.buffers));
         let t = Instant::now();
@@ -643,7 +644,8 @@ impl Sweep for OutOfCore<'_> {
         self.update_seconds += t.elapsed().as_secs_f64();
         self.last = result;
         self.lit = false;
-        Ok([result.sums.change, result.sums.total, result.sums.falling])
+        let sums = result.sums;
+        Ok([sums.change, sums.total, sums.falling, sums.change])
     }
 
     fn extrapolate(&mut self, factor: f64) -> Result<(), OocError> {
@@ -1180,6 +1182,7 @@ fn update(
                 d.as_ref(),
                 channels,
                 &decode_radiosity(slot),
+                None,
                 norm,
                 s.area as f64,
                 scales,

@@ -239,6 +239,23 @@ impl Analysis {
                     "not requested".to_string()
                 },
             ));
+            list.push(Effect::new(
+                "Chebyshev semi-iteration",
+                stats.chebyshev_updates.is_some(),
+                &match (requested.chebyshev, stats.chebyshev_updates) {
+                    (false, _) => "not requested (--chebyshev)".to_string(),
+                    (true, None) => "requested, not started: the tail extrapolation found a \
+                                     geometric tail, or the change fell by 0.89 or more an \
+                                     iteration"
+                        .to_string(),
+                    (true, Some(updates)) => format!(
+                        "{updates} updates mixed with the radiosity before last, which follows \
+                         several slow modes at once: about a third fewer iterations on scenes \
+                         of several rooms (docs/throughput.md); the stopping rule read the \
+                         plain iteration's residual"
+                    ),
+                },
+            ));
         }
         list
     }

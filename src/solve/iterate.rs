@@ -71,9 +71,16 @@ pub(crate) trait Sweep {
     /// (collective; an abandoned iteration only gathered).
     fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError>;
 
-    /// Brings the iteration's light together and updates `B` of every surfel; returns the
-    /// update's sums `[change, total, falling]` added over the world.
-    fn end(&mut self) -> Result<[f64; 3], Self::Error>;
+    /// Brings the iteration's light together and updates `B` of every surfel, with the
+    /// Chebyshev weight `omega` (1: a plain iteration, see `accelerate`); returns the update's
+    /// sums `[change, total, falling, residual]` added over the world (`update::UpdateSums`).
+    fn end(&mut self, omega: f64) -> Result<[f64; 4], Self::Error>;
+
+    /// Whether this sweep keeps the radiosity before the last iteration's, as the Chebyshev
+    /// semi-iteration needs (in its updates and its checkpoints).
+    fn keeps_older(&self) -> bool {
+        false
+    }
 
     /// Adds the geometric tail `factor * (B - B_previous)` to the radiosity (see `accelerate`).
     fn extrapolate(&mut self, factor: f64) -> Result<(), Self::Error>;
@@ -191,12 +198,24 @@ pub(crate) fn iterate<S: Sweep>(
             progress.inc(1);
         }
         stats.updates += sweep.updates();
-        let [change, total, falling] = sweep.end()?;
+        let omega = extrapolation.omega();
+        let [change, total, falling, residual] = sweep.end(omega)?;
+        // Under Chebyshev the plain iteration's residual estimates the error (see
+        // `accelerate`).
+        let chebyshev = extrapolation
+            .chebyshev
+            .filter(|_| omega != 1.0)
+            .map(|c| c.error_estimate(if total > 0.0 { residual / total } else { 0.0 }));
         // Right after an extrapolation the change history starts again: until it contracts,
         // the contraction measured before the jump estimates the error (see `accelerate`).
-        let stop = convergence.record(iteration, change, total, options, stats, |relative| {
-            extrapolation.error_estimate(relative)
-        });
+        let stop = convergence.record(
+            iteration,
+            (change, total),
+            chebyshev,
+            options,
+            stats,
+            |relative| extrapolation.error_estimate(relative),
+        );
         if stop {
             break;
         }
@@ -205,6 +224,8 @@ pub(crate) fn iterate<S: Sweep>(
                 sweep.extrapolate(factor)?;
                 // The jump is not an iteration's change: the stopping rule starts again.
                 convergence.restart();
+            } else if options.chebyshev && sweep.keeps_older() {
+                extrapolation.chebyshev_after(stats.last_change);
             }
         }
         // A boundary the solve goes on from (never the last: a resumed solve must gather at
@@ -221,6 +242,7 @@ pub(crate) fn iterate<S: Sweep>(
     }
     progress.finish_and_clear();
     stats.extrapolations = extrapolation.count;
+    stats.chebyshev_updates = extrapolation.chebyshev.map(|c| c.updates);
     if options.tolerance.is_none() {
         // A fixed count of iterations: report whether it reached the default tolerance.
         stats.converged = stats.residual <= SolveOptions::default().tolerance.unwrap_or(0.0);
@@ -272,20 +294,23 @@ impl Convergence {
 
     /// Records iteration `iteration`, whose area-weighted change and total of `B` are `change`
     /// and `total`, in `stats`; logs it; tells whether the solve should stop. `fallback` gives
-    /// an estimate from the relative change while the history cannot (after a restart).
+    /// an estimate from the relative change while the history cannot (after a restart);
+    /// `chebyshev` is the estimate of an update of the Chebyshev semi-iteration, which takes
+    /// the place of both.
     pub(crate) fn record(
         &mut self,
         iteration: usize,
-        change: f64,
-        total: f64,
+        (change, total): (f64, f64),
+        chebyshev: Option<f64>,
         options: &SolveOptions,
         stats: &mut SolveStats,
         fallback: impl FnOnce(f64) -> Option<f64>,
     ) -> bool {
         let relative = if total > 0.0 { change / total } else { 0.0 };
-        let estimate = match error_estimate(relative, self.previous_change) {
-            e if e.is_finite() => e,
-            e => fallback(relative).unwrap_or(e),
+        let estimate = match (chebyshev, error_estimate(relative, self.previous_change)) {
+            (Some(e), _) => e,
+            (None, e) if e.is_finite() => e,
+            (None, e) => fallback(relative).unwrap_or(e),
         };
         stats.iterations = iteration;
         stats.last_change = relative;

@@ -44,6 +44,10 @@ pub struct SolveOptions {
     pub grey: bool,
     /// Extrapolate the geometric tail of the iterations (see `accelerate`).
     pub accelerate: bool,
+    /// With `accelerate`: run the Chebyshev semi-iteration where the tail extrapolation finds
+    /// no geometric tail (see `accelerate`). Only the in-memory solver keeps what it needs so
+    /// far; the other paths iterate as without it.
+    pub chebyshev: bool,
     /// Gather the emitters' own light once with a dense direction set (see `direct`).
     pub direct: super::direct::DirectPass,
     /// Bytes of partner links that may be kept between iterations (see `links`); a direction
@@ -69,6 +73,7 @@ impl Default for SolveOptions {
             threads: 0,
             grey: false,
             accelerate: false,
+            chebyshev: false,
             direct: super::direct::DirectPass::Off,
             links_memory: None,
             links_disk: None,
@@ -265,7 +270,11 @@ fn run(
         accelerate: options.accelerate,
         acc: vec![[[0f64; 3]; 2]; n],
         reflected: Vec::new(),
-        previous: Vec::new(),
+        previous: if options.accelerate {
+            vec![[[0f32; 3]; 2]; n]
+        } else {
+            Vec::new()
+        },
         lines: Lines::default(),
         seconds: [0.0; 3],
         kept: vec![None; count],
@@ -290,6 +299,11 @@ fn run(
             "a checkpoint is checked against the scene"
         );
         sweep.radiosity = std::mem::take(&mut loaded.radiosity);
+        if let Some(older) = loaded.older.take() {
+            // The Chebyshev semi-iteration's next update mixes with it.
+            assert_eq!(older.len(), n, "a checkpoint is checked against the scene");
+            sweep.previous = older;
+        }
         if loaded.state.ranks as usize != comm.size() {
             // Valid, but the sums across ranks are grouped differently from here on.
             tracing::info!(
@@ -403,7 +417,8 @@ struct InMemory<'a> {
     acc: Vec<Gathered>,
     /// What the lines carry with the direct pass: `B - E`.
     reflected: Vec<Radiosity>,
-    /// The radiosity the last update replaced (for the tail extrapolation).
+    /// The radiosity the last update replaced (for the tail extrapolation, and the value before
+    /// last for the Chebyshev semi-iteration); kept whenever `accelerate` is.
     previous: Vec<Radiosity>,
     lines: Lines,
     /// Dispatch, propagation and reduction seconds.
@@ -501,14 +516,19 @@ impl Sweep for InMemory<'_> {
         state: State,
         done: usize,
     ) -> Result<(), CheckpointError> {
-        saver.save_within(self.comm, state, done as u64, &self.radiosity, &self.acc)
+        let arrays = (&self.radiosity[..], Some(&self.previous[..]));
+        saver.save_within(self.comm, state, done as u64, arrays, &self.acc)
     }
 
     fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
-        saver.save_memory(state, &self.radiosity)
+        saver.save_memory(state, &self.radiosity, Some(&self.previous))
     }
 
-    fn end(&mut self) -> Result<[f64; 3], SolveError> {
+    fn keeps_older(&self) -> bool {
+        self.accelerate
+    }
+
+    fn end(&mut self, omega: f64) -> Result<[f64; 4], SolveError> {
         if self.comm.size() > 1 {
             let t = Instant::now();
             let mut flat: Vec<f64> = self.acc.iter().flatten().flatten().copied().collect();
@@ -537,26 +557,32 @@ impl Sweep for InMemory<'_> {
             }
             self.scales = sums.scales(self.channels);
         }
-        // B = E + rho H / S, and the change it makes.
-        if self.accelerate {
-            self.previous.clone_from(&self.radiosity);
-        }
+        // B = E + rho H / S, and the change it makes; the value it replaces is kept.
+        let chebyshev = omega != 1.0;
+        debug_assert!(!chebyshev || self.accelerate);
         let mut sums = super::update::UpdateSums::default();
         for (k, s) in self.set.surfels.iter().enumerate() {
-            self.radiosity[k] = super::update::update_surfel(
+            let current = self.radiosity[k];
+            let older = chebyshev.then(|| (&self.previous[k], omega));
+            let updated = super::update::update_surfel(
                 &self.emission[k],
                 &self.reflectance[k],
                 self.acc[k],
                 super::update::direct_of(self.direct.as_ref(), k),
                 self.channels,
-                &self.radiosity[k],
+                &current,
+                older,
                 self.cosine_sum[s.normal_id as usize],
                 s.area as f64,
                 &self.scales,
                 &mut sums,
             );
+            self.radiosity[k] = updated;
+            if self.accelerate {
+                self.previous[k] = current;
+            }
         }
-        Ok([sums.change, sums.total, sums.falling])
+        Ok([sums.change, sums.total, sums.falling, sums.residual])
     }
 
     fn extrapolate(&mut self, factor: f64) -> Result<(), SolveError> {

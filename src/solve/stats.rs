@@ -42,6 +42,9 @@ pub struct SolveStats {
     pub channels: usize,
     /// Tail extrapolations made (see `accelerate`).
     pub extrapolations: usize,
+    /// Updates made by the Chebyshev semi-iteration (see `accelerate`); `None` where it did
+    /// not start.
+    pub chebyshev_updates: Option<u64>,
     /// Data and hybrid modes: what the distribution moved and how balanced it was.
     pub data: Option<DataStats>,
     /// The iteration of the checkpoint this solve continued from (`--resume`).

@@ -15,6 +15,10 @@ pub use crate::checkpoint::{Gathered, Radiosity};
 #[derive(Clone, Copy, Debug, Default)]
 pub struct UpdateSums {
     pub change: f64,
+    /// The change a plain iteration would have made (`|G(B) - B|`, area-weighted): the
+    /// residual the stopping rule reads while the Chebyshev semi-iteration runs
+    /// (`solve::accelerate`); `change` itself otherwise.
+    pub residual: f64,
     /// Area times the decrease, where a value fell (see `solve::accelerate`).
     pub falling: f64,
     pub total: f64,
@@ -50,7 +54,9 @@ pub fn carried(previous: &Radiosity, emission: &Radiosity, direct: bool) -> Radi
 /// gathered (only the first channel when `channels` is 1: a grey scene), plus `rho` times its
 /// `direct` light where the direct-light pass ran, each scaled by `scales` (a closed scene's,
 /// `closed`; else 1); adds its change, falling part and total (area-weighted) to `sums`.
-/// `emission` is `E` as stored (f32), `reflectance` `rho`.
+/// `emission` is `E` as stored (f32), `reflectance` `rho`. With `older` (the radiosity before
+/// `previous`, and a weight `w`) the new value is the Chebyshev semi-iteration's,
+/// `older + w (B - older)` (`accelerate::chebyshev_value`).
 #[allow(clippy::too_many_arguments)]
 pub fn update_surfel(
     emission: &Radiosity,
@@ -59,6 +65,7 @@ pub fn update_surfel(
     direct: Option<&Gathered>,
     channels: usize,
     previous: &Radiosity,
+    older: Option<(&Radiosity, f64)>,
     norm: f64,
     area: f64,
     scales: &Scales,
@@ -77,6 +84,12 @@ pub fn update_surfel(
                 emission[side][ch] as f64 + rho * (h[side][ch] * scales.gathered[ch]) / norm;
             if let Some(d) = direct {
                 b += rho * (d[side][ch] * scales.direct[ch]);
+            }
+            let plain = b - previous[side][ch] as f64;
+            sums.residual += area * plain.abs();
+            if let Some((older, w)) = older {
+                let e = emission[side][ch] as f64;
+                b = super::accelerate::chebyshev_value(b, older[side][ch] as f64, w, e);
             }
             let d = b - previous[side][ch] as f64;
             sums.change += area * d.abs();

@@ -24,7 +24,7 @@ impl DataSolver<'_> {
             acc[id as usize] = *a;
         }
         state.data_groups = self.groups as u32;
-        let result = saver.save_within(world, state, done as u64, &radiosity, &acc);
+        let result = saver.save_within(world, state, done as u64, (&radiosity, None), &acc);
         // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
         saver.took(t.elapsed());
         result

@@ -495,6 +495,7 @@ impl<'a> DataSolver<'a> {
                 crate::solve::update::direct_of(self.direct.as_ref(), id),
                 self.channels,
                 &owned.radiosity[i],
+                None,
                 self.cosine_sum[s.normal_id as usize],
                 s.area as f64,
                 &owned.scales,
@@ -860,10 +861,11 @@ impl Sweep for DataSweep<'_, '_> {
     fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
         // Collective: every rank gathers, rank 0 writes.
         let radiosity = self.solver.gather_radiosity(&self.owned, self.world);
-        saver.save_memory(state, &radiosity)
+        saver.save_memory(state, &radiosity, None)
     }
 
-    fn end(&mut self) -> Result<[f64; 3], SolveError> {
+    fn end(&mut self, omega: f64) -> Result<[f64; 4], SolveError> {
+        debug_assert_eq!(omega, 1.0, "the data mode does not run Chebyshev");
         let t = Instant::now();
         if self.solver.options.accelerate {
             self.owned.previous.clone_from(&self.owned.radiosity);
@@ -875,7 +877,7 @@ impl Sweep for DataSweep<'_, '_> {
             self.world,
         );
         self.tally.seconds.reduce += t.elapsed().as_secs_f64();
-        Ok(sums)
+        Ok([sums[0], sums[1], sums[2], sums[0]])
     }
 
     fn extrapolate(&mut self, factor: f64) -> Result<(), SolveError> {

@@ -661,6 +661,7 @@ impl Solver<'_> {
                     direct.as_ref(),
                     self.channels(),
                     &previous,
+                    None,
                     norm,
                     area as f64,
                     scales,
@@ -989,7 +990,11 @@ impl Sweep for DataOocSweep<'_, '_> {
         canonical::save(saver, state, canonical.as_deref(), self.plan)
     }
 
-    fn end(&mut self) -> Result<[f64; 3], OocError> {
+    fn end(&mut self, omega: f64) -> Result<[f64; 4], OocError> {
+        debug_assert_eq!(
+            omega, 1.0,
+            "the data mode out of core does not run Chebyshev"
+        );
         let t = Instant::now();
         if self.solver.groups > 1 {
             // The hybrid mode: every group brings its surfels to the canonical slices, sorted
@@ -1043,7 +1048,7 @@ impl Sweep for DataOocSweep<'_, '_> {
         self.solver.comm.sum_in_place(&mut sums);
         self.last = result;
         self.seconds.reduce += t.elapsed().as_secs_f64();
-        Ok(sums)
+        Ok([sums[0], sums[1], sums[2], sums[0]])
     }
 
     fn extrapolate(&mut self, factor: f64) -> Result<(), OocError> {
