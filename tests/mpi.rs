@@ -545,6 +545,51 @@ fn assert_same_results(out: &Path, reference: &Path) {
     assert!(!voxrad::checkpoint::path_in(out).exists());
 }
 
+/// `--chebyshev` in the directions, data and hybrid modes gives the one-process answer: each
+/// mode keeps the radiosity before last of the surfels it updates, and the semi-iteration runs
+/// in each (the report says so).
+#[test]
+fn chebyshev_gives_the_one_process_answer_in_every_in_memory_mode() {
+    let tmp = tempfile::tempdir().unwrap();
+    let one = tmp.path().join("one");
+    let mut args = solve_args(&one, &[]);
+    args.push("--chebyshev".into());
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(&args)
+        .env_remove("RUST_LOG")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let radiosity = |out: &Path| -> Vec<[[f32; 3]; 2]> {
+        let results = read_results(&out.join("surfels.bin")).unwrap();
+        results.records.iter().map(|r| r.radiosity).collect()
+    };
+    let reference = radiosity(&one);
+    for (mode, ranks) in [("directions", 3), ("data", 2), ("hybrid", 4)] {
+        let out = tmp.path().join(mode);
+        let mut extra = vec!["--distribute", mode, "--chebyshev"];
+        if mode == "hybrid" {
+            extra.extend(["--groups", "2"]);
+        }
+        let o = mpirun_solve_on(ranks, &[], &out, &extra).output().unwrap();
+        assert!(
+            o.status.success(),
+            "{mode}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let worst = common::worst_relative_difference(&radiosity(&out), &reference);
+        println!("{mode}, {ranks} ranks, --chebyshev: worst relative difference {worst:.2e}");
+        assert!(worst <= 1e-5, "{mode}: {worst:e}");
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+        let effect = report["effects"]
+            .as_array()
+            .and_then(|e| e.iter().find(|e| e["name"] == "Chebyshev semi-iteration"))
+            .expect("the report lists the Chebyshev semi-iteration");
+        assert_eq!(effect["simulated"], true, "{mode}: {effect}");
+    }
+}
+
 #[test]
 fn directions_mode_killed_at_random_moments_resumes_to_the_same_bytes() {
     killed_under_mpirun(&[], 0x5eed_0003, 4, 0.4);
@@ -565,6 +610,16 @@ fn data_mode_killed_inside_long_iterations_resumes_to_the_same_bytes() {
     // resumed run rebuilds what every rank held there.
     let options = [&LONG_ITERATIONS[..], &["--checkpoint-every", "0.05"]].concat();
     let inside = killed_under_mpirun_in(&["--distribute", "data"], &options, 0x5eed_0007, 5, 0.2);
+    assert!(inside >= 1, "no run continued inside an iteration");
+}
+
+/// As the data mode's, with `--chebyshev`: its checkpoints also hold the owners' radiosity
+/// before last, gathered by id.
+#[test]
+fn data_mode_with_chebyshev_killed_inside_long_iterations_resumes_to_the_same_bytes() {
+    let every = ["--checkpoint-every", "0.05", "--chebyshev"];
+    let options = [&LONG_ITERATIONS[..], &every].concat();
+    let inside = killed_under_mpirun_in(&["--distribute", "data"], &options, 0x5eed_0009, 5, 0.2);
     assert!(inside >= 1, "no run continued inside an iteration");
 }
 

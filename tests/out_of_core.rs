@@ -97,6 +97,40 @@ fn furnished_room_matches_the_in_memory_solver() {
     );
 }
 
+/// The Chebyshev semi-iteration out of core (the radiosity before last kept in a work file)
+/// gives the in-memory solver's answer with as many iterations and updates, under a budget
+/// that cuts every direction into bands.
+#[test]
+fn chebyshev_out_of_core_matches_the_in_memory_solver() {
+    let set = voxelize(&voxrad::gen::room(5.0, 11, 6), GridSpec::Resolution(40)).unwrap();
+    let directions = DirectionSet::with_count(49);
+    let options = SolveOptions {
+        directions: 49,
+        tolerance: Some(1e-5),
+        threads: 2,
+        accelerate: true,
+        chebyshev: true,
+        ..Default::default()
+    };
+    let reference = solve_with(&set, &directions, &options).expect("solve");
+    let updates = reference.stats.chebyshev_updates;
+    assert!(updates.is_some_and(|u| u >= 3), "{updates:?}");
+    let work = tempfile::tempdir().expect("tempdir");
+    let source = InMemorySource::new(&set);
+    let solution = solve_out_of_core(&source, &directions, &options, 600 << 10, work.path())
+        .expect("out of core");
+    let radiosity = solution.radiosity().expect("read radiosity");
+    let worst = common::worst_relative_difference(&radiosity, &reference.radiosity);
+    println!(
+        "Chebyshev: {} iterations, {updates:?} updates; out of core worst relative difference \
+         {worst:.2e}",
+        reference.stats.iterations
+    );
+    assert!(worst <= 1e-5, "{worst:e}");
+    assert_eq!(solution.stats.solve.iterations, reference.stats.iterations);
+    assert_eq!(solution.stats.solve.chebyshev_updates, updates);
+}
+
 /// The out-of-core solver simulates what the in-memory one does: a grey scene is solved in one
 /// channel and the geometric tail is extrapolated. A furnace with `rho = 0.99` (about 900 plain
 /// iterations to 1e-4) must land on `E / (1 - rho)` within a few iterations, out of core under a

@@ -213,6 +213,19 @@ fn sigkill_at_random_moments_then_resume_gives_the_same_bytes_out_of_core() {
     killed_and_resumed(&["--memory", "1MiB"], 0x5eed_0002, 5, 0.4);
 }
 
+/// The same with `--chebyshev`, checkpoints inside the main axes too.
+#[test]
+fn sigkill_then_resume_gives_the_same_bytes_out_of_core_with_chebyshev() {
+    let options = [
+        "--memory",
+        "1MiB",
+        "--chebyshev",
+        "--checkpoint-every",
+        "0.05",
+    ];
+    killed_and_resumed(&options, 0x5eed_0006, 6, 0.3);
+}
+
 /// Starts a solve into `out`, sends `signal` once `ready(log)` holds, and expects exit status 3
 /// with a message naming the checkpoint (or, `in_setup`, possibly one saying that the iterations
 /// had not started); returns the log.
@@ -802,6 +815,17 @@ fn resume_from_every_boundary(direct: DirectPass, chebyshev: bool) {
 /// The same for the out-of-core solver (from a surfel set in memory, a budget of 256 KiB).
 #[test]
 fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
+    out_of_core_resume_from_every_boundary(false);
+}
+
+/// The same with the Chebyshev semi-iteration: its checkpoints also hold the work file of the
+/// radiosity before last.
+#[test]
+fn out_of_core_chebyshev_resume_from_every_iteration_boundary_is_bit_identical() {
+    out_of_core_resume_from_every_boundary(true);
+}
+
+fn out_of_core_resume_from_every_boundary(chebyshev: bool) {
     let scene = voxrad::scene::obj::load_obj(Path::new(&cornell())).unwrap();
     let set = voxelize(&scene, GridSpec::Resolution(16)).unwrap();
     let source = InMemorySource::new(&set);
@@ -810,6 +834,8 @@ fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
         directions: 49,
         tolerance: Some(1e-6),
         threads: 2,
+        accelerate: chebyshev,
+        chebyshev,
         ..SolveOptions::default()
     };
     let budget = 256 << 10;
@@ -822,8 +848,8 @@ fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
         directions: directions.len() as u32,
         directions_checksum: checkpoint::directions_checksum(&directions),
         channels: 3,
-        accelerate: false,
-        chebyshev: false,
+        accelerate: chebyshev,
+        chebyshev,
         scene_checksum: 1,
     };
     let solve = |dir: &PathBuf, max: usize, resume: Option<CheckpointFile>| {
@@ -848,11 +874,15 @@ fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
         (
             solution.radiosity().unwrap(),
             solution.stats.solve.iterations,
+            solution.stats.solve.chebyshev_updates,
         )
     };
     let reference_dir = tmp.path().join("reference");
     std::fs::create_dir_all(&reference_dir).unwrap();
-    let (reference, total) = solve(&reference_dir, 1000, None);
+    let (reference, total, updates) = solve(&reference_dir, 1000, None);
+    if chebyshev {
+        assert!(updates.is_some_and(|u| u >= 3), "{updates:?}");
+    }
     let bits = |r: &[[[f32; 3]; 2]]| -> Vec<u32> {
         r.iter().flatten().flatten().map(|v| v.to_bits()).collect()
     };
@@ -862,8 +892,8 @@ fn out_of_core_resume_from_every_iteration_boundary_is_bit_identical() {
         solve(&dir, k + 1, None);
         let file = CheckpointFile::open(&checkpoint::path_in(&dir)).unwrap();
         assert_eq!(file.header.state.iteration, k as u64);
-        let (resumed, iterations) = solve(&dir, 1000, Some(file));
-        assert_eq!(iterations, total);
+        let (resumed, iterations, resumed_updates) = solve(&dir, 1000, Some(file));
+        assert_eq!((iterations, resumed_updates), (total, updates));
         assert!(
             bits(&resumed) == bits(&reference),
             "resumed from iteration {k}"

@@ -189,13 +189,12 @@ fn run_solve_checked(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<
         }
         other => other,
     };
-    let in_memory = matches!(mode, Mode::Single | Mode::Directions)
-        && cmd.memory.is_none()
-        && !cmd.scene.is_dir();
-    if cmd.solve.chebyshev && !in_memory {
+    let data_out_of_core = matches!(mode, Mode::Data { .. } | Mode::Hybrid { .. })
+        && (cmd.memory.is_some() || cmd.scene.is_dir());
+    if cmd.solve.chebyshev && data_out_of_core {
         return Err(AppError::BadInput(format!(
-            "{}: --chebyshev runs in memory only so far (one process or --distribute \
-             directions, a scene file, no --memory); leave it out for this solve",
+            "{}: --chebyshev does not run in the data and hybrid modes out of core yet (with \
+             --memory or a shard set); leave it out for this solve, or run it in one process",
             cmd.scene.display()
         )));
     }

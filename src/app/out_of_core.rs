@@ -108,7 +108,7 @@ pub(super) fn out_of_core_identity(
         // materials used, as the analysis did).
         channels: if options.grey { 1 } else { 3 },
         accelerate: options.accelerate,
-        chebyshev: false,
+        chebyshev: options.chebyshev,
         scene_checksum: source.checksum(window).map_err(ooc_error)?,
     }
     .with_direct_pass(

@@ -513,27 +513,31 @@ impl CheckpointFile {
         buffer_bytes: usize,
         f: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
-        self.read_payload(buffer_bytes, f, |_| Ok(()), |_| Ok(()))
+        if self.header.radiosity_arrays() > 1 {
+            // Its reader (the data mode out of core) does not run the semi-iteration, and a run
+            // that allows it is another run (`Identity::chebyshev`).
+            return Err(bad(
+                &self.path,
+                "it holds the state of a Chebyshev semi-iteration, which the data and hybrid \
+                 modes out of core do not run",
+            )
+            .into());
+        }
+        self.read_payload(buffer_bytes, f, |_| Ok(()), |_| Ok(()), |_| Ok(()))
     }
 
-    /// As [`CheckpointFile::read_radiosity`], and then the partial sums to `sums` in pieces of
-    /// whole surfels (every rank's in turn; the out-of-core solver writes one), then the light
-    /// of the axis in progress (see [`State::axis_in_progress`]) to `axis`.
+    /// As [`CheckpointFile::read_radiosity`], then the older radiosity (while the Chebyshev
+    /// semi-iteration runs, [`Header::radiosity_arrays`]) to `older`, then the partial sums to
+    /// `sums` in pieces of whole surfels (every rank's in turn; the out-of-core solver writes
+    /// one), then the light of the axis in progress (see [`State::axis_in_progress`]) to `axis`.
     pub fn read_payload<E: From<CheckpointError>>(
         &self,
         buffer_bytes: usize,
         mut radiosity: impl FnMut(&[u8]) -> Result<(), E>,
+        mut older: impl FnMut(&[u8]) -> Result<(), E>,
         mut sums: impl FnMut(&[u8]) -> Result<(), E>,
         mut axis: impl FnMut(&[u8]) -> Result<(), E>,
     ) -> Result<(), E> {
-        if self.header.radiosity_arrays() > 1 {
-            return Err(bad(
-                &self.path,
-                "it holds the state of a Chebyshev semi-iteration, which the out-of-core \
-                 solvers do not run",
-            )
-            .into());
-        }
         let mut file = self.open_at(self.payload_at)?;
         let mut crc = crc32fast::Hasher::new();
         let surfels = self.header.identity.surfels;
@@ -544,6 +548,8 @@ impl CheckpointFile {
             self.read_records(&mut file, (record, count), buffer_bytes, Some(&mut crc), f)
         };
         read(RADIOSITY_LEN, surfels, &mut radiosity)?;
+        let older_count = surfels * (self.header.radiosity_arrays() as u64 - 1);
+        read(RADIOSITY_LEN, older_count, &mut older)?;
         read(PARTIAL_LEN, sums_count, &mut sums)?;
         read(PARTIAL_LEN, axis_count, &mut axis)?;
         let mut stored = [0u8; 4];
@@ -876,6 +882,7 @@ mod tests {
             file.read_payload::<CheckpointError>(
                 100,
                 |_| Ok(()),
+                |_| panic!("no older radiosity here"),
                 |piece| take(&mut ranks, piece),
                 |piece| take(&mut axis, piece),
             )
@@ -973,8 +980,8 @@ mod tests {
 
     /// A Chebyshev semi-iteration's checkpoint (format version 6) holds the older radiosity
     /// after the radiosity, and its state in the header; whole reads give both back bit for
-    /// bit, on one rank and handed between ranks (`head`), and the streaming readers of the
-    /// out-of-core solvers, which do not run it, refuse it by name.
+    /// bit, on one rank, handed between ranks (`head`) and streamed (the out-of-core solver);
+    /// the data mode out of core, which does not run it, refuses it by name.
     #[test]
     fn a_chebyshev_checkpoint_keeps_the_older_radiosity() {
         let dir = tempfile::tempdir().unwrap();
@@ -998,6 +1005,22 @@ mod tests {
             assert_eq!(bits(&shared.radiosity), bits(&radiosity(37)));
             assert_eq!(shared.older.as_deref().map(bits), Some(bits(&older(37))));
             let file = CheckpointFile::open(&path).unwrap();
+            let (mut first, mut second) = (Vec::new(), Vec::new());
+            let take = |into: &mut Vec<Radiosity>, piece: &[u8]| {
+                into.extend(piece.chunks_exact(RADIOSITY_LEN).map(decode_radiosity));
+                Ok::<(), CheckpointError>(())
+            };
+            file.read_payload::<CheckpointError>(
+                50,
+                |piece| take(&mut first, piece),
+                |piece| take(&mut second, piece),
+                |_| Ok(()),
+                |_| Ok(()),
+            )
+            .unwrap();
+            assert_eq!(bits(&first), bits(&radiosity(37)));
+            assert_eq!(bits(&second), bits(&older(37)));
+            // The data mode out of core reads the radiosity alone and does not run it.
             let err = file
                 .read_radiosity::<CheckpointError>(100, |_| Ok(()))
                 .unwrap_err();

@@ -261,11 +261,10 @@ fn run(
         &work,
         &plan,
         &cosine_sum,
-        false,
-        3,
+        (false, 3),
         None,
         None,
-        UpdatePass::Update(&Scales::ONE),
+        (UpdatePass::Update(&Scales::ONE), 1.0),
         &mut io,
     )?;
     stats.update_seconds += t.elapsed().as_secs_f64();
@@ -332,7 +331,7 @@ fn run(
     let mut resume_at = Position::default();
     if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
         let t = Instant::now();
-        resume_at = restore(&file, &work, &plan, &axes, &mut io)?;
+        resume_at = restore(&file, previous.as_deref(), &work, &plan, &axes, &mut io)?;
         send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         let done = axes.done(resume_at);
@@ -481,20 +480,28 @@ impl OutOfCore<'_> {
 }
 
 impl OutOfCore<'_> {
-    /// One pass of [`update`] over the canonical files.
-    fn update_canonical(&mut self, pass: UpdatePass) -> Result<Update, OocError> {
+    /// One pass of [`update`] over the canonical files (`omega`: the Chebyshev weight, 1 for a
+    /// plain update).
+    fn update_canonical(&mut self, pass: UpdatePass, omega: f64) -> Result<Update, OocError> {
         update(
             self.source,
             self.work,
             self.plan,
             &self.cosine_sum,
-            self.summed,
-            self.channels,
+            (self.summed, self.channels),
             self.previous.as_deref(),
             self.direct.as_deref(),
-            pass,
+            (pass, omega),
             &mut self.io,
         )
+    }
+
+    /// The radiosity before last, which a checkpoint of `state` holds while its Chebyshev
+    /// semi-iteration runs.
+    fn older_for(&self, state: &State) -> Option<&Path> {
+        self.previous
+            .as_deref()
+            .filter(|_| state.extrapolation.chebyshev.is_some())
     }
 }
 
@@ -610,42 +617,48 @@ impl Sweep for OutOfCore<'_> {
         // The save's permutation takes the memory a band holds: let the band's arrays go (the
         // next direction makes them again).
         self.buffers = BandBuffers::default();
+        let older = self.older_for(&state).map(Path::to_path_buf);
         if self.at.directions > 0 {
             save_in_axis(
                 saver,
                 state,
                 (&self.axes, self.at),
                 &self.work.copies[self.at.axes],
-                self.summed,
+                (self.summed, older.as_deref()),
                 (self.work, self.plan),
                 &mut self.io,
             )
         } else {
-            save_between_axes(saver, state, done as u64, self.work, self.plan)
+            let at = (done as u64, older.as_deref());
+            save_between_axes(saver, state, at, self.work, self.plan)
         }
     }
 
     fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
-        save(saver, state, self.work, self.plan)
+        let older = self.older_for(&state).map(Path::to_path_buf);
+        save(saver, state, older.as_deref(), self.work, self.plan)
+    }
+
+    fn keeps_older(&self) -> bool {
+        self.previous.is_some()
     }
 
     fn end(&mut self, omega: f64) -> Result<[f64; 4], OocError> {
-        debug_assert_eq!(omega, 1.0, "the out-of-core solver does not run Chebyshev");
         self.histogram = None;
         drop(std::mem::take(&mut self.buffers));
         let t = Instant::now();
         if self.closed {
             let mut sums = ClosureSums::new(&self.source.info().materials);
-            self.update_canonical(UpdatePass::Closure(&mut sums))?;
+            self.update_canonical(UpdatePass::Closure(&mut sums), 1.0)?;
             self.scales = sums.scales(self.channels);
         }
         let scales = self.scales;
-        let result = self.update_canonical(UpdatePass::Update(&scales))?;
+        let result = self.update_canonical(UpdatePass::Update(&scales), omega)?;
         self.update_seconds += t.elapsed().as_secs_f64();
         self.last = result;
         self.lit = false;
         let sums = result.sums;
-        Ok([sums.change, sums.total, sums.falling, sums.change])
+        Ok([sums.change, sums.total, sums.falling, sums.residual])
     }
 
     fn extrapolate(&mut self, factor: f64) -> Result<(), OocError> {
@@ -739,12 +752,28 @@ fn copy_records<const LEN: usize>(
 fn save(
     saver: &mut Saver,
     state: crate::checkpoint::State,
+    older: Option<&Path>,
     work: &WorkSet,
     plan: &MemoryPlan,
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     saver.save(state, plan.io_bytes, |w| {
-        copy_records::<RADIOSITY_LEN>(&work.canonical_radiosity, plan, w)
+        copy_radiosity(older, work, plan, w)
     })
+}
+
+/// Writes the canonical radiosity file, then `older` (the radiosity before last, while the
+/// Chebyshev semi-iteration runs), to a checkpoint's payload.
+fn copy_radiosity(
+    older: Option<&Path>,
+    work: &WorkSet,
+    plan: &MemoryPlan,
+    w: &mut dyn std::io::Write,
+) -> std::io::Result<()> {
+    copy_records::<RADIOSITY_LEN>(&work.canonical_radiosity, plan, w)?;
+    match older {
+        Some(path) => copy_records::<RADIOSITY_LEN>(path, plan, w),
+        None => Ok(()),
+    }
 }
 
 // Same layout as a checkpoint's partial sums: f64 x 6 per surfel, side-major, LE.
@@ -755,13 +784,13 @@ const _: () = assert!(crate::checkpoint::file::PARTIAL_LEN == GATHER_LEN);
 fn save_between_axes(
     saver: &mut Saver,
     mut state: crate::checkpoint::State,
-    done: u64,
+    (done, older): (u64, Option<&Path>),
     work: &WorkSet,
     plan: &MemoryPlan,
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     state.within = Some(done);
     saver.save(state, plan.io_bytes, |w| {
-        copy_records::<RADIOSITY_LEN>(&work.canonical_radiosity, plan, w)?;
+        copy_radiosity(older, work, plan, w)?;
         copy_records::<GATHER_LEN>(&work.canonical_gathered, plan, w)
     })
 }
@@ -772,12 +801,13 @@ fn save_between_axes(
 /// iteration's), then the light of the axis's directions done, brought from its gathered file to
 /// canonical order as [`fold_gathered`] brings it, but into an array of its own (added to the
 /// sum, it would round otherwise than the uninterrupted run, which adds the whole axis at once).
+#[allow(clippy::too_many_arguments)]
 fn save_in_axis(
     saver: &mut Saver,
     mut state: crate::checkpoint::State,
     (axes, at): (&AxisSpans, Position),
     copy: &AxisCopy,
-    summed: bool,
+    (summed, older): (bool, Option<&Path>),
     (work, plan): (&WorkSet, &MemoryPlan),
     io: &mut IoCounters,
 ) -> Result<(), crate::checkpoint::CheckpointError> {
@@ -785,7 +815,7 @@ fn save_in_axis(
     state.axis_in_progress = true;
     let gathered = &work.gathered[(at.directions - 1) % 2];
     saver.save(state, plan.io_bytes, |w| {
-        copy_records::<RADIOSITY_LEN>(&work.canonical_radiosity, plan, w)?;
+        copy_radiosity(older, work, plan, w)?;
         if summed {
             copy_records::<GATHER_LEN>(&work.canonical_gathered, plan, w)?;
         } else {
@@ -819,6 +849,7 @@ fn save_in_axis(
 /// Returns where in the iteration the light it holds stands (the default at a boundary).
 fn restore(
     file: &CheckpointFile,
+    previous: Option<&Path>,
     work: &WorkSet,
     plan: &MemoryPlan,
     axes: &AxisSpans,
@@ -898,9 +929,26 @@ fn restore(
             Some((scatter, positions))
         }
     };
+    // The radiosity before last (the Chebyshev semi-iteration's) goes back to the file an
+    // update keeps it in.
+    let mut older = match (file.header.radiosity_arrays() > 1, previous) {
+        (false, _) => None,
+        (true, Some(path)) => Some(SeqWriter::create(path, plan.io_bytes)?),
+        (true, None) => {
+            return Err(bad(
+                "it holds a Chebyshev semi-iteration's state, and this solve does not \
+                 extrapolate"
+                    .to_string(),
+            ))
+        }
+    };
     file.read_payload::<OocError>(
         plan.io_bytes,
         |piece| out.write(piece),
+        |piece| match older.as_mut() {
+            Some(o) => o.write(piece),
+            None => Ok(()),
+        },
         |piece| match sums.as_mut() {
             Some(s) => s.write(piece),
             None => Ok(()),
@@ -919,6 +967,10 @@ fn restore(
     )?;
     io.written += out.finish()?;
     io.read += n * RADIOSITY_LEN as u64;
+    if let Some(o) = older {
+        io.written += o.finish()?;
+        io.read += n * RADIOSITY_LEN as u64;
+    }
     if let Some(s) = sums {
         io.written += s.finish()?;
         io.read += n * GATHER_LEN as u64;
@@ -1072,7 +1124,9 @@ fn fold_gathered(
 ///
 /// `channels` is 1 when only the first channel was gathered (a grey scene): the other two are
 /// the same numbers. With `previous`, the radiosity it replaces is kept there (for the tail
-/// extrapolation). The caller sends the new radiosity to the copies ([`send_to_copies`]).
+/// extrapolation, and as the radiosity before last of the Chebyshev semi-iteration, whose
+/// weight `omega` is when not 1: the update then reads it first). The caller sends the new
+/// radiosity to the copies ([`send_to_copies`]).
 ///
 /// With [`UpdatePass::Closure`] it reads the same files and only adds a closed scene's sums
 /// (`solve::closed`), writing nothing: the pass before such a scene's update.
@@ -1082,14 +1136,14 @@ fn update(
     work: &WorkSet,
     plan: &MemoryPlan,
     cosine_sum: &[f64],
-    gathered: bool,
-    channels: usize,
+    (gathered, channels): (bool, usize),
     previous: Option<&Path>,
     direct: Option<&Path>,
-    mut pass: UpdatePass,
+    (mut pass, omega): (UpdatePass, f64),
     io: &mut IoCounters,
 ) -> Result<Update, OocError> {
     let writes = matches!(pass, UpdatePass::Update(..));
+    let chebyshev = writes && omega != 1.0;
     let info = source.info();
     // The replaced radiosity is kept only by a pass that replaces it.
     let kept = previous
@@ -1117,6 +1171,14 @@ fn update(
     let mut bytes = vec![0u8; chunk as usize * RADIOSITY_LEN];
     // The replaced radiosity of a chunk, when it is kept.
     let mut old = Vec::with_capacity(if kept.is_some() { bytes.len() } else { 0 });
+    // The radiosity before last of a chunk, for a Chebyshev update.
+    let mut older = vec![0u8; if chebyshev { bytes.len() } else { 0 }];
+    if chebyshev && kept.is_none() {
+        return Err(OocError::BadData {
+            source_name: source.describe(),
+            what: "a Chebyshev update without the radiosity before last (internal)".to_string(),
+        });
+    }
     let mut start = 0u64;
     while start < n {
         let len = chunk.min(n - start);
@@ -1141,10 +1203,16 @@ fn update(
             old.clear();
             old.extend_from_slice(prev);
         }
+        let older_slots = &mut older[..if chebyshev { prev.len() } else { 0 }];
+        if let (true, Some(kept)) = (chebyshev, &kept) {
+            kept.read_at(start * RADIOSITY_LEN as u64, older_slots, io)?;
+        }
+        let mut older_slots = older_slots.chunks_exact(RADIOSITY_LEN);
         for (slot, h_slot) in prev
             .chunks_exact_mut(RADIOSITY_LEN)
             .zip(h_slots.chunks_exact(GATHER_LEN))
         {
+            let before_last = older_slots.next().map(decode_radiosity);
             let s = stream.next().ok_or_else(|| OocError::BadData {
                 source_name: source.describe(),
                 what: "it ended before its stated count of surfels".to_string(),
@@ -1182,7 +1250,7 @@ fn update(
                 d.as_ref(),
                 channels,
                 &decode_radiosity(slot),
-                None,
+                before_last.as_ref().map(|b| (b, omega)),
                 norm,
                 s.area as f64,
                 scales,

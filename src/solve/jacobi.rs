@@ -45,8 +45,9 @@ pub struct SolveOptions {
     /// Extrapolate the geometric tail of the iterations (see `accelerate`).
     pub accelerate: bool,
     /// With `accelerate`: run the Chebyshev semi-iteration where the tail extrapolation finds
-    /// no geometric tail (see `accelerate`). Only the in-memory solver keeps what it needs so
-    /// far; the other paths iterate as without it.
+    /// no geometric tail (see `accelerate`). Every solver keeps what it needs but the data
+    /// and hybrid modes out of core, which iterate as without it (the command line refuses it
+    /// there).
     pub chebyshev: bool,
     /// Gather the emitters' own light once with a dense direction set (see `direct`).
     pub direct: super::direct::DirectPass,

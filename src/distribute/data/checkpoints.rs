@@ -18,13 +18,23 @@ impl DataSolver<'_> {
         owned: &Owned,
     ) -> Result<(), CheckpointError> {
         let t = Instant::now();
-        let radiosity = self.gather_radiosity(owned, world);
+        let radiosity = self.gather_by_id(owned, &owned.radiosity, world);
+        let older = state
+            .extrapolation
+            .chebyshev
+            .map(|_| self.gather_by_id(owned, &owned.previous, world));
         let mut acc: Vec<Gathered> = vec![[[0.0; 3]; 2]; self.set.surfels.len()];
         for (&id, a) in held.ids.iter().zip(&held.acc) {
             acc[id as usize] = *a;
         }
         state.data_groups = self.groups as u32;
-        let result = saver.save_within(world, state, done as u64, (&radiosity, None), &acc);
+        let result = saver.save_within(
+            world,
+            state,
+            done as u64,
+            (&radiosity, older.as_deref()),
+            &acc,
+        );
         // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
         saver.took(t.elapsed());
         result
@@ -101,12 +111,18 @@ impl DataSolver<'_> {
         }
     }
 
-    /// The radiosity of every surfel by id, on every rank (the owners' blocks added over the
-    /// world; in a grey solve the one channel copied to all three, as the solver returns it).
-    pub(super) fn gather_radiosity(&self, owned: &Owned, world: &dyn Comm) -> Vec<Radiosity> {
+    /// `values` of the owners' blocks (their radiosity, or the radiosity before last) of every
+    /// surfel by id, on every rank (added over the world; in a grey solve the one channel
+    /// copied to all three, as the solver returns it).
+    pub(super) fn gather_by_id(
+        &self,
+        owned: &Owned,
+        values: &[Radiosity],
+        world: &dyn Comm,
+    ) -> Vec<Radiosity> {
         let n = self.set.surfels.len();
         let mut flat = vec![0.0f64; n * 6];
-        for (b, id) in owned.radiosity.iter().zip(owned.ids.clone()) {
+        for (b, id) in values.iter().zip(owned.ids.clone()) {
             for side in 0..2 {
                 for ch in 0..3 {
                     flat[id * 6 + side * 3 + ch] = b[side][ch] as f64;

@@ -293,6 +293,10 @@ impl<'a> DataSolver<'a> {
             owned
                 .radiosity
                 .copy_from_slice(&loaded.radiosity[owned.ids.clone()]);
+            if let Some(older) = &loaded.older {
+                // The Chebyshev semi-iteration's next update mixes with it.
+                owned.previous = older[owned.ids.clone()].to_vec();
+            }
             self.meet_block(&mut sweep.held, me, ranks, &loaded.radiosity);
             let mut within = 0;
             match resume_within {
@@ -429,7 +433,8 @@ impl<'a> DataSolver<'a> {
         owned: &mut Owned,
         sharing: &mut Sharing,
         world: &dyn Comm,
-    ) -> [f64; 3] {
+        omega: f64,
+    ) -> [f64; 4] {
         let size = world.size();
         // Parts, by owner (each rank sends each surfel it has once: the owner's sum is in rank
         // order whatever order a pack lists them in).
@@ -485,24 +490,36 @@ impl<'a> DataSolver<'a> {
             closure.add_over(world);
             owned.scales = closure.scales(self.channels);
         }
+        // The value each update replaces is kept (the tail extrapolation's and Chebyshev's
+        // `B_{k-1}`).
+        let keep = self.options.accelerate;
+        if keep && owned.previous.len() != owned.radiosity.len() {
+            owned.previous = owned.radiosity.clone();
+        }
         let mut sums = crate::solve::update::UpdateSums::default();
         for (i, id) in owned.ids.clone().enumerate() {
             let s = &self.set.surfels[id];
-            owned.radiosity[i] = crate::solve::update::update_surfel(
+            let current = owned.radiosity[i];
+            let older = (omega != 1.0).then(|| (&owned.previous[i], omega));
+            let updated = crate::solve::update::update_surfel(
                 &self.emission[id],
                 &self.reflectance[id],
                 owned.acc[i],
                 crate::solve::update::direct_of(self.direct.as_ref(), id),
                 self.channels,
-                &owned.radiosity[i],
-                None,
+                &current,
+                older,
                 self.cosine_sum[s.normal_id as usize],
                 s.area as f64,
                 &owned.scales,
                 &mut sums,
             );
+            owned.radiosity[i] = updated;
+            if keep {
+                owned.previous[i] = current;
+            }
         }
-        let mut sums = [sums.change, sums.total, sums.falling];
+        let mut sums = [sums.change, sums.total, sums.falling, sums.residual];
         world.sum_in_place(&mut sums);
         self.share_radiosity(held, owned, sharing, world);
         sums
@@ -859,25 +876,33 @@ impl Sweep for DataSweep<'_, '_> {
     }
 
     fn save_boundary(&mut self, saver: &mut Saver, state: State) -> Result<(), CheckpointError> {
-        // Collective: every rank gathers, rank 0 writes.
-        let radiosity = self.solver.gather_radiosity(&self.owned, self.world);
-        saver.save_memory(state, &radiosity, None)
+        // Collective: every rank gathers, rank 0 writes (every rank has the same state).
+        let owned = &self.owned;
+        let radiosity = self
+            .solver
+            .gather_by_id(owned, &owned.radiosity, self.world);
+        let older = state
+            .extrapolation
+            .chebyshev
+            .map(|_| self.solver.gather_by_id(owned, &owned.previous, self.world));
+        saver.save_memory(state, &radiosity, older.as_deref())
+    }
+
+    fn keeps_older(&self) -> bool {
+        self.solver.options.accelerate
     }
 
     fn end(&mut self, omega: f64) -> Result<[f64; 4], SolveError> {
-        debug_assert_eq!(omega, 1.0, "the data mode does not run Chebyshev");
         let t = Instant::now();
-        if self.solver.options.accelerate {
-            self.owned.previous.clone_from(&self.owned.radiosity);
-        }
         let sums = self.solver.reduce(
             &mut self.held,
             &mut self.owned,
             &mut self.sharing,
             self.world,
+            omega,
         );
         self.tally.seconds.reduce += t.elapsed().as_secs_f64();
-        Ok([sums[0], sums[1], sums[2], sums[0]])
+        Ok(sums)
     }
 
     fn extrapolate(&mut self, factor: f64) -> Result<(), SolveError> {
