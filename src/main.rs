@@ -125,8 +125,7 @@ enum Command {
         compress_exchange: bool,
         /// Where the tail extrapolation finds no geometric tail (scenes of many rooms), iterate
         /// by Chebyshev semi-iteration, which follows several slow modes at once: about a
-        /// third fewer iterations on such scenes (docs/throughput.md). Not yet in the data and
-        /// hybrid modes out of core.
+        /// third fewer iterations on such scenes (docs/throughput.md).
         #[arg(long)]
         chebyshev: bool,
         /// Continue from OUT/checkpoint.bin if there is one (left by an interrupted or killed

@@ -19,22 +19,22 @@ use std::process::{Command, Output};
 use voxrad::output::results::read_results;
 use voxrad::voxel::voxelize::{voxelize, GridSpec};
 
-/// Waits until the run logging to `log` has written a checkpoint inside its third iteration
-/// (checkpoints are due at every step, spaced by their writing time), so that a signal sent
-/// then comes inside that iteration; fails with the log when none comes.
-fn wait_for_a_checkpoint_inside_iteration_3(child: &mut Child, log: &Path) {
+/// Waits until the run logging to `log` has written a checkpoint inside the iteration after
+/// its `completed`-th (checkpoints are due at every step, spaced by their writing time), so
+/// that a signal sent then comes inside that iteration; fails with the log when none comes.
+fn wait_for_a_checkpoint_inside(child: &mut Child, log: &Path, completed: usize) {
+    let iteration = format!("iteration={completed} ");
     let inside = |text: &str| {
         text.lines().any(|l| {
-            l.contains("checkpoint written")
-                && l.contains("iteration=2 ")
-                && !l.contains("within=0 ")
+            l.contains("checkpoint written") && l.contains(&iteration) && !l.contains("within=0 ")
         })
     };
     assert!(
         child.wait_for(HANG_LIMIT, || {
             std::fs::read_to_string(log).is_ok_and(|t| inside(&t))
         }),
-        "no checkpoint inside iteration 3:\n{}",
+        "no checkpoint inside iteration {}:\n{}",
+        completed + 1,
         child.log()
     );
 }
@@ -462,8 +462,23 @@ fn what_cannot_work_out_of_core_is_refused_clearly() {
 #[test]
 fn a_run_stopped_by_sigterm_resumes_on_another_rank_count_to_the_same_bytes() {
     // Resumed on three ranks: rank 0 sends each its slice of the checkpoint.
-    stopped_by_sigterm_resumes_to_the_same_bytes(&["--distribute", "data"], 2, 3);
+    stopped_by_sigterm_resumes_to_the_same_bytes(&["--distribute", "data"], 2, 3, PLAIN);
 }
+
+/// The same with the Chebyshev semi-iteration running when the signal comes: the checkpoint
+/// also holds the radiosity before last, which rank 0 gathers by id and sends back in slices
+/// (and which one process out of core reads too).
+#[test]
+fn a_chebyshev_run_stopped_by_sigterm_resumes_to_the_same_bytes() {
+    stopped_by_sigterm_resumes_to_the_same_bytes(&["--distribute", "data"], 2, 3, CHEBYSHEV);
+}
+
+/// How the runs of [`stopped_by_sigterm_resumes_to_the_same_bytes`] iterate, and the iteration
+/// whose end precedes the one stopped inside: 8 plain iterations, stopped in the third; or to a
+/// tolerance with `--chebyshev` (which starts at the third), stopped in the sixth.
+type Iterating = (&'static [&'static str], usize);
+const PLAIN: Iterating = (&["--iterations", "8"], 2);
+const CHEBYSHEV: Iterating = (&["--tolerance", "1e-6", "--chebyshev"], 5);
 
 /// The hybrid mode out of core (2 groups of 2 ranks) stopped by SIGTERM resumes on 2 groups of
 /// 1 rank to the bytes of an uninterrupted run: rank 0 sends each group's light so far to that
@@ -474,16 +489,18 @@ fn hybrid_out_of_core_stopped_by_sigterm_resumes_to_the_same_bytes() {
         &["--distribute", "hybrid", "--groups", "2"],
         4,
         2,
+        PLAIN,
     );
 }
 
-/// A solve (Cornell box at 48, 1 MiB per rank) in `mode` on `ranks` ranks, stopped by SIGTERM
-/// to rank 1 between two steps of its third iteration and resumed inside it on
-/// `resume_ranks`, ends with the bytes of an uninterrupted run on `ranks`.
+/// A solve (Cornell box at 48, 1 MiB per rank) in `mode` on `ranks` ranks, iterating as
+/// `iterating` says, stopped by SIGTERM to rank 1 between two steps of an iteration and resumed
+/// inside it on `resume_ranks`, ends with the bytes of an uninterrupted run on `ranks`.
 fn stopped_by_sigterm_resumes_to_the_same_bytes(
     mode: &[&'static str],
     ranks: usize,
     resume_ranks: usize,
+    (iterating, completed): Iterating,
 ) {
     let tmp = tempfile::tempdir().unwrap();
     let set = tmp.path().join("set");
@@ -497,14 +514,13 @@ fn stopped_by_sigterm_resumes_to_the_same_bytes(
             out.to_str().unwrap(),
             "--directions",
             "49",
-            "--iterations",
-            "8",
             "--threads",
             "1",
             "--memory",
             "1MiB",
         ]
         .iter()
+        .chain(iterating)
         .chain(mode)
         .chain(extra)
         .map(|s| s.to_string())
@@ -527,7 +543,7 @@ fn stopped_by_sigterm_resumes_to_the_same_bytes(
             mpirun_command(ranks, &a.iter().map(String::as_str).collect::<Vec<_>>()),
             &log,
         );
-        wait_for_a_checkpoint_inside_iteration_3(&mut child, &log);
+        wait_for_a_checkpoint_inside(&mut child, &log, completed);
         common::mpi::signal_rank(child.pid(), 1, libc::SIGTERM);
         let status = child.wait_at_most(HANG_LIMIT);
         let text = child.log();
@@ -546,6 +562,11 @@ fn stopped_by_sigterm_resumes_to_the_same_bytes(
         println!(
             "attempt {attempt}: stopped {done} steps into iteration {}",
             saved.header.state.iteration + 1
+        );
+        assert_eq!(
+            saved.header.state.extrapolation.chebyshev.is_some(),
+            iterating.contains(&"--chebyshev"),
+            "the checkpoint holds the semi-iteration's state if it runs"
         );
         if mode.contains(&"data") {
             // One process on a copy: the layout by groups is not its own, so it starts that
@@ -590,6 +611,69 @@ fn stopped_by_sigterm_resumes_to_the_same_bytes(
         return;
     }
     panic!("four SIGTERMs, none inside an iteration");
+}
+
+/// With `--chebyshev` the data and hybrid modes out of core give the one-process out-of-core
+/// bytes: each record carries the radiosity before last through every exchange.
+#[test]
+fn chebyshev_out_of_core_gives_the_one_process_bytes_in_the_data_and_hybrid_modes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 40, 2);
+    let args = |out: &Path| -> Vec<String> {
+        [
+            "solve",
+            set.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--directions",
+            "49",
+            "--tolerance",
+            "1e-6",
+            "--chebyshev",
+            "--threads",
+            "1",
+            "--memory",
+            "2MiB",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect()
+    };
+    let one = tmp.path().join("one");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(args(&one))
+        .output()
+        .unwrap();
+    ok(&o, "one process");
+    let reference = report(&one);
+    let ran = |r: &serde_json::Value| {
+        r["effects"]
+            .as_array()
+            .and_then(|e| e.iter().find(|e| e["name"] == "Chebyshev semi-iteration"))
+            .map(|e| e["simulated"] == true)
+    };
+    assert_eq!(ran(&reference), Some(true), "{reference}");
+    for (mode, ranks) in [
+        (&["--distribute", "data"][..], 2),
+        (&["--distribute", "hybrid", "--groups", "2"][..], 4),
+    ] {
+        let out = tmp.path().join(format!("{}{ranks}", mode[1]));
+        let mut a = args(&out);
+        a.extend(mode.iter().map(|s| s.to_string()));
+        ok(
+            &mpirun(ranks, &a.iter().map(String::as_str).collect::<Vec<_>>()),
+            mode[1],
+        );
+        let r = report(&out);
+        assert_eq!(ran(&r), Some(true), "{r}");
+        assert_eq!(r["iterations"], reference["iterations"], "{}", mode[1]);
+        assert!(
+            radiosity(&out) == radiosity(&one),
+            "{}: other results than one process",
+            mode[1]
+        );
+    }
 }
 
 /// The data mode out of core simulates what the one-process solvers do: a grey furnace
@@ -737,7 +821,7 @@ fn the_slurm_recipe_requeues_and_resumes_on_other_nodes_to_the_same_bytes() {
     let first = tmp.path().join("first-nodes");
     let log = tmp.path().join("job1.log");
     let mut child = Child::spawn(job(&first), &log);
-    wait_for_a_checkpoint_inside_iteration_3(&mut child, &log);
+    wait_for_a_checkpoint_inside(&mut child, &log, 2);
     // Both ranks ran in their own "node" directory.
     for rank in 0..2 {
         let dir = first.join(format!("node{rank}"));

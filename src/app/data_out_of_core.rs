@@ -193,7 +193,7 @@ pub(super) fn open_checkpoint_on_rank0(
         _ => {}
     }
     // The state, from rank 0 to all (whole numbers and f64s: a sum with zeros keeps them).
-    let mut words = [0.0f64; 11];
+    let mut words = [0.0f64; 14];
     let mut changes = Vec::new();
     if let Some(f) = &file {
         let state = &f.header.state;
@@ -211,6 +211,11 @@ pub(super) fn open_checkpoint_on_rank0(
             state.within.unwrap_or(0) as f64,
             state.data_groups as f64,
             state.axis_in_progress as u8 as f64,
+            // The Chebyshev semi-iteration's state (its update count is a whole number well
+            // below 2^53, its ratio an f64 kept exactly by a sum with zeros).
+            state.extrapolation.chebyshev.is_some() as u8 as f64,
+            state.extrapolation.chebyshev.map_or(0.0, |c| c.0),
+            state.extrapolation.chebyshev.map_or(0.0, |c| c.1 as f64),
         ];
     }
     comm.sum_in_place(&mut words);
@@ -223,11 +228,14 @@ pub(super) fn open_checkpoint_on_rank0(
         iteration: words[0] as u64,
         ranks: comm.size() as u32,
         previous_change: (words[1] == 1.0).then_some(words[2]),
-        extrapolation: crate::checkpoint::ExtrapolationState::from_parts(
-            changes,
-            words[3] as usize,
-            (words[4] == 1.0).then_some(words[5]),
-        ),
+        extrapolation: crate::checkpoint::ExtrapolationState {
+            chebyshev: (words[11] == 1.0).then_some((words[12], words[13] as u64)),
+            ..crate::checkpoint::ExtrapolationState::from_parts(
+                changes,
+                words[3] as usize,
+                (words[4] == 1.0).then_some(words[5]),
+            )
+        },
         within: (words[7] == 1.0).then_some(words[8] as u64),
         data_groups: words[9] as u32,
         axis_in_progress: words[10] == 1.0,

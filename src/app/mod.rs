@@ -189,15 +189,6 @@ fn run_solve_checked(cmd: &SolveCommand, comm: &dyn Comm, mode: Mode) -> Result<
         }
         other => other,
     };
-    let data_out_of_core = matches!(mode, Mode::Data { .. } | Mode::Hybrid { .. })
-        && (cmd.memory.is_some() || cmd.scene.is_dir());
-    if cmd.solve.chebyshev && data_out_of_core {
-        return Err(AppError::BadInput(format!(
-            "{}: --chebyshev does not run in the data and hybrid modes out of core yet (with \
-             --memory or a shard set); leave it out for this solve, or run it in one process",
-            cmd.scene.display()
-        )));
-    }
     match (mode, cmd.memory) {
         (Mode::Data { .. }, Some(budget)) => {
             return run_solve_data_out_of_core(cmd, comm, 1, budget, started)

@@ -45,9 +45,7 @@ pub struct SolveOptions {
     /// Extrapolate the geometric tail of the iterations (see `accelerate`).
     pub accelerate: bool,
     /// With `accelerate`: run the Chebyshev semi-iteration where the tail extrapolation finds
-    /// no geometric tail (see `accelerate`). Every solver keeps what it needs but the data
-    /// and hybrid modes out of core, which iterate as without it (the command line refuses it
-    /// there).
+    /// no geometric tail (see `accelerate`); every solve path keeps what it needs.
     pub chebyshev: bool,
     /// Gather the emitters' own light once with a dense direction set (see `direct`).
     pub direct: super::direct::DirectPass,

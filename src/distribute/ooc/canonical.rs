@@ -20,33 +20,54 @@ impl Solver<'_> {
     /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
     /// sends each rank its slice in bounded rounds. The lines then carry it (less `E` with the
     /// direct pass, which ran before).
+    /// With `older` (the state's Chebyshev semi-iteration runs, which every rank knows), its
+    /// radiosity before last goes into the older field the same way.
     pub(super) fn restore(
         &self,
-        held: Held,
+        mut held: Held,
         first: u64,
-        file: Option<&CheckpointFile>,
-        generation: u64,
+        (file, older): (Option<&CheckpointFile>, bool),
+        generation: &mut u64,
         router: &Router,
         io: &mut IoCounters,
     ) -> Result<Held, OocError> {
         let plan = router.plan;
-        let name = file.as_ref().map(|f| f.path.display().to_string());
-        let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
-            let file = file.ok_or_else(|| OocError::BadData {
-                source_name: "the checkpoint".to_string(),
-                what: "rank 0 did not open it".to_string(),
-            })?;
-            file.read_radiosity::<OocError>(plan.io_bytes, piece)
-        };
-        let name = name.unwrap_or_else(|| "the checkpoint".to_string());
-        let mine = self.send_slices(None, first, RADIOSITY_LEN, &name, read, router, io)?;
-        let mine = mine.expect("every rank receives its slice");
+        let name = file
+            .as_ref()
+            .map(|f| f.path.display().to_string())
+            .unwrap_or_else(|| "the checkpoint".to_string());
         let info = self.source.info();
         let direct = self.direct();
-        self.place_slice::<RADIOSITY_LEN>(held, &mine, generation, router, io, |w, b| {
-            w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN].copy_from_slice(b);
-            carry(w, info, direct);
-        })
+        // The radiosity (array 0), then the radiosity before last (array 1).
+        for array in 0..1 + older as usize {
+            let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
+                let file = file.ok_or_else(|| OocError::BadData {
+                    source_name: "the checkpoint".to_string(),
+                    what: "rank 0 did not open it".to_string(),
+                })?;
+                let skip = |_: &[u8]| Ok(());
+                match array {
+                    0 => file.read_payload::<OocError>(plan.io_bytes, piece, skip, skip, skip),
+                    _ => file.read_payload::<OocError>(plan.io_bytes, skip, piece, skip, skip),
+                }
+            };
+            let mine = self.send_slices(None, first, RADIOSITY_LEN, &name, read, router, io)?;
+            let mine = mine.expect("every rank receives its slice");
+            *generation += 1;
+            let at = if array == 0 {
+                held::RADIOSITY_AT
+            } else {
+                held::OLDER_AT
+            };
+            held =
+                self.place_slice::<RADIOSITY_LEN>(held, &mine, *generation, router, io, |w, b| {
+                    w[at..at + RADIOSITY_LEN].copy_from_slice(b);
+                    if array == 0 {
+                        carry(w, info, direct);
+                    }
+                })?;
+        }
+        Ok(held)
     }
 
     /// Rank 0 cuts the canonical records of `len` bytes that `read` hands it (in pieces of whole
@@ -209,6 +230,24 @@ impl Solver<'_> {
         })
     }
 
+    /// Sends every held `(id, radiosity before last)` to rank 0, which places them in canonical
+    /// file `name` (returned there; `None` elsewhere): the Chebyshev semi-iteration's state for
+    /// a checkpoint. Collective.
+    pub(super) fn gather_older(
+        &self,
+        held: &Held,
+        surfels: u64,
+        name: &str,
+        (dir, plan): (&Path, &MemoryPlan),
+        io: &mut IoCounters,
+    ) -> Result<Option<PathBuf>, OocError> {
+        self.gather_canonical::<RADIOSITY_LEN>(held, 0, surfels, name, (dir, plan), io, |w| {
+            w[held::OLDER_AT..held::OLDER_AT + RADIOSITY_LEN]
+                .try_into()
+                .expect("a radiosity record")
+        })
+    }
+
     /// Sends `value` of every surfel that the ranks of group `group` hold (each surfel once) to
     /// rank 0 with its id, which places them in a file of `surfels` records of `L` bytes in
     /// canonical order, `name` in `dir` (returned there; `None` elsewhere). Collective.
@@ -297,22 +336,22 @@ pub(super) fn carry(w: &mut held::Wire, info: &SourceInfo, direct: bool) {
     encode_radiosity(&carried, &mut w[held::CARRIED_AT..]);
 }
 
-/// Writes a checkpoint whose radiosity is the canonical file `canonical` (rank 0's; the other
-/// ranks write nothing).
+/// Writes a checkpoint whose radiosity arrays are the canonical files `canonical` (rank 0's:
+/// the radiosity, then while Chebyshev runs the radiosity before last; the other ranks have
+/// none and write nothing).
 pub(super) fn save(
     saver: &mut Saver,
     state: State,
-    canonical: Option<&Path>,
+    canonical: &[&Path],
     plan: &MemoryPlan,
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     saver.save(state, plan.io_bytes, |w| {
-        let Some(path) = canonical else {
-            return Ok(());
-        };
-        let mut reader =
-            SeqReader::<RADIOSITY_LEN>::open(path, plan.io_bytes).map_err(std::io::Error::other)?;
-        while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
-            w.write_all(&record)?;
+        for path in canonical {
+            let mut reader = SeqReader::<RADIOSITY_LEN>::open(path, plan.io_bytes)
+                .map_err(std::io::Error::other)?;
+            while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+                w.write_all(&record)?;
+            }
         }
         Ok(())
     })

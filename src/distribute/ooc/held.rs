@@ -10,7 +10,7 @@
 //! another:
 //!
 //! ```text
-//! wire record (280 bytes)
+//! wire record (304 bytes)
 //!   0 static       72 bytes   outcore::files layout (voxel, ..., canonical id at 68)
 //!  72 carried      24 bytes   f32 x 6, what the lines carry: B, or B - E with the direct pass
 //!  96 gathered     48 bytes   f64 x 6, this axis's directions so far
@@ -20,6 +20,8 @@
 //! 200 materials    u32 x 2    front, back
 //! 208 radiosity    24 bytes   f32 x 6, B
 //! 232 direct       48 bytes   f64 x 6, the direct light H_dense / S_dense (0 without the pass)
+//! 280 older        24 bytes   f32 x 6, the radiosity the last update replaced (the tail
+//!                             extrapolation's, and the Chebyshev semi-iteration's `B_{k-1}`)
 //! ```
 //!
 //! `B` travels beside what the lines carry, as the one-process out-of-core solver keeps its
@@ -34,9 +36,9 @@ use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::path::{Path, PathBuf};
 
-/// Bytes of the fourth file's record: earlier axes' light, the update's scene data, `B` and
-/// the direct light.
-pub const REST_LEN: usize = GATHER_LEN + 16 + RADIOSITY_LEN + GATHER_LEN;
+/// Bytes of the fourth file's record: earlier axes' light, the update's scene data, `B`, the
+/// direct light and the radiosity the last update replaced.
+pub const REST_LEN: usize = GATHER_LEN + 16 + RADIOSITY_LEN + GATHER_LEN + RADIOSITY_LEN;
 pub const WIRE_LEN: usize = STATIC_LEN + RADIOSITY_LEN + GATHER_LEN + REST_LEN;
 pub type Wire = [u8; WIRE_LEN];
 
@@ -48,7 +50,9 @@ pub const SCENE_AT: usize = EARLIER_AT + GATHER_LEN;
 /// The radiosity `B`.
 pub const RADIOSITY_AT: usize = SCENE_AT + 16;
 pub const DIRECT_AT: usize = RADIOSITY_AT + RADIOSITY_LEN;
-const _: () = assert!(DIRECT_AT + GATHER_LEN == WIRE_LEN);
+/// The radiosity the last update replaced.
+pub const OLDER_AT: usize = DIRECT_AT + GATHER_LEN;
+const _: () = assert!(OLDER_AT + RADIOSITY_LEN == WIRE_LEN);
 const LENGTHS: [usize; 4] = [STATIC_LEN, RADIOSITY_LEN, GATHER_LEN, REST_LEN];
 const OFFSETS: [usize; 4] = [0, CARRIED_AT, GATHERED_AT, EARLIER_AT];
 

@@ -316,12 +316,11 @@ impl Solver<'_> {
         if let Some(c) = checkpoints.as_mut() {
             if let Some(state) = c.state.take() {
                 let file = c.resume.take();
-                generation += 1;
                 held = self.restore(
                     held,
                     slice.first,
-                    file.as_ref(),
-                    generation,
+                    (file.as_ref(), state.extrapolation.chebyshev.is_some()),
+                    &mut generation,
                     &router,
                     &mut io,
                 )?;
@@ -598,7 +597,7 @@ impl Solver<'_> {
         plan: &MemoryPlan,
         cosine_sum: &[f64],
         fold: Option<bool>,
-        scales: &crate::solve::closed::Scales,
+        (scales, omega): (&crate::solve::closed::Scales, f64),
         io: &mut IoCounters,
     ) -> Result<(Held, Update), OocError> {
         let info = self.source.info();
@@ -654,6 +653,8 @@ impl Solver<'_> {
                 let direct = self
                     .direct()
                     .then(|| decode_gathered(&w[held::DIRECT_AT..]));
+                // The Chebyshev semi-iteration's radiosity before last.
+                let older = (omega != 1.0).then(|| decode_radiosity(&w[held::OLDER_AT..]));
                 let b_new = crate::solve::update::update_surfel(
                     &sides.map(|m| m.emission.map(|e| e as f32)),
                     &sides.map(|m| m.reflectance),
@@ -661,7 +662,7 @@ impl Solver<'_> {
                     direct.as_ref(),
                     self.channels(),
                     &previous,
-                    None,
+                    older.as_ref().map(|o| (o, omega)),
                     norm,
                     area as f64,
                     scales,
@@ -682,9 +683,8 @@ impl Solver<'_> {
                 canonical::carry(w, info, self.direct());
                 w[GATHERED_AT..held::SCENE_AT].fill(0);
                 if self.options.accelerate {
-                    // Kept for the tail extrapolation; the next iteration's first axis
-                    // overwrites it.
-                    encode_radiosity(&previous, &mut w[EARLIER_AT..]);
+                    // Kept for the tail extrapolation and the Chebyshev semi-iteration.
+                    encode_radiosity(&previous, &mut w[held::OLDER_AT..]);
                 }
                 writer.write(w)?;
             }
@@ -755,8 +755,8 @@ impl Solver<'_> {
     }
 
     /// Adds the geometric tail `factor * (B - B_previous)` to the held surfels' radiosity with
-    /// `accelerate::extrapolate`'s rules (the previous radiosity was kept in the earlier-axes
-    /// slot by [`Solver::update`]). Writes new held files (generation `generation`).
+    /// `accelerate::extrapolate`'s rules (the previous radiosity was kept in the older field
+    /// by [`Solver::update`]). Writes new held files (generation `generation`).
     fn extrapolate(
         &self,
         held: Held,
@@ -771,14 +771,13 @@ impl Solver<'_> {
         let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
         while let Some(mut w) = reader.next(io)? {
             let mut b = [decode_radiosity(&w[held::RADIOSITY_AT..])];
-            let previous = [decode_radiosity(&w[EARLIER_AT..])];
+            let previous = [decode_radiosity(&w[held::OLDER_AT..])];
             let (_, _, material) = held::scene_data(&w);
             let emission =
                 [material.map(|m| info.materials[m as usize].emission.map(|e| e as f32))];
             crate::solve::accelerate::extrapolate(&mut b, &previous, &emission, factor);
             encode_radiosity(&b[0], &mut w[held::RADIOSITY_AT..]);
             canonical::carry(&mut w, info, self.direct());
-            w[EARLIER_AT..held::SCENE_AT].fill(0);
             writer.write(&w)?;
         }
         drop(reader);
@@ -977,24 +976,49 @@ impl Sweep for DataOocSweep<'_, '_> {
     ) -> Result<(), crate::checkpoint::CheckpointError> {
         // Collective: every rank sends its radiosity, rank 0 writes.
         let mut io = IoCounters::default();
-        let canonical = self
-            .solver
-            .gather_results(self.held(), self.surfels, self.dir, self.plan, &mut io)
-            .map_err(|e| crate::checkpoint::CheckpointError::Io {
-                path: saver.path().to_path_buf(),
-                action: "gather the radiosity of every rank for",
-                source: std::io::Error::other(e.to_string()),
-            })?;
+        let chebyshev = state.extrapolation.chebyshev.is_some();
+        let mut gather = || -> Result<_, OocError> {
+            let radiosity = self.solver.gather_results(
+                self.held(),
+                self.surfels,
+                self.dir,
+                self.plan,
+                &mut io,
+            )?;
+            // While Chebyshev runs, also the radiosity before last (every rank has the state).
+            let older = match chebyshev {
+                true => self.solver.gather_older(
+                    self.held(),
+                    self.surfels,
+                    "older-canonical.bin",
+                    (self.dir, self.plan),
+                    &mut io,
+                )?,
+                false => None,
+            };
+            Ok((radiosity, older))
+        };
+        let gathered = gather();
         self.io.read += io.read;
         self.io.written += io.written;
-        canonical::save(saver, state, canonical.as_deref(), self.plan)
+        let (canonical, older) = gathered.map_err(|e| crate::checkpoint::CheckpointError::Io {
+            path: saver.path().to_path_buf(),
+            action: "gather the radiosity of every rank for",
+            source: std::io::Error::other(e.to_string()),
+        })?;
+        let files: Vec<&Path> = canonical
+            .iter()
+            .chain(&older)
+            .map(PathBuf::as_path)
+            .collect();
+        let result = canonical::save(saver, state, &files, self.plan);
+        if let Some(path) = &older {
+            let _ = std::fs::remove_file(path);
+        }
+        result
     }
 
     fn end(&mut self, omega: f64) -> Result<[f64; 4], OocError> {
-        debug_assert_eq!(
-            omega, 1.0,
-            "the data mode out of core does not run Chebyshev"
-        );
         let t = Instant::now();
         if self.solver.groups > 1 {
             // The hybrid mode: every group brings its surfels to the canonical slices, sorted
@@ -1036,19 +1060,23 @@ impl Sweep for DataOocSweep<'_, '_> {
             self.plan,
             self.cosine_sum,
             fold,
-            &self.scales,
+            (&self.scales, omega),
             &mut self.io,
         )?;
         self.held = Some(next);
         // Group 0 speaks for every surfel once.
-        let mut sums = [result.change, result.total, result.falling];
+        let mut sums = [result.change, result.total, result.falling, result.residual];
         if self.solver.group_index != 0 {
             sums.fill(0.0);
         }
         self.solver.comm.sum_in_place(&mut sums);
         self.last = result;
         self.seconds.reduce += t.elapsed().as_secs_f64();
-        Ok([sums[0], sums[1], sums[2], sums[0]])
+        Ok(sums)
+    }
+
+    fn keeps_older(&self) -> bool {
+        self.solver.options.accelerate
     }
 
     fn extrapolate(&mut self, factor: f64) -> Result<(), OocError> {

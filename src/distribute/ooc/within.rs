@@ -66,8 +66,9 @@ pub(super) fn axes_done(walk: &[WalkStep], done: usize) -> bool {
 
 impl DataOocSweep<'_, '_> {
     /// Saves the state `done` steps into iteration `state.iteration + 1`: rank 0 gathers the
-    /// radiosity (from group 0), every group's sum of its axes done, then every group's light
-    /// of its axis in progress, each in canonical order, and writes them. Collective.
+    /// radiosity (from group 0; and the radiosity before last while the Chebyshev
+    /// semi-iteration runs), every group's sum of its axes done, then every group's light of its
+    /// axis in progress, each in canonical order, and writes them. Collective.
     pub(super) fn save_inside(
         &mut self,
         saver: &mut Saver,
@@ -85,6 +86,7 @@ impl DataOocSweep<'_, '_> {
         let (dir, plan, surfels) = (self.dir, self.plan, self.surfels);
         let mut io = IoCounters::default();
         let mut files: Vec<PathBuf> = Vec::new();
+        let chebyshev = state.extrapolation.chebyshev.is_some();
         let mut gather = || -> Result<(), OocError> {
             let radiosity = solver.gather_canonical::<RADIOSITY_LEN>(
                 held,
@@ -100,6 +102,17 @@ impl DataOocSweep<'_, '_> {
                 },
             )?;
             files.extend(radiosity);
+            if chebyshev {
+                // The Chebyshev semi-iteration's radiosity before last, after the radiosity.
+                let older = solver.gather_older(
+                    held,
+                    surfels,
+                    "checkpoint-older.bin",
+                    (dir, plan),
+                    &mut io,
+                )?;
+                files.extend(older);
+            }
             for (kind, value) in [
                 (
                     "sum",
