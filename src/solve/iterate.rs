@@ -1,6 +1,6 @@
 //! The iteration loop, written once for every solve path: steps, stop signals and
-//! checkpoints inside and between iterations, the update's stopping rule and the tail
-//! extrapolation. What differs between the paths (where the surfels and their light live, and
+//! checkpoints inside and between iterations, the update's stopping rule, the tail
+//! extrapolation and the Chebyshev semi-iteration's weights (`accelerate`). What differs between the paths (where the surfels and their light live, and
 //! how the work is dealt over processes) is a [`Sweep`]: the in-memory solver (one process or
 //! directions over ranks, `jacobi`), the data and hybrid modes (`distribute::data`), the
 //! out-of-core solver (`outcore::solver`) and the data and hybrid modes out of core
