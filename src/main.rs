@@ -125,7 +125,8 @@ enum Command {
         compress_exchange: bool,
         /// Where the tail extrapolation finds no geometric tail (scenes of many rooms), iterate
         /// by Chebyshev semi-iteration, which follows several slow modes at once: about a
-        /// third fewer iterations on such scenes (docs/throughput.md).
+        /// third fewer iterations on such scenes (docs/simulation.md). Under the stopping rule
+        /// only, as the tail extrapolation: `--iterations K` alone runs K plain iterations.
         #[arg(long)]
         chebyshev: bool,
         /// Continue from OUT/checkpoint.bin if there is one (left by an interrupted or killed
