@@ -219,6 +219,12 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(text.contains("channel"), "{text}");
+        // A run that allows the Chebyshev semi-iteration iterates otherwise.
+        let chebyshev = this.clone().with_chebyshev(true);
+        let text = load_shared(&SingleProcess, &path, &chebyshev, 10)
+            .unwrap_err()
+            .to_string();
+        assert!(text.contains("--chebyshev"), "{text}");
         let text = load_shared(&SingleProcess, &path, &this, 4)
             .unwrap_err()
             .to_string();
