@@ -1,7 +1,8 @@
 //! Radiosity between the ranks and canonical order (data mode out of core): rank 0 gathers
 //! every rank's `(id, B)` into a canonical file for the results and the checkpoints, sends each
 //! rank its slice of a canonical file (a checkpoint's radiosity on resume, the direct light),
-//! and writes a checkpoint of the canonical radiosity.
+//! and writes a checkpoint of the canonical radiosity; while the Chebyshev semi-iteration runs,
+//! the radiosity before last travels the same ways (`held::OLDER_AT`).
 
 use super::held::{self, Held, HeldReader, HeldWriter};
 use super::route::{exchange_files, Router};
@@ -19,8 +20,7 @@ impl Solver<'_> {
     /// Puts the radiosity of a checkpoint (`file`, on rank 0) into the held files of every rank,
     /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
     /// sends each rank its slice in bounded rounds. The lines then carry it (less `E` with the
-    /// direct pass, which ran before).
-    /// With `older` (the state's Chebyshev semi-iteration runs, which every rank knows), its
+    /// direct pass, which ran before). With `older` (the state's Chebyshev semi-iteration runs, which every rank knows), its
     /// radiosity before last goes into the older field the same way.
     pub(super) fn restore(
         &self,
