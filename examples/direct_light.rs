@@ -47,6 +47,7 @@ fn main() {
                 directions,
                 tolerance,
                 accelerate: true,
+                chebyshev: false,
                 direct,
             };
             // The presets before the direct pass.

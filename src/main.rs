@@ -125,10 +125,15 @@ enum Command {
         compress_exchange: bool,
         /// Where the tail extrapolation finds no geometric tail (scenes of many rooms), iterate
         /// by Chebyshev semi-iteration, which follows several slow modes at once: about a
-        /// third fewer iterations on such scenes (docs/simulation.md). Under the stopping rule
-        /// only, as the tail extrapolation: `--iterations K` alone runs K plain iterations.
-        #[arg(long)]
+        /// third fewer iterations on such scenes (docs/simulation.md). On in every --quality
+        /// preset; under the stopping rule only, as the tail extrapolation: `--iterations K`
+        /// alone runs K plain iterations.
+        #[arg(long, overrides_with = "no_chebyshev")]
         chebyshev: bool,
+        /// Iterate with the tail extrapolation alone (the solver before the Chebyshev
+        /// semi-iteration: its answers to the bit).
+        #[arg(long, overrides_with = "chebyshev")]
+        no_chebyshev: bool,
         /// Continue from OUT/checkpoint.bin if there is one (left by an interrupted or killed
         /// solve of the same scene and options), at the iteration or the direction it holds;
         /// without one, start from the beginning. A checkpoint written inside an iteration by
@@ -483,6 +488,7 @@ fn run(cli: Cli) -> Result<(), AppError> {
             groups,
             compress_exchange,
             chebyshev,
+            no_chebyshev,
             resume,
             checkpoint_every,
         } => {
@@ -550,7 +556,8 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 },
                 links_memory,
                 links_disk,
-                chebyshev: chebyshev
+                chebyshev: (preset.chebyshev || chebyshev)
+                    && !no_chebyshev
                     && preset.accelerate
                     && (tolerance.is_some() || iterations.is_none()),
                 ..Default::default()

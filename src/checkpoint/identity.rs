@@ -136,7 +136,8 @@ impl Identity {
         if self.chebyshev != this.chebyshev {
             let on = |c: bool| if c { "with" } else { "without" };
             return Some(format!(
-                "it was made {} --chebyshev, and this run is {} it",
+                "it was made {} the Chebyshev semi-iteration, and this run is {} it \
+                 (--chebyshev, --no-chebyshev: on in every --quality preset)",
                 on(self.chebyshev),
                 on(this.chebyshev)
             ));

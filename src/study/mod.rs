@@ -76,6 +76,9 @@ pub struct Settings {
     pub directions: usize,
     pub tolerance: f64,
     pub accelerate: bool,
+    /// Chebyshev semi-iteration where the tail extrapolation finds no tail (with
+    /// `accelerate` only).
+    pub chebyshev: bool,
     /// Dense line directions of the direct-light pass (`solve::direct`); 0: no direct pass.
     pub direct: usize,
 }
@@ -112,6 +115,7 @@ impl Plan {
                 directions: 193,
                 tolerance: 1e-5,
                 accelerate: false,
+                chebyshev: false,
                 direct: 0,
             },
             directions: vec![13, 49, 109, 193, 301, 589, 1201],
@@ -130,6 +134,7 @@ impl Plan {
                 directions: 2401,
                 tolerance: 1e-6,
                 accelerate: true,
+                chebyshev: false,
                 direct: 0,
             },
             presets: true,
@@ -160,6 +165,7 @@ impl Plan {
                 directions: 49,
                 tolerance: 1e-5,
                 accelerate: false,
+                chebyshev: false,
                 direct: 0,
             },
             directions: vec![13, 49, 193],
@@ -171,6 +177,7 @@ impl Plan {
                 directions: 301,
                 tolerance: 1e-6,
                 accelerate: true,
+                chebyshev: false,
                 direct: 0,
             },
             presets: false,
@@ -295,6 +302,7 @@ fn measure(
         tolerance: Some(settings.tolerance),
         threads,
         accelerate: settings.accelerate,
+        chebyshev: settings.accelerate && settings.chebyshev,
         // The presets as `voxrad solve --quality` runs them (the pass decided by the scene);
         // every other run with the pass as asked.
         direct: match (settings.direct, knob) {
@@ -426,6 +434,7 @@ pub fn run(
                     directions: p.directions,
                     tolerance: p.tolerance,
                     accelerate: p.accelerate,
+                    chebyshev: p.chebyshev,
                     direct: p.direct,
                 },
             ));
@@ -516,11 +525,11 @@ impl Study {
     /// The CSV table: one row per run.
     pub fn csv(&self) -> String {
         let mut out = String::from(
-            "knob,resolution,directions,direct_directions,tolerance,extrapolation,surfels,iterations,seconds,mean_error,max_error,pareto,gathered_mean_error,gathered_max_error\n",
+            "knob,resolution,directions,direct_directions,tolerance,extrapolation,surfels,iterations,seconds,mean_error,max_error,pareto,gathered_mean_error,gathered_max_error,chebyshev\n",
         );
         for r in &self.runs {
             out.push_str(&format!(
-                "{},{},{},{},{:e},{},{},{},{:.4},{:.6e},{:.6e},{},{:.6e},{:.6e}\n",
+                "{},{},{},{},{:e},{},{},{},{:.4},{:.6e},{:.6e},{},{:.6e},{:.6e},{}\n",
                 r.knob,
                 r.settings.resolution,
                 r.directions_used,
@@ -534,7 +543,8 @@ impl Study {
                 r.max_error,
                 r.pareto,
                 r.gathered_mean_error,
-                r.gathered_max_error
+                r.gathered_max_error,
+                r.settings.chebyshev
             ));
         }
         out
@@ -564,7 +574,11 @@ impl Study {
                 r.directions_used,
                 r.direct_used,
                 r.settings.tolerance,
-                if r.settings.accelerate { "yes" } else { "no" },
+                match (r.settings.accelerate, r.settings.chebyshev) {
+                    (false, _) => "no",
+                    (true, false) => "tail",
+                    (true, true) => "tail, Chebyshev",
+                },
                 r.iterations,
                 r.seconds,
                 r.mean_error,
