@@ -506,7 +506,12 @@ fn solve_help_describes_the_presets_as_they_are() {
 
 /// Solves `obj` at `--quality draft` into `out` with `extra` options; returns the report.
 fn solve_draft(obj: &Path, out: &Path, extra: &[&str]) -> serde_json::Value {
-    let mut args = vec!["solve", obj.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    let mut args = vec![
+        "solve",
+        obj.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
     args.extend_from_slice(&["--quality", "draft", "--threads", "2"]);
     args.extend_from_slice(extra);
     assert_ok(&voxrad(&args), "solve draft");
@@ -520,7 +525,12 @@ fn distance(a: &Path, b: &Path) -> f64 {
     assert_eq!(a.records.len(), b.records.len());
     let (mut off, mut total) = (0.0, 0.0);
     for (x, y) in a.records.iter().zip(&b.records) {
-        for (bx, by) in x.radiosity.iter().flatten().zip(y.radiosity.iter().flatten()) {
+        for (bx, by) in x
+            .radiosity
+            .iter()
+            .flatten()
+            .zip(y.radiosity.iter().flatten())
+        {
             off += x.area as f64 * (bx - by).abs() as f64;
             total += x.area as f64 * *by as f64;
         }

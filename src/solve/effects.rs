@@ -243,8 +243,9 @@ impl Analysis {
                 "Chebyshev semi-iteration",
                 stats.chebyshev_updates.is_some(),
                 &match (requested.chebyshev, stats.chebyshev_updates) {
-                    (false, _) => "off (--no-chebyshev, or --iterations without --tolerance)"
-                        .to_string(),
+                    (false, _) => {
+                        "off (--no-chebyshev, or --iterations without --tolerance)".to_string()
+                    }
                     (true, None) => "allowed, not started: the tail extrapolation found a \
                                      geometric tail, or the change fell by 0.89 or more an \
                                      iteration"
