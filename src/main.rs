@@ -142,11 +142,11 @@ enum Command {
         #[arg(long)]
         resume: bool,
         /// Least seconds between two checkpoints, written after an iteration or, inside one,
-        /// between directions. 0: after every iteration,
-        /// and inside iterations as often as their writing time allows (at most a fifth of the
-        /// time). A stop signal always saves what is done.
-        #[arg(long, default_value_t = 60.0, value_name = "SECONDS")]
-        checkpoint_every: f64,
+        /// between directions. 0: after every iteration, and inside iterations as often as
+        /// their writing time allows (at most a fifth of the time). A stop signal always saves
+        /// what is done. [default: 60, and inside iterations at most a twentieth of the time]
+        #[arg(long, value_name = "SECONDS")]
+        checkpoint_every: Option<f64>,
     },
     /// Render a solved result directory to a PNG.
     Render {
@@ -492,9 +492,13 @@ fn run(cli: Cli) -> Result<(), AppError> {
             resume,
             checkpoint_every,
         } => {
-            let every = std::time::Duration::try_from_secs_f64(checkpoint_every).map_err(|_| {
+            let (seconds, write_factor) = match checkpoint_every {
+                Some(s) => (s, voxrad::checkpoint::ASKED_WRITE_TIME_FACTOR),
+                None => (60.0, voxrad::checkpoint::WRITE_TIME_FACTOR),
+            };
+            let every = std::time::Duration::try_from_secs_f64(seconds).map_err(|_| {
                 AppError::BadInput(format!(
-                    "--checkpoint-every {checkpoint_every}: must be a number of seconds, 0 or more"
+                    "--checkpoint-every {seconds}: must be a number of seconds, 0 or more"
                 ))
             })?;
             // From here SIGTERM and SIGINT stop the solve at the next direction, with a
@@ -569,7 +573,11 @@ fn run(cli: Cli) -> Result<(), AppError> {
                 solve,
                 image_size,
                 memory,
-                checkpoint: CheckpointOptions { resume, every },
+                checkpoint: CheckpointOptions {
+                    resume,
+                    every,
+                    write_factor,
+                },
                 work_dir,
             };
             if groups.is_some() && !matches!(distribute, Some(Distribute::Hybrid)) {

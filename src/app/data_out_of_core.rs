@@ -59,7 +59,8 @@ pub(super) fn run_solve_data_out_of_core(
         state.as_ref().map(|s| s.iteration),
     )
     // Inside iterations too, as every path (`distribute::ooc::within`).
-    .within(true);
+    .within(true)
+    .write_factor(cmd.checkpoint.write_factor);
     let checkpoints = crate::distribute::ooc::DataOocCheckpoints {
         saver: &mut saver,
         resume,

@@ -170,7 +170,8 @@ pub(super) fn solve_in_memory(
         resume.as_ref().map(|l| l.state.iteration),
     )
     // Inside iterations too, in every mode (see `checkpoint`).
-    .within(true);
+    .within(true)
+    .write_factor(cmd.checkpoint.write_factor);
     let checkpoints = Checkpoints {
         saver: &mut saver,
         resume,

@@ -120,6 +120,10 @@ pub struct CheckpointOptions {
     pub resume: bool,
     /// `--checkpoint-every`: least time between two checkpoints (zero: every iteration).
     pub every: std::time::Duration,
+    /// Inside iterations, a checkpoint waits at least this many times the last one's writing
+    /// time (`checkpoint::WRITE_TIME_FACTOR` at the default interval,
+    /// `checkpoint::ASKED_WRITE_TIME_FACTOR` where one is given).
+    pub write_factor: u32,
 }
 
 impl Default for CheckpointOptions {
@@ -127,6 +131,7 @@ impl Default for CheckpointOptions {
         CheckpointOptions {
             resume: false,
             every: std::time::Duration::from_secs(60),
+            write_factor: crate::checkpoint::WRITE_TIME_FACTOR,
         }
     }
 }

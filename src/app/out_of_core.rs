@@ -75,7 +75,8 @@ pub(super) fn solve_out_of_core_in(
         resume.as_ref().map(|f| f.header.state.iteration),
     )
     // Between two directions too (see `outcore::solver`).
-    .within(true);
+    .within(true)
+    .write_factor(cmd.checkpoint.write_factor);
     let checkpoints = OocCheckpoints {
         saver: &mut saver,
         resume,
