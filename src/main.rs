@@ -54,7 +54,8 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
         /// Quality preset: resolution, directions, tolerance and extrapolation (tail and
-        /// Chebyshev) chosen together from the accuracy/time study (see docs/study.md); explicit options override it.
+        /// Chebyshev) chosen together from the accuracy/time study (see docs/study.md);
+        /// explicit options override it.
         #[arg(long, value_enum, default_value = "default")]
         quality: QualityArg,
         /// Voxels along the longest side of the scene (default: from --quality).
