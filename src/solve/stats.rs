@@ -124,6 +124,11 @@ pub struct DataStats {
     /// and peak memory, by rank.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub out_of_core: Vec<RankOutOfCore>,
+    /// Out of core: the steps inside an axis that moved no record on any rank the first time
+    /// and were skipped in later iterations without reading the held files (the same on every
+    /// rank; 0 in memory).
+    #[serde(default)]
+    pub quiet_steps_skipped: u64,
 }
 
 /// What one rank of the data mode out of core moved through its disk and held.
@@ -135,8 +140,8 @@ pub struct RankOutOfCore {
     /// The same per surfel of the scene and direction of every iteration.
     pub bytes_read_per_voxel_direction: f64,
     pub bytes_written_per_voxel_direction: f64,
-    /// The most surfel bytes (208 per surfel: static data, radiosity, light) the rank held in
-    /// its files for one direction.
+    /// The most surfel bytes (one held record per surfel: static data, radiosity, light) the
+    /// rank held in its files for one direction.
     pub largest_share_bytes: u64,
     /// The rank's peak resident memory (`VmHWM`) over the whole run.
     pub peak_rss_bytes: u64,

@@ -627,6 +627,7 @@ impl<'a> DataSolver<'a> {
                 .map(PhaseSeconds::from_slice)
                 .collect(),
             out_of_core: Vec::new(),
+            quiet_steps_skipped: 0,
         }
     }
 

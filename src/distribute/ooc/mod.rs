@@ -391,6 +391,8 @@ impl Solver<'_> {
             remembered: vec![None; d_count],
             imbalance: vec![0.0; d_count],
             moved: vec![0.0; d_count],
+            quiet: vec![None; d_count],
+            quiet_steps_skipped: 0,
             histogram: Vec::new(),
             links,
             times: BandTimes::default(),
@@ -424,6 +426,7 @@ impl Solver<'_> {
             largest_share,
             links,
             scales,
+            quiet_steps_skipped,
             ..
         } = sweep;
         stats.closure = Some(crate::solve::stats::ClosureStats {
@@ -465,6 +468,7 @@ impl Solver<'_> {
             io,
             largest_share,
             bands: times.bands,
+            quiet_steps_skipped,
         };
         let totals = self.summarize(&tally, surfels, stats.iterations);
         stats.data = Some(totals.data);
@@ -818,6 +822,13 @@ struct DataOocSweep<'s, 'a> {
     remembered: Vec<Option<Vec<u64>>>,
     imbalance: Vec<f64>,
     moved: Vec<f64>,
+    /// By direction: whether its step inside an axis moved no record on any rank, as found
+    /// the first time it ran on held files in the order of the step before (none: not known
+    /// yet). Which records a rank holds after a step depends on that step's column cuts
+    /// alone, and the cuts are remembered, so such a step moves nothing in every later
+    /// iteration either, and is skipped without reading the held files to find out.
+    quiet: Vec<Option<bool>>,
+    quiet_steps_skipped: u64,
     /// The row histogram of the held files' order.
     histogram: Vec<u32>,
     /// Each direction's partner links on this rank, in files (`outcore::links`): the rank's
@@ -913,19 +924,32 @@ impl Sweep for DataOocSweep<'_, '_> {
                 fold_axis(w, first_fold);
             }
         };
-        self.generation += 1;
+        // Inside an axis, on held files left by the step before in this run: a step that
+        // moved nothing before moves nothing again (see `quiet`). The same on every rank.
+        let steady = !first && self.in_copy_order;
         let held = self.held.take().expect("held files between steps");
-        let (next, rows, sent) = self.router.redistribute(
-            held,
-            self.generation,
-            key,
-            !first && self.in_copy_order,
-            std::mem::take(&mut self.histogram),
-            &owner,
-            &mut transform,
-            &mut self.io,
-            &mut self.seconds,
-        )?;
+        let (next, rows, sent) = if steady && self.quiet[d] == Some(true) {
+            self.quiet_steps_skipped += 1;
+            (held, std::mem::take(&mut self.histogram), 0)
+        } else {
+            self.generation += 1;
+            let moved = self.router.redistribute(
+                held,
+                self.generation,
+                key,
+                steady,
+                std::mem::take(&mut self.histogram),
+                &owner,
+                &mut transform,
+                &mut self.io,
+                &mut self.seconds,
+            )?;
+            if steady && self.quiet[d].is_none() {
+                // Collective: every rank is here at this step.
+                self.quiet[d] = Some(self.router.comm.max_u64(moved.2) == 0);
+            }
+            moved
+        };
         if fold {
             self.earlier_any = true;
             self.pending = false;

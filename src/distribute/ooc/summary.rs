@@ -17,6 +17,8 @@ pub(super) struct Tally {
     /// The most records held for one direction.
     pub largest_share: u64,
     pub bands: u64,
+    /// Steps skipped as quiet (the same on every rank).
+    pub quiet_steps_skipped: u64,
 }
 
 /// The statistics of all ranks, and the totals over ranks.
@@ -89,6 +91,7 @@ impl Solver<'_> {
                 bytes_sent: bytes_moved,
                 per_rank,
                 out_of_core,
+                quiet_steps_skipped: tally.quiet_steps_skipped,
                 ..Default::default()
             },
             bytes_read,
