@@ -29,7 +29,7 @@
 //! and the answer stays that solver's bit for bit.
 
 use crate::outcore::files::{
-    IoCounters, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
+    IoCounters, RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use crate::outcore::OocError;
 use std::cmp::Reverse;
@@ -212,6 +212,69 @@ impl HeldReader {
         }
         io.read += WIRE_LEN as u64;
         Ok(Some(w))
+    }
+}
+
+/// Reads given ranges of records of held files, in wire form, in the order given: positioned
+/// reads of at most about `buffer_bytes` at a time from each of the four files.
+pub struct HeldRangeReader {
+    files: [RecordFile; 4],
+    /// The ranges not read yet, as (first record, records), the next one last.
+    ranges: Vec<(u64, u64)>,
+    /// Records read ahead, in wire form, and how many of them were handed out.
+    buffer: Vec<u8>,
+    taken: usize,
+    chunk: u64,
+}
+
+impl HeldRangeReader {
+    pub fn open(
+        held: &Held,
+        mut ranges: Vec<(u64, u64)>,
+        buffer_bytes: usize,
+    ) -> Result<Self, OocError> {
+        ranges.retain(|&(_, count)| count > 0);
+        ranges.reverse();
+        let open = |k: usize| RecordFile::open(&held.paths[k]);
+        Ok(HeldRangeReader {
+            files: [open(0)?, open(1)?, open(2)?, open(3)?],
+            ranges,
+            buffer: Vec::new(),
+            taken: 0,
+            chunk: (buffer_bytes / WIRE_LEN).max(1) as u64,
+        })
+    }
+
+    /// The next record, or `None` after the last range.
+    pub fn next(&mut self, io: &mut IoCounters) -> Result<Option<Wire>, OocError> {
+        if self.taken * WIRE_LEN >= self.buffer.len() {
+            let Some(range) = self.ranges.last_mut() else {
+                return Ok(None);
+            };
+            let (first, count) = (range.0, range.1.min(self.chunk));
+            range.0 += count;
+            range.1 -= count;
+            if range.1 == 0 {
+                self.ranges.pop();
+            }
+            let records = count as usize;
+            self.buffer.resize(records * WIRE_LEN, 0);
+            let mut part = Vec::new();
+            for (k, file) in self.files.iter().enumerate() {
+                part.resize(records * LENGTHS[k], 0);
+                file.read_at(first * LENGTHS[k] as u64, &mut part, io)?;
+                for (r, bytes) in part.chunks_exact(LENGTHS[k]).enumerate() {
+                    let at = r * WIRE_LEN + OFFSETS[k];
+                    self.buffer[at..at + LENGTHS[k]].copy_from_slice(bytes);
+                }
+            }
+            self.taken = 0;
+        }
+        let at = self.taken * WIRE_LEN;
+        self.taken += 1;
+        Ok(Some(
+            self.buffer[at..at + WIRE_LEN].try_into().expect("a record"),
+        ))
     }
 }
 

@@ -917,6 +917,24 @@ impl Sweep for DataOocSweep<'_, '_> {
             let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
             cuts[1..ranks].partition_point(|&c| c <= j)
         };
+        // The rows `v` of a layer whose column `j = v + shift` is this rank's: `owner` names
+        // this rank for exactly these.
+        let me = solver.group.rank();
+        let (first_column, end_column) = (
+            if me == 0 { 0 } else { cuts[me] },
+            if me + 1 == ranks {
+                u64::MAX
+            } else {
+                cuts[me + 1]
+            },
+        );
+        let kept_rows = |layer: usize| {
+            let shift = frame.layer_shift(layer).1;
+            (
+                first_column.saturating_sub(shift),
+                end_column.saturating_sub(shift),
+            )
+        };
         let fold = first && self.pending;
         let first_fold = !self.earlier_any;
         let mut transform = |w: &mut Wire| {
@@ -940,6 +958,7 @@ impl Sweep for DataOocSweep<'_, '_> {
                 steady,
                 std::mem::take(&mut self.histogram),
                 &owner,
+                Some(&kept_rows),
                 &mut transform,
                 &mut self.io,
                 &mut self.seconds,
@@ -1058,6 +1077,7 @@ impl Sweep for DataOocSweep<'_, '_> {
                 false,
                 Vec::new(),
                 &owner,
+                None,
                 &mut |_| {},
                 &mut self.io,
                 &mut self.seconds,

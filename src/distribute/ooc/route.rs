@@ -6,7 +6,8 @@
 
 use super::held::WIRE_LEN;
 use super::held::{
-    merge_runs, sort_runs, AxisKey, Held, HeldReader, HeldWriter, RunWriter, Source, Wire,
+    merge_runs, sort_runs, AxisKey, Held, HeldRangeReader, HeldReader, HeldWriter, RunWriter,
+    Source, Wire,
 };
 use crate::distribute::data::PhaseSeconds;
 use crate::distribute::Comm;
@@ -49,6 +50,11 @@ impl Router<'_> {
     /// new held files (generation `generation`, sorted by `key`), their row histogram (in the
     /// reused vector `histogram`) and the records this rank sent away. `sorted`: `held` is
     /// sorted by `key` already, so the received runs are merged rather than sorted.
+    ///
+    /// `kept_rows`, with `sorted`: the rows `v` of each layer of `key` whose records stay here
+    /// (`lo..hi`; `owner` names this rank for exactly these), so that only the other rows' records
+    /// are read to be sent (found in the held files through `histogram`, their row counts),
+    /// not every record.
     #[allow(clippy::too_many_arguments)]
     pub fn redistribute(
         &self,
@@ -58,6 +64,7 @@ impl Router<'_> {
         sorted: bool,
         histogram: Vec<u32>,
         owner: &dyn Fn(&Wire) -> usize,
+        kept_rows: Option<&dyn Fn(usize) -> (u64, u64)>,
         transform: &mut dyn FnMut(&mut Wire),
         io: &mut IoCounters,
         seconds: &mut PhaseSeconds,
@@ -78,16 +85,30 @@ impl Router<'_> {
                     .transpose()
             })
             .collect::<Result<_, _>>()?;
-        let mut reader = HeldReader::open(&held, self.plan.io_bytes)?;
         let mut moved = 0u64;
-        while let Some(mut w) = reader.next(io)? {
+        let mut send = |mut w: Wire| -> Result<(), OocError> {
             transform(&mut w);
             if let Some(out) = outgoing[owner(&w)].as_mut() {
                 out.write(&w)?;
                 moved += 1;
             }
+            Ok(())
+        };
+        match kept_rows.filter(|_| sorted) {
+            Some(kept_rows) => {
+                let ranges = leaving_ranges(&histogram, key.rows(), kept_rows);
+                let mut reader = HeldRangeReader::open(&held, ranges, self.plan.io_bytes)?;
+                while let Some(w) = reader.next(io)? {
+                    send(w)?;
+                }
+            }
+            None => {
+                let mut reader = HeldReader::open(&held, self.plan.io_bytes)?;
+                while let Some(w) = reader.next(io)? {
+                    send(w)?;
+                }
+            }
         }
-        drop(reader);
         let outgoing: Vec<Option<PathBuf>> = outgoing
             .into_iter()
             .map(|o| o.map(|o| o.finish(&mut *io)).transpose())
@@ -189,6 +210,35 @@ impl Router<'_> {
     }
 }
 
+/// The records of held files in their row order (`histogram`: records per row, `rows` rows a
+/// layer) that lie outside the rows `kept_rows(layer)` of their layer, as (first record,
+/// records): at most two ranges a layer, below and above the kept rows.
+fn leaving_ranges(
+    histogram: &[u32],
+    rows: usize,
+    kept_rows: &dyn Fn(usize) -> (u64, u64),
+) -> Vec<(u64, u64)> {
+    let mut ranges = Vec::new();
+    let mut first = 0u64;
+    for (layer, counts) in histogram.chunks(rows.max(1)).enumerate() {
+        let (lo, hi) = kept_rows(layer);
+        let (lo, hi) = (lo.min(rows as u64) as usize, hi.min(rows as u64) as usize);
+        let records = |r: std::ops::Range<usize>| counts[r].iter().map(|&c| c as u64).sum::<u64>();
+        let total = records(0..rows);
+        if lo >= hi {
+            ranges.push((first, total));
+        } else {
+            let below = records(0..lo);
+            let kept = records(lo..hi);
+            ranges.push((first, below));
+            ranges.push((first + below + kept, total - below - kept));
+        }
+        first += total;
+    }
+    ranges.retain(|&(_, count)| count > 0);
+    ranges
+}
+
 /// Takes the bytes that arrived from one source rank.
 pub type Received<'a> = dyn FnMut(usize, &[u8]) -> Result<(), OocError> + 'a;
 
@@ -252,4 +302,45 @@ pub fn exchange_files(
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::leaving_ranges;
+
+    /// The ranges name exactly the records, in row order, whose row lies outside its layer's
+    /// kept rows: against listing every record with its layer and row.
+    #[test]
+    fn leaving_ranges_name_the_records_outside_the_kept_rows() {
+        let rows = 5;
+        // Three layers of five rows: some empty rows, an empty layer.
+        let histogram: Vec<u32> = vec![2, 0, 3, 1, 4, 0, 0, 0, 0, 0, 1, 2, 0, 5, 1];
+        let kept = [(1u64, 4u64), (0, 5), (3, 99)];
+        let cases: [&dyn Fn(usize) -> (u64, u64); 3] = [
+            &|layer| kept[layer],
+            // Nothing kept (a rank whose columns lie past the layer).
+            &|_| (7, 7),
+            // Everything kept.
+            &|_| (0, u64::MAX),
+        ];
+        for kept_rows in cases {
+            let mut expected = Vec::new();
+            let mut record = 0u64;
+            for (at, &count) in histogram.iter().enumerate() {
+                let (layer, row) = (at / rows, (at % rows) as u64);
+                let (lo, hi) = kept_rows(layer);
+                for _ in 0..count {
+                    if !(lo <= row && row < hi) {
+                        expected.push(record);
+                    }
+                    record += 1;
+                }
+            }
+            let got: Vec<u64> = leaving_ranges(&histogram, rows, kept_rows)
+                .into_iter()
+                .flat_map(|(first, count)| first..first + count)
+                .collect();
+            assert_eq!(got, expected);
+        }
+    }
 }
