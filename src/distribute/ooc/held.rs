@@ -150,6 +150,12 @@ pub struct Held {
 }
 
 impl Held {
+    /// The four files opened for positioned reads.
+    pub fn open_files(&self) -> Result<[RecordFile; 4], OocError> {
+        let open = |k: usize| RecordFile::open(&self.paths[k]);
+        Ok([open(0)?, open(1)?, open(2)?, open(3)?])
+    }
+
     pub fn statics(&self) -> &Path {
         &self.paths[0]
     }
@@ -235,9 +241,8 @@ impl HeldRangeReader {
     ) -> Result<Self, OocError> {
         ranges.retain(|&(_, count)| count > 0);
         ranges.reverse();
-        let open = |k: usize| RecordFile::open(&held.paths[k]);
         Ok(HeldRangeReader {
-            files: [open(0)?, open(1)?, open(2)?, open(3)?],
+            files: held.open_files()?,
             ranges,
             buffer: Vec::new(),
             taken: 0,
@@ -323,6 +328,31 @@ impl HeldWriter {
             h[key.row(voxel(w))] += 1;
         }
         self.count += 1;
+        Ok(())
+    }
+
+    /// Appends records `first..first + count` of the held files `from` unchanged, as bytes, in
+    /// reads of at most `chunk` records (`buffer` reused); they are not counted in the row
+    /// histogram (the caller keeps it).
+    pub fn copy_records(
+        &mut self,
+        from: &[RecordFile; 4],
+        (first, count): (u64, u64),
+        chunk: u64,
+        buffer: &mut Vec<u8>,
+        io: &mut IoCounters,
+    ) -> Result<(), OocError> {
+        let (mut at, end) = (first, first + count);
+        while at < end {
+            let records = (end - at).min(chunk.max(1));
+            for (k, (file, out)) in from.iter().zip(&mut self.writers).enumerate() {
+                buffer.resize(records as usize * LENGTHS[k], 0);
+                file.read_at(at * LENGTHS[k] as u64, buffer, io)?;
+                out.write(buffer)?;
+            }
+            at += records;
+        }
+        self.count += count;
         Ok(())
     }
 

@@ -4,10 +4,9 @@
 //! source), merge (the kept run and the received runs, each sorted in copy order, merged k-way
 //! into the new held files; an external sort instead when the held order was another axis's).
 
-use super::held::WIRE_LEN;
 use super::held::{
-    merge_runs, sort_runs, AxisKey, Held, HeldRangeReader, HeldReader, HeldWriter, RunWriter,
-    Source, Wire,
+    merge_runs, sort_runs, voxel, AxisKey, Held, HeldRangeReader, HeldReader, HeldWriter,
+    RunWriter, Source, Wire, WIRE_LEN,
 };
 use crate::distribute::data::PhaseSeconds;
 use crate::distribute::Comm;
@@ -153,6 +152,14 @@ impl Router<'_> {
             return Ok((held, histogram, 0));
         }
 
+        if let Some(kept_rows) = kept_rows.filter(|_| sorted) {
+            let t = Instant::now();
+            let (next, histogram) =
+                self.merge_by_layers(held, generation, key, histogram, kept_rows, runs, io)?;
+            seconds.merge += t.elapsed().as_secs_f64();
+            return Ok((next, histogram, moved));
+        }
+
         // Merge (or sort) the kept records and the received runs into the new held files.
         let t = Instant::now();
         let mut writer = HeldWriter::create(
@@ -207,6 +214,120 @@ impl Router<'_> {
         let (held, histogram) = writer.finish(io)?;
         seconds.merge += t.elapsed().as_secs_f64();
         Ok((held, histogram.unwrap_or_default(), moved))
+    }
+}
+
+impl Router<'_> {
+    /// The merge of a step inside an axis (`held` sorted by `key`, `histogram` its records per
+    /// row): in each layer the records this rank keeps are the rows it held and still holds
+    /// (`kept_rows`), one range of the held files, and each received row lies below or above
+    /// them (a row is one rank's whole, and a rank's rows of a layer are one interval before
+    /// the step and after it). So the new held files are, layer by layer, the received records
+    /// below the kept range, the kept range copied as bytes, and the received records above
+    /// it: no kept record is decoded or compared, and the received runs are merged among
+    /// themselves only. Returns the new held files and their histogram (`histogram` reused).
+    #[allow(clippy::too_many_arguments)]
+    fn merge_by_layers(
+        &self,
+        held: Held,
+        generation: u64,
+        key: AxisKey,
+        mut histogram: Vec<u32>,
+        kept_rows: &dyn Fn(usize) -> (u64, u64),
+        runs: Vec<PathBuf>,
+        io: &mut IoCounters,
+    ) -> Result<(Held, Vec<u32>), OocError> {
+        let rows = key.rows().max(1);
+        // Per layer: the kept records (first, count) and the first kept row. The histogram
+        // keeps the kept rows' counts; the received rows are counted as they are written.
+        let mut spans: Vec<((u64, u64), usize)> = Vec::with_capacity(key.layers());
+        let mut first = 0u64;
+        for (layer, counts) in histogram.chunks_mut(rows).enumerate() {
+            let (lo, hi) = kept_rows(layer);
+            let (lo, hi) = (lo.min(rows as u64) as usize, hi.min(rows as u64) as usize);
+            let total: u64 = counts.iter().map(|&c| c as u64).sum();
+            let (mut below, mut kept, mut first_row) = (0u64, 0u64, usize::MAX);
+            for (row, count) in counts.iter_mut().enumerate() {
+                if lo <= row && row < hi {
+                    kept += *count as u64;
+                    if *count > 0 {
+                        first_row = first_row.min(row);
+                    }
+                } else {
+                    if row < lo {
+                        below += *count as u64;
+                    }
+                    *count = 0;
+                }
+            }
+            spans.push(((first + below, kept), first_row));
+            first += total;
+        }
+        let from = held.open_files()?;
+        let mut writer = HeldWriter::create(self.dir, generation, self.plan.io_bytes, None)?;
+        let chunk = (self.plan.io_bytes / WIRE_LEN).max(1) as u64;
+        let mut buffer = Vec::new();
+        let mut copied = IoCounters::default();
+        // Layers before `next_layer` are written whole; `copied_layer`: the kept range of
+        // layer `next_layer` is written.
+        let (mut next_layer, mut copied_layer) = (0usize, false);
+        let mut copy_through = |layer: usize,
+                                row: usize,
+                                next_layer: &mut usize,
+                                copied_layer: &mut bool,
+                                writer: &mut HeldWriter|
+         -> Result<(), OocError> {
+            debug_assert!(layer >= *next_layer, "received records in key order");
+            while *next_layer < layer || *next_layer == layer && !*copied_layer {
+                let Some(&(range, first_row)) = spans.get(*next_layer) else {
+                    // Past the last layer: everything is written.
+                    return Ok(());
+                };
+                if *next_layer == layer && row < first_row {
+                    // A received row below the kept ones: it comes first.
+                    return Ok(());
+                }
+                if !*copied_layer {
+                    writer.copy_records(&from, range, chunk, &mut buffer, &mut copied)?;
+                }
+                if *next_layer < layer {
+                    *next_layer += 1;
+                    *copied_layer = false;
+                } else {
+                    *copied_layer = true;
+                }
+            }
+            Ok(())
+        };
+        let (fan_in, read_buffer) = self.fan_in();
+        merge_runs(
+            None,
+            runs,
+            key,
+            fan_in,
+            read_buffer,
+            self.dir,
+            io,
+            &mut |w: &Wire| {
+                let v = voxel(w);
+                let (layer, row) = (v[key.main] as usize, v[key.v] as usize);
+                copy_through(layer, row, &mut next_layer, &mut copied_layer, &mut writer)?;
+                histogram[key.row(v)] += 1;
+                writer.write(w)
+            },
+        )?;
+        // The layers after the last received record.
+        copy_through(
+            spans.len(),
+            0,
+            &mut next_layer,
+            &mut copied_layer,
+            &mut writer,
+        )?;
+        io.read += copied.read;
+        held.remove()?;
+        let (held, _) = writer.finish(io)?;
+        Ok((held, histogram))
     }
 }
 
