@@ -907,3 +907,95 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
     }
     all
 }
+
+/// Shards staged on each node's own disk: a rank other than 0 reads only the shards its slice
+/// of the set touches (its part, and the records at its ends that decide where its voxels
+/// begin and end), so its node needs neither the whole set nor the scene's materials pass that
+/// every rank used to make (rank 0 makes it and sends it). With 4 shards on 2 ranks, rank 1's
+/// node holds the manifest and shards 1 to 3: the one-process answer to the bit. Without
+/// shard 1, which rank 1's first voxel may begin in, it stops with a message naming the file.
+#[test]
+fn a_rank_needs_only_the_shards_of_its_slice_on_its_node() {
+    let tmp = tempfile::tempdir().unwrap();
+    let set = tmp.path().join("set");
+    cornell_set(&set, 32, 4);
+    let common_args = [
+        "--memory",
+        "1MiB",
+        "--directions",
+        "49",
+        "--iterations",
+        "2",
+        "--direct-directions",
+        "0",
+        "--threads",
+        "1",
+    ];
+    let single = tmp.path().join("single");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(["solve", set.to_str().unwrap(), "--out"])
+        .arg(&single)
+        .args(common_args)
+        .output()
+        .unwrap();
+    ok(&o, "one process");
+    let manifest = voxrad::storage::Manifest::read_dir(&set).unwrap();
+    let shard_file = |k: usize| manifest.shards[k].file.clone();
+    // The "nodes": rank 0's holds the whole set, rank 1's the manifest and shards 1 to 3.
+    let node = |rank: usize, shards: &[usize]| {
+        let dir = tmp.path().join(format!("nodes/node{rank}/set"));
+        std::fs::create_dir_all(&dir).unwrap();
+        let copy = |name: &str| std::fs::copy(set.join(name), dir.join(name)).unwrap();
+        copy(voxrad::storage::MANIFEST_FILE);
+        for &k in shards {
+            copy(&shard_file(k));
+        }
+    };
+    node(0, &[0, 1, 2, 3]);
+    node(1, &[1, 2, 3]);
+    // Each rank is given its own node's copy, at one path as on a cluster.
+    let pick = tmp.path().join("pick.sh");
+    std::fs::write(
+        &pick,
+        format!(
+            "#!/bin/sh\nbin=$1\nshift\nexec \"$bin\" solve \"{}/node$OMPI_COMM_WORLD_RANK/set\" \
+             \"$@\"\n",
+            tmp.path().join("nodes").display()
+        ),
+    )
+    .unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&pick, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let run = |out: &Path| {
+        let launcher = common::mpi::launcher(2);
+        Command::new(&launcher[0])
+            .args(&launcher[1..])
+            .arg(&pick)
+            .arg(env!("CARGO_BIN_EXE_voxrad"))
+            .arg("--out")
+            .arg(out)
+            .args(common_args)
+            .args(["--distribute", "data"])
+            .envs(common::mpi::AS_ROOT)
+            .env("NO_COLOR", "1")
+            .output()
+            .unwrap()
+    };
+    let out = tmp.path().join("staged");
+    ok(&run(&out), "2 ranks, shards staged per node");
+    assert!(
+        radiosity(&out) == radiosity(&single),
+        "staged shards change bits"
+    );
+    // Without shard 1 on rank 1's node.
+    std::fs::remove_file(tmp.path().join("nodes/node1/set").join(shard_file(1))).unwrap();
+    let o = run(&tmp.path().join("missing"));
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&shard_file(1)) && stderr.contains("is not on this node"),
+        "{stderr}"
+    );
+}

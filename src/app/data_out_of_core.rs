@@ -39,10 +39,19 @@ pub(super) fn run_solve_data_out_of_core(
         let (work, shards, _) = convert_obj(cmd, budget, &prefix)?;
         (Some(work), shards)
     };
-    let source = ShardSetSource::open(&shards).map_err(ooc_error)?;
+    // Rank 0 reads the whole set (the analysis below, the closure verdict, the direct-light
+    // pass, the results); another rank reads only its slice, so its node may hold only the
+    // shards of that slice (staged on a node-local disk).
+    let source = if comm.rank() == 0 {
+        ShardSetSource::open(&shards)
+    } else {
+        ShardSetSource::open_present(&shards)
+    }
+    .map_err(ooc_error)?;
     let read_seconds = started.elapsed().as_secs_f64();
-    // Simulate only what the scene calls for, as the one-process solvers do.
-    let analysis = analyse_source(&source, budget)?;
+    // Simulate only what the scene calls for, as the one-process solvers do; rank 0 reads the
+    // scene's materials for every rank.
+    let analysis = analysis_from_rank0(comm, &source, budget)?;
     let shaped = analysis.shape(&cmd.solve);
     let directions = DirectionSet::with_count(shaped.directions);
     let identity = out_of_core_identity(&source, &directions, &shaped, budget)?;
@@ -264,4 +273,48 @@ pub(super) fn run_info(
         resolution: info.grid.dims.iter().copied().max().unwrap_or(0),
         tolerance: cmd.solve.tolerance.unwrap_or(0.0),
     }
+}
+
+/// [`analyse_source`] on rank 0, the same on every rank: the others receive it (added over
+/// ranks, to which they bring zeros; every field is exact in an f64).
+fn analysis_from_rank0(
+    comm: &dyn Comm,
+    source: &ShardSetSource,
+    budget: u64,
+) -> Result<crate::solve::effects::Analysis, AppError> {
+    let mut a = if comm.rank() == 0 {
+        analyse_source(source, budget)?
+    } else {
+        crate::solve::effects::Analysis {
+            emitters: false,
+            reflective: false,
+            grey: false,
+            max_reflectance: 0.0,
+            emitting_surfels: 0,
+            surfels: 0,
+            longest_axis: 0,
+            inside_sides: 0,
+        }
+    };
+    let flag = |b: bool| if b { 1.0 } else { 0.0 };
+    let mut fields = [
+        flag(a.emitters),
+        flag(a.reflective),
+        flag(a.grey),
+        a.max_reflectance,
+        a.emitting_surfels as f64,
+        a.surfels as f64,
+        a.longest_axis as f64,
+        a.inside_sides as f64,
+    ];
+    comm.sum_in_place(&mut fields);
+    a.emitters = fields[0] > 0.0;
+    a.reflective = fields[1] > 0.0;
+    a.grey = fields[2] > 0.0;
+    a.max_reflectance = fields[3];
+    a.emitting_surfels = fields[4] as usize;
+    a.surfels = fields[5] as usize;
+    a.longest_axis = fields[6] as u32;
+    a.inside_sides = fields[7] as usize;
+    Ok(a)
 }

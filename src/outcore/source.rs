@@ -9,7 +9,7 @@
 use super::OocError;
 use crate::scene::Material;
 use crate::solve::enclosure::{Enclosure, Verdict};
-use crate::storage::{Manifest, ShardReader, WindowedRecords};
+use crate::storage::{Manifest, ShardEntry, ShardReader, WindowedRecords};
 use crate::voxel::{Grid, Surfel, SurfelSet};
 use std::path::{Path, PathBuf};
 
@@ -137,7 +137,11 @@ impl SurfelSource for InMemorySource<'_> {
 /// A shard set directory: its shards, in manifest order, are the canonical order.
 pub struct ShardSetSource {
     dir: PathBuf,
-    readers: Vec<ShardReader>,
+    /// Every shard's reader, in manifest order; `None` for a shard not in `dir` (opened with
+    /// [`ShardSetSource::open_present`]), with its manifest entry.
+    readers: Vec<(Option<ShardReader>, ShardEntry)>,
+    /// The manifest's order (the shards' key order).
+    order: usize,
     info: SourceInfo,
 }
 
@@ -145,12 +149,29 @@ impl ShardSetSource {
     /// Opens the shard set `dir`: reads and validates the manifest, and checks every shard's
     /// header, length and footer against it (checksums are checked as the shards are streamed).
     pub fn open(dir: &Path) -> Result<Self, OocError> {
+        Self::open_with(dir, false)
+    }
+
+    /// As [`ShardSetSource::open`], but shards whose files are not in `dir` are allowed: a rank
+    /// of the data mode out of core other than rank 0 reads only its slice, so its node may hold
+    /// only the shards of that slice (node-local staging of one shard per rank). The shards that
+    /// are there are checked as by `open`; reading a missing one fails with a message naming it.
+    pub fn open_present(dir: &Path) -> Result<Self, OocError> {
+        Self::open_with(dir, true)
+    }
+
+    fn open_with(dir: &Path, allow_missing: bool) -> Result<Self, OocError> {
         let manifest = Manifest::read_dir(dir)?;
-        let readers = manifest.check_shards(dir)?;
+        let readers = manifest
+            .check_present_shards(dir, allow_missing)?
+            .into_iter()
+            .zip(manifest.shards.iter().cloned())
+            .collect();
         let count = manifest.records();
         Ok(ShardSetSource {
             dir: dir.to_path_buf(),
             readers,
+            order: manifest.order,
             info: SourceInfo {
                 grid: manifest.grid,
                 normals: manifest.normals.clone(),
@@ -179,8 +200,8 @@ impl SurfelSource for ShardSetSource {
         // start, so that its checksum is still checked at its end.
         let mut start = 0u64;
         let mut skip = 0;
-        for reader in &self.readers {
-            let count = reader.info().count;
+        for (_, entry) in &self.readers {
+            let count = entry.records;
             // From the start, every shard is read (even an empty one: its checksum is checked).
             if first == 0 || start + count > first {
                 break;
@@ -188,14 +209,25 @@ impl SurfelSource for ShardSetSource {
             start += count;
             skip += 1;
         }
-        let mut parts = Vec::with_capacity(self.readers.len());
-        for reader in &self.readers[skip..] {
+        let mut parts: Vec<SurfelStream<'_>> = Vec::with_capacity(self.readers.len());
+        for (reader, entry) in &self.readers[skip..] {
+            let Some(reader) = reader else {
+                // Not on this node: an error if the stream gets this far.
+                let path = Manifest::shard_path(&self.dir, entry);
+                parts.push(Box::new(std::iter::once(Err(OocError::BadData {
+                    source_name: path.display().to_string(),
+                    what: "is not on this node, and this rank's part of the scene lies in it: \
+                           copy it there from the shard set (rank 0 reads every shard)"
+                        .to_string(),
+                }))));
+                continue;
+            };
             let path = reader.path();
             let records = WindowedRecords::new(reader, window_bytes)?;
             // The checksum is known only at a shard's end, but the solver acts on each record as
             // it comes: a damaged record must not reach an index or the grid first, and the
             // message must name the file that holds it.
-            parts.push(records.enumerate().map(move |(index, r)| {
+            parts.push(Box::new(records.enumerate().map(move |(index, r)| {
                 let s = r?;
                 match check_record(&self.info, &s) {
                     Ok(()) => Ok(s),
@@ -207,7 +239,7 @@ impl SurfelSource for ShardSetSource {
                         ),
                     }),
                 }
-            }));
+            })));
         }
         Ok((Box::new(parts.into_iter().flatten()), start))
     }
@@ -225,11 +257,12 @@ impl SurfelSource for ShardSetSource {
             &info.normals,
             &info.materials,
             |h| {
-                for reader in &self.readers {
-                    let shard = reader.info();
-                    h.update(&(shard.order as u64).to_le_bytes());
-                    h.update(&shard.count.to_le_bytes());
-                    h.update(&shard.crc32.to_le_bytes());
+                // From the manifest, which every shard present was checked against: the same
+                // sum on a node that holds only some of them.
+                for (_, entry) in &self.readers {
+                    h.update(&(self.order as u64).to_le_bytes());
+                    h.update(&entry.records.to_le_bytes());
+                    h.update(&entry.crc32.to_le_bytes());
                 }
             },
         ))

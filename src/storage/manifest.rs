@@ -403,10 +403,26 @@ impl Manifest {
     /// checksums) and checks that it is the file the manifest lists: same order, record count,
     /// size and footer checksum. Cheap: reads each shard's header and footer only.
     pub fn check_shards(&self, dir: &Path) -> Result<Vec<ShardReader>, StorageError> {
+        self.check_present_shards(dir, false)?
+            .into_iter()
+            .map(|reader| Ok(reader.expect("every shard is required")))
+            .collect()
+    }
+
+    /// As [`Manifest::check_shards`], but with `allow_missing` a shard whose file is not in
+    /// `dir` is `None` rather than an error (a node that holds only the shards its rank reads).
+    pub fn check_present_shards(
+        &self,
+        dir: &Path,
+        allow_missing: bool,
+    ) -> Result<Vec<Option<ShardReader>>, StorageError> {
         self.shards
             .iter()
             .map(|entry| {
                 let path = Self::shard_path(dir, entry);
+                if allow_missing && !path.exists() {
+                    return Ok(None);
+                }
                 let reader = ShardReader::open_lazy(&path)?;
                 let info = reader.info();
                 let mismatch = entry.mismatch(info, self.order);
@@ -419,7 +435,7 @@ impl Manifest {
                             Self::path_in(dir).display()
                         ),
                     )),
-                    None => Ok(reader),
+                    None => Ok(Some(reader)),
                 }
             })
             .collect()
