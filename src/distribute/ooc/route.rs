@@ -3,6 +3,11 @@
 //! outgoing runs sent in rounds of bounded bytes, the received pieces appended to one run per
 //! source), merge (the kept run and the received runs, each sorted in copy order, merged k-way
 //! into the new held files; an external sort instead when the held order was another axis's).
+//!
+//! Inside an axis a rank's rows of each layer are one interval before a step and after it, so
+//! the fill reads only the rows that leave, and the merge writes the new held files layer by
+//! layer, the kept rows copied as bytes between the received rows below and above them
+//! ([`Router::merge_by_layers`]).
 
 use super::held::{
     merge_runs, sort_runs, voxel, AxisKey, Held, HeldRangeReader, HeldReader, HeldWriter,
