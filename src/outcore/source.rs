@@ -154,8 +154,8 @@ impl ShardSetSource {
 
     /// As [`ShardSetSource::open`], but shards whose files are not in `dir` are allowed: a rank
     /// of the data mode out of core other than rank 0 reads only its slice, so its node may hold
-    /// only the shards of that slice (node-local staging of one shard per rank). The shards that
-    /// are there are checked as by `open`; reading a missing one fails with a message naming it.
+    /// only the shards that slice touches (staged on a node-local disk). The shards that are
+    /// there are checked as by `open`; reading a missing one fails with a message naming it.
     pub fn open_present(dir: &Path) -> Result<Self, OocError> {
         Self::open_with(dir, true)
     }
