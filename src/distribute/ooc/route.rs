@@ -243,20 +243,22 @@ impl Router<'_> {
         io: &mut IoCounters,
     ) -> Result<(Held, Vec<u32>), OocError> {
         let rows = key.rows().max(1);
-        // Per layer: the kept records (first, count) and the first kept row. The histogram
-        // keeps the kept rows' counts; the received rows are counted as they are written.
-        let mut spans: Vec<((u64, u64), usize)> = Vec::with_capacity(key.layers());
+        // Per layer: the kept records (first, count) and the first and last kept rows. The
+        // histogram keeps the kept rows' counts; the received rows are counted as written.
+        let mut spans: Vec<((u64, u64), (usize, usize))> = Vec::with_capacity(key.layers());
         let mut first = 0u64;
         for (layer, counts) in histogram.chunks_mut(rows).enumerate() {
             let (lo, hi) = kept_rows(layer);
             let (lo, hi) = (lo.min(rows as u64) as usize, hi.min(rows as u64) as usize);
             let total: u64 = counts.iter().map(|&c| c as u64).sum();
-            let (mut below, mut kept, mut first_row) = (0u64, 0u64, usize::MAX);
+            let (mut below, mut kept) = (0u64, 0u64);
+            let (mut first_row, mut last_row) = (usize::MAX, 0);
             for (row, count) in counts.iter_mut().enumerate() {
                 if lo <= row && row < hi {
                     kept += *count as u64;
                     if *count > 0 {
                         first_row = first_row.min(row);
+                        last_row = row;
                     }
                 } else {
                     if row < lo {
@@ -265,7 +267,7 @@ impl Router<'_> {
                     *count = 0;
                 }
             }
-            spans.push(((first + below, kept), first_row));
+            spans.push(((first + below, kept), (first_row, last_row)));
             first += total;
         }
         let from = held.open_files()?;
@@ -282,9 +284,24 @@ impl Router<'_> {
                                 copied_layer: &mut bool,
                                 writer: &mut HeldWriter|
          -> Result<(), OocError> {
-            debug_assert!(layer >= *next_layer, "received records in key order");
+            // What the layout rests on, checked rather than assumed: a received record comes
+            // in key order and lies outside the kept rows of its layer.
+            let (below_kept, inside_kept) =
+                spans.get(layer).map_or((false, false), |&(_, (lo, hi))| {
+                    (row < lo, lo <= row && row <= hi)
+                });
+            let after_copy = layer == *next_layer && *copied_layer;
+            if layer < *next_layer || inside_kept || after_copy && below_kept {
+                return Err(OocError::BadData {
+                    source_name: self.dir.display().to_string(),
+                    what: format!(
+                        "a record received for layer {layer}, row {row} falls among the rows \
+                         this rank kept or before them: the ranks' column cuts disagree"
+                    ),
+                });
+            }
             while *next_layer < layer || *next_layer == layer && !*copied_layer {
-                let Some(&(range, first_row)) = spans.get(*next_layer) else {
+                let Some(&(range, (first_row, _))) = spans.get(*next_layer) else {
                     // Past the last layer: everything is written.
                     return Ok(());
                 };
