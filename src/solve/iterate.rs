@@ -56,7 +56,10 @@ pub(crate) trait Sweep {
     /// may stop part way: the ranks of the others must agree on where they stop.
     fn step(&mut self, step: usize) -> Result<bool, Self::Error>;
 
-    /// Whether a checkpoint can hold the state `done` steps into an iteration (0 < done).
+    /// Whether a checkpoint can hold the state `done` steps into an iteration (0 < done). The
+    /// same on every rank. Where it is false, a stop signal with mid-iteration checkpoints on
+    /// waits for the next step where it is true (or the iteration's end): the sweep answers
+    /// false only where the steps until then do nothing (blocks of links, `kept_links`).
     fn can_save_within(&self, done: usize) -> bool;
 
     /// Saves the state `done` steps into iteration `state.iteration + 1` (collective).
@@ -169,7 +172,11 @@ pub(crate) fn iterate<S: Sweep>(
                 Some(s) if within => s.agree_within(world, asked),
                 _ => (world.max_u64(asked.max(0) as u64) as i32, false),
             };
-            if signal != 0 {
+            // Where the light holds steps beyond this one (links replayed in blocks, see
+            // `Sweep::can_save_within`), the stop waits for the next step it can be saved at:
+            // the steps until then add nothing, and every rank agrees on that step.
+            let defer = within && step > 0 && !sweep.can_save_within(step);
+            if signal != 0 && !defer {
                 progress.finish_and_clear();
                 let history = (convergence.previous_change, &extrapolation);
                 let at = (completed, step);

@@ -12,7 +12,8 @@
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
-use super::links::{gather_and_record, DirectionLinks, LinkBudget};
+use super::kept_links::KeptLinks;
+use super::links::gather_and_record;
 use super::normalize::cosine_sums;
 use super::propagate::{
     gather_lines, prop_surfels, DirectionInput, LineScratch, PropSurfel, Record,
@@ -276,14 +277,10 @@ fn run(
         },
         lines: Lines::default(),
         seconds: [0.0; 3],
-        kept: vec![None; count],
-        link_budget: LinkBudget {
-            left: super::links::rank_budget(options.links_memory, n, comm),
-        },
-        link_tried: vec![
-            false;
-            crate::comm::dealt(directions.len(), comm.rank(), comm.size()).len()
-        ],
+        links: KeptLinks::new(
+            count,
+            super::links::rank_budget(options.links_memory, n, comm),
+        ),
         closed: verdict.closed,
         scales: super::closed::Scales::ONE,
     };
@@ -337,12 +334,8 @@ fn run(
         stats.reduce_seconds,
     ] = sweep.seconds;
     // Over every rank (the directions mode deals the directions): each keeps its own.
-    let kept = sweep.kept.iter().flatten();
-    let mut sums = [
-        kept.clone().count() as f64,
-        sweep.kept.len() as f64,
-        kept.map(DirectionLinks::bytes).sum::<u64>() as f64,
-    ];
+    let (kept, bytes) = sweep.links.held();
+    let mut sums = [kept as f64, count as f64, bytes as f64];
     comm.sum_in_place(&mut sums);
     let [kept_directions, directions, bytes] = sums.map(|v| v as usize);
     stats.links = Some(super::stats::LinkStats {
@@ -422,12 +415,8 @@ struct InMemory<'a> {
     lines: Lines,
     /// Dispatch, propagation and reduction seconds.
     seconds: [f64; 3],
-    /// Each of this rank's directions' links, once its first gather kept them.
-    kept: Vec<Option<DirectionLinks>>,
-    link_budget: LinkBudget,
-    /// Which of this rank's directions have had their links written down once (kept where
-    /// they fitted): the others are tried at their next gather.
-    link_tried: Vec<bool>,
+    /// This rank's directions' links, once their first gather kept them.
+    links: KeptLinks,
     /// The scene's light is sealed in: each update scales the light by `scales` (`closed`).
     closed: bool,
     scales: super::closed::Scales,
@@ -450,6 +439,11 @@ impl Sweep for InMemory<'_> {
         if from == 0 {
             self.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         }
+        // Blocks of links only where every rank kept every direction's: then the steps at
+        // which the light can be saved are the same on every rank (`kept_links`).
+        let ready = self.links.all_kept();
+        let blocks = self.comm.max_u64(u64::from(!ready)) == 0;
+        self.links.begin_iteration(blocks);
         if let Some(d) = &self.direct {
             d.reflected(&self.radiosity, &self.emission, &mut self.reflected);
         }
@@ -475,15 +469,17 @@ impl Sweep for InMemory<'_> {
             channels: self.channels,
         };
         let t0 = Instant::now();
-        if let Some(links) = &self.kept[step] {
+        let kept = &mut self.links;
+        if self
+            .pool
+            .install(|| kept.replay(step, input.radiosity, input.channels, acc))
+        {
             // Visibility known: a streaming gather.
-            self.pool
-                .install(|| links.replay(input.radiosity, input.channels, acc));
             self.seconds[1] += t0.elapsed().as_secs_f64();
             return Ok(true);
         }
         // The first gather of a direction writes its links down while they may still be kept.
-        let record = !self.link_tried[step] && self.link_budget.left > 0;
+        let record = self.links.should_record(step);
         let (t1, links) = self.pool.install(|| {
             dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
             let t1 = Instant::now();
@@ -495,18 +491,15 @@ impl Sweep for InMemory<'_> {
             }
         });
         if let Some(links) = links {
-            self.link_tried[step] = true;
-            if self.link_budget.take(links.bytes()) {
-                self.kept[step] = Some(links);
-            }
+            self.links.keep(step, links);
         }
         self.seconds[0] += (t1 - t0).as_secs_f64();
         self.seconds[1] += t1.elapsed().as_secs_f64();
         Ok(true)
     }
 
-    fn can_save_within(&self, _done: usize) -> bool {
-        true
+    fn can_save_within(&self, done: usize) -> bool {
+        self.links.can_save_within(done)
     }
 
     fn save_within(

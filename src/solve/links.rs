@@ -210,6 +210,44 @@ impl DirectionLinks {
         }
     }
 
+    /// Links held.
+    pub fn len(&self) -> usize {
+        self.packed.len()
+    }
+
+    /// Whether no link is held.
+    pub fn is_empty(&self) -> bool {
+        self.packed.len() == 0
+    }
+
+    /// The direction's distinct factors, which the links name by index.
+    pub(super) fn factors(&self) -> &[f64] {
+        &self.factors
+    }
+
+    /// Calls `f(to, from, factor)` for every link, in order: its receiving side, its sending
+    /// side (surfel `n`'s side `s` is `2 n + s`) and its factor's index in [`Self::factors`].
+    #[inline]
+    pub(super) fn for_each_link(&self, mut f: impl FnMut(u32, u32, u32)) {
+        match &self.packed {
+            Packed::Narrow(v) => v.iter().for_each(|&w| {
+                let l = unpack(w);
+                f(l.to, l.from, l.factor)
+            }),
+            Packed::Wide(v) => v.iter().for_each(|l| f(l.to, l.from, l.factor)),
+        }
+    }
+
+    /// Links from `(to, from, factor index)` triples, in one piece (for tests elsewhere).
+    #[cfg(test)]
+    pub(super) fn from_triples(links: &[(u32, u32, u32)], factors: Vec<f64>) -> Self {
+        let links = links
+            .iter()
+            .map(|&(to, from, factor)| Link { to, from, factor });
+        let count = links.len();
+        DirectionLinks::pack(links, factors, vec![0, count])
+    }
+
     /// Bytes held.
     pub fn bytes(&self) -> u64 {
         (self.packed.len() * self.packed.link_bytes()) as u64

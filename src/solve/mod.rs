@@ -14,6 +14,7 @@ pub mod effects;
 pub mod enclosure;
 pub mod iterate;
 pub mod jacobi;
+pub mod kept_links;
 pub mod links;
 pub(crate) mod mix_hash;
 pub mod normalize;

@@ -3,68 +3,88 @@
 //! (`solve::links` keeps them; this names their surfels).
 
 use crate::comm::Comm;
-use crate::solve::links::{DirectionLinks, LinkBudget};
+use crate::solve::kept_links::KeptLinks;
+use crate::solve::links::DirectionLinks;
 use crate::solve::propagate::DirectionInput;
 use crate::solve::stats::LinkStats;
 
-/// The partner links of this rank's lines, kept between iterations (`solve::links`). They name
-/// surfels by their place in `Held`, which a surfel keeps for the rest of the solve once met:
-/// a replay reads and adds there directly, whatever the rank holds for the direction then.
+/// The partner links of this rank's lines, kept between iterations (`solve::links`, in blocks
+/// of steps as `solve::kept_links` keeps them). They name surfels by their place in `Held`,
+/// which a surfel keeps for the rest of the solve once met: a replay reads and adds there
+/// directly, whatever the rank holds for the direction then.
 pub(super) struct HeldLinks {
-    /// By direction: the links, if kept.
-    kept: Vec<Option<DirectionLinks>>,
-    /// By direction: whether its links were written down once (kept or not).
-    pub(super) tried: Vec<bool>,
-    budget: LinkBudget,
+    /// By step: the group's directions are `first..first + steps`.
+    kept: KeptLinks,
+    first: usize,
+    /// The group's directions.
+    steps: usize,
 }
 
 impl HeldLinks {
-    pub(super) fn new(directions: usize, budget: u64) -> Self {
+    /// Nothing kept yet for the group's directions `directions`, with `budget` bytes.
+    pub(super) fn new(directions: std::ops::Range<usize>, budget: u64) -> Self {
         HeldLinks {
-            kept: vec![None; directions],
-            tried: vec![false; directions],
-            budget: LinkBudget { left: budget },
+            kept: KeptLinks::new(directions.len(), budget),
+            first: directions.start,
+            steps: directions.len(),
         }
     }
 
     /// Whether direction `k`'s links are kept.
     pub(super) fn kept(&self, k: usize) -> bool {
-        self.kept[k].is_some()
+        self.kept.kept(k - self.first)
     }
 
-    /// Replays direction `k`'s links into `acc` if they are kept; false (nothing done) if not.
+    /// Whether direction `k`'s links were written down once (kept or not).
+    pub(super) fn tried(&self, k: usize) -> bool {
+        self.kept.tried(k - self.first)
+    }
+
+    /// Whether every direction of the group has its links kept.
+    pub(super) fn all_kept(&self) -> bool {
+        self.kept.all_kept()
+    }
+
+    /// An iteration starts; `blocks`: it replays blocks of links, which needs
+    /// [`Self::all_kept`] on every rank of the world (see `KeptLinks::begin_iteration`).
+    pub(super) fn begin_iteration(&mut self, blocks: bool) {
+        self.kept.begin_iteration(blocks);
+    }
+
+    /// Whether the light can be saved `done` steps into the iteration.
+    pub(super) fn can_save_within(&self, done: usize) -> bool {
+        self.kept.can_save_within(done)
+    }
+
+    /// Replays direction `k`'s links into `acc` if they are kept (or the block that holds them
+    /// has replayed in this iteration); false (nothing done) if not.
     pub(super) fn replay(
-        &self,
+        &mut self,
         k: usize,
         input: &DirectionInput,
         acc: &mut [[[f64; 3]; 2]],
     ) -> bool {
-        let Some(links) = &self.kept[k] else {
-            return false;
-        };
-        links.replay(input.radiosity, input.channels, acc);
-        true
+        self.kept
+            .replay(k - self.first, input.radiosity, input.channels, acc)
     }
 
     /// Keeps `recorded` (numbered by place) as direction `k`'s links if the budget allows.
     pub(super) fn keep(&mut self, k: usize, recorded: DirectionLinks) {
-        self.tried[k] = true;
-        if self.budget.take(recorded.bytes()) {
-            self.kept[k] = Some(recorded);
-        }
+        self.kept.keep(k - self.first, recorded);
     }
 
     /// What the report says of the links: the directions whose links every rank kept, and
     /// the bytes of all ranks' links. Collective on `world`.
     pub(super) fn stats(&self, directions: usize, surfels: usize, world: &dyn Comm) -> LinkStats {
-        let kept = self.kept.iter().flatten();
-        let mut bytes = [kept.map(|l| l.bytes()).sum::<u64>() as f64];
+        let mut bytes = [self.kept.held().1 as f64];
         world.sum_in_place(&mut bytes);
         // Each rank keeps its lines of its group's directions; a direction that some rank did
         // not keep (or never reached) is searched again there.
+        let mine = self.first..self.first + self.steps;
+        let tried = |k: usize| mine.contains(&k) && self.tried(k);
         let mut missing: Vec<f64> = (0..directions)
-            .map(|k| (self.tried[k] && self.kept[k].is_none()) as u8 as f64)
-            .chain((0..directions).map(|k| self.tried[k] as u8 as f64))
+            .map(|k| (tried(k) && !self.kept(k)) as u8 as f64)
+            .chain((0..directions).map(|k| tried(k) as u8 as f64))
             .collect();
         world.sum_in_place(&mut missing);
         let kept_directions = (0..directions)

@@ -270,7 +270,7 @@ impl<'a> DataSolver<'a> {
             },
             lines: Lines::default(),
             links: HeldLinks::new(
-                d_count,
+                d_count * self.group / self.groups..d_count * (self.group + 1) / self.groups,
                 rank_budget(self.options.links_memory, self.set.surfels.len(), world),
             ),
         };
@@ -411,7 +411,7 @@ impl<'a> DataSolver<'a> {
             }
             dispatch(order, &self.frames[k], self.threads, lines);
             let t1 = Instant::now();
-            if links.tried[k] {
+            if links.tried(k) {
                 gather_all_lines(lines, &input, acc, self.threads);
             } else {
                 let recorded = gather_and_record(lines, &input, acc, self.threads);
@@ -838,8 +838,12 @@ impl Sweep for DataSweep<'_, '_> {
         }
         // Replay without exchanges only if every rank of the group kept every direction's
         // links (the exchanges are collective in the group).
-        let all_kept = self.mine.iter().all(|&k| self.links.kept(k));
+        let all_kept = self.links.all_kept();
         self.replaying = self.group_comm.max_u64(u64::from(!all_kept)) == 0;
+        // Blocks of links where every rank of every group kept every link: the steps at which
+        // the light can be saved are then the same on every rank (`solve::kept_links`).
+        let blocks = self.world.max_u64(u64::from(!all_kept)) == 0;
+        self.links.begin_iteration(blocks);
         Ok(())
     }
 
@@ -862,8 +866,9 @@ impl Sweep for DataSweep<'_, '_> {
 
     fn can_save_within(&self, done: usize) -> bool {
         // A resume rebuilds the held surfels of the directions done; after the last step the
-        // iteration's boundary is next.
-        done < self.steps()
+        // iteration's boundary is next. Inside a block of links replayed whole, the light holds
+        // steps beyond `done`.
+        done < self.steps() && self.links.can_save_within(done)
     }
 
     fn save_within(

@@ -1,0 +1,538 @@
+//! The partner links one rank keeps between iterations for its steps (one direction each), and
+//! their replay; used by the in-memory solver (`jacobi`) and the data and hybrid modes in
+//! memory (`distribute::data`).
+//!
+//! **Blocks.** A direction's links (`links::DirectionLinks`) are in the order its lines were
+//! gathered, so replaying one direction reads and writes the light of the surfels it names all
+//! over their arrays: for each link a receiver's sums (48 bytes) and a partner's radiosity (24
+//! bytes), both at random. Once every direction of a run of [`BLOCK_STEPS`] consecutive steps
+//! has its links kept, they are moved into one [`LinkBlock`] that lists them by receiving
+//! surfel: a replay of the block then walks the sums once, in order, and only the partners'
+//! radiosity is read at random. Each surfel's links stay in step order, and within a step in
+//! the order the first gather applied them, so every side adds the same terms in the same order
+//! as step after step: the same bits (see `a_block_replays_to_the_bits_of_its_directions`).
+//! A block is replayed whole at its first step and the steps after it inside the block do
+//! nothing, so the light can be saved inside an iteration only at a block's bounds
+//! ([`KeptLinks::can_save_within`]). Where the ranks must agree on that, blocks are used only in
+//! iterations in which every rank kept every step's links (the sweep says so at
+//! [`KeptLinks::begin_iteration`]): then the bounds are the same steps on every rank.
+
+use super::links::{DirectionLinks, LinkBudget};
+use super::propagate::prefetch;
+use super::update::{Gathered, Radiosity};
+use rayon::prelude::*;
+
+/// Steps whose links make one block. Larger blocks read the sums fewer times; a block's
+/// conversion holds its links twice for a moment.
+pub const BLOCK_STEPS: usize = 32;
+
+/// How many entries ahead a block's replay asks for the partner a link names.
+const PREFETCH_AHEAD: usize = 16;
+
+/// Entries of one piece of a block's replay (pieces are dealt to the threads).
+const PIECE_ENTRIES: u64 = 1 << 15;
+
+/// Surfels a block can name: its entries hold a side number in 28 bits.
+const BLOCK_SIDES: u64 = 1 << 28;
+
+/// The links of a run of steps, by receiving surfel.
+#[derive(Debug, Default)]
+pub struct LinkBlock {
+    /// Surfel `s`'s links are `entries[starts[s]..starts[s + 1]]`.
+    starts: Vec<u32>,
+    /// A link: its sending side in bits 0 to 27, its receiving side (of the surfel's two) in bit
+    /// 28, the index of its factor in `factors` in bits 29 to 63.
+    entries: Vec<u64>,
+    /// The steps' distinct factors, one table after the other.
+    factors: Vec<f64>,
+    /// Replay pieces, as surfel bounds: piece `p` is surfels `pieces[p]..pieces[p + 1]`.
+    pieces: Vec<usize>,
+}
+
+impl LinkBlock {
+    /// The links of `steps` (in step order) moved into one block over the `surfels` first
+    /// surfels, or `None` where a block cannot hold them (too many surfels or links).
+    pub fn fuse(steps: &[&DirectionLinks], surfels: usize) -> Option<LinkBlock> {
+        let total: usize = steps.iter().map(|d| d.len()).sum();
+        if 2 * surfels as u64 > BLOCK_SIDES || total as u64 >= u32::MAX as u64 {
+            return None;
+        }
+        // Links per receiving surfel, then where each surfel's links begin.
+        let counts = steps
+            .par_iter()
+            .fold(
+                || vec![0u32; surfels],
+                |mut counts, d| {
+                    d.for_each_link(|to, _, _| counts[(to >> 1) as usize] += 1);
+                    counts
+                },
+            )
+            .reduce(
+                || vec![0u32; surfels],
+                |mut a, b| {
+                    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
+        let mut starts = Vec::with_capacity(surfels + 1);
+        let mut at = 0u32;
+        starts.push(0);
+        for c in &counts {
+            at += c;
+            starts.push(at);
+        }
+        drop(counts);
+        let mut offsets = Vec::with_capacity(steps.len());
+        let mut factors = Vec::new();
+        for d in steps {
+            offsets.push(factors.len() as u64);
+            factors.extend_from_slice(d.factors());
+        }
+        let entries = place(steps, &offsets, &starts);
+        let pieces = split_by_entries(&starts, (total as u64).div_ceil(PIECE_ENTRIES).max(1));
+        Some(LinkBlock {
+            starts,
+            entries,
+            factors,
+            pieces,
+        })
+    }
+
+    /// Bytes held.
+    pub fn bytes(&self) -> u64 {
+        (self.starts.len() * 4 + self.entries.len() * 8 + self.factors.len() * 8) as u64
+            + self.pieces.len() as u64 * 8
+    }
+
+    /// Adds to `acc` what the block's links bring from `radiosity` (the first `channels`
+    /// channels).
+    pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
+        let surfels = self.starts.len() - 1;
+        assert!(
+            acc.len() >= surfels && radiosity.len() >= surfels,
+            "the light holds every surfel the block names"
+        );
+        let mut parts = Vec::with_capacity(self.pieces.len());
+        let mut rest = &mut acc[..surfels];
+        for w in self.pieces.windows(2) {
+            let (part, tail) = rest.split_at_mut(w[1] - w[0]);
+            parts.push((w[0], part));
+            rest = tail;
+        }
+        parts.into_par_iter().for_each(|(first, part)| {
+            if channels == 1 {
+                self.replay_piece::<1>(first, part, radiosity);
+            } else {
+                self.replay_piece::<3>(first, part, radiosity);
+            }
+        });
+    }
+
+    /// Replays the links received by surfels `first..first + acc.len()` into `acc`.
+    #[inline(never)]
+    fn replay_piece<const CHANNELS: usize>(
+        &self,
+        first: usize,
+        acc: &mut [Gathered],
+        radiosity: &[Radiosity],
+    ) {
+        const SIDE: u64 = BLOCK_SIDES - 1;
+        let (begin, end) = (
+            self.starts[first] as usize,
+            self.starts[first + acc.len()] as usize,
+        );
+        let entries = &self.entries[..end];
+        let mut k = begin;
+        for (s, sums) in acc.iter_mut().enumerate() {
+            let last = self.starts[first + s + 1] as usize;
+            let mut light = *sums;
+            while k < last {
+                if let Some(&ahead) = entries.get(k + PREFETCH_AHEAD) {
+                    prefetch(radiosity.as_ptr(), ((ahead & SIDE) >> 1) as usize);
+                }
+                let entry = entries[k];
+                let from = entry & SIDE;
+                let sent = &radiosity[(from >> 1) as usize][(from & 1) as usize];
+                let factor = self.factors[(entry >> 29) as usize];
+                let to = &mut light[(entry >> 28 & 1) as usize];
+                for c in 0..CHANNELS {
+                    to[c] += sent[c] as f64 * factor;
+                }
+                k += 1;
+            }
+            *sums = light;
+        }
+    }
+}
+
+/// Surfels of one bucket of [`place`]: their entries (about 32 a surfel in a block of 32
+/// steps) fit the caches of one core.
+const BUCKET_SURFELS: usize = 1 << 12;
+
+/// The entries of the links of `steps` (their factor indices moved by `offsets`), by receiving
+/// surfel as `starts` cuts them; each surfel's in step order, and in each step in link order.
+///
+/// Placing each link straight at its surfel's place writes all over the block's entries (far
+/// larger than the caches, every write a miss): instead the links are first appended, in
+/// order, to buckets of [`BUCKET_SURFELS`] receivers, each at its own final range, with the
+/// receiver's place in its bucket beside them; then each bucket is put in order inside its own
+/// range, which the caches hold. Both passes run on the threads, by ranges of buckets.
+fn place(steps: &[&DirectionLinks], offsets: &[u64], starts: &[u32]) -> Vec<u64> {
+    let surfels = starts.len() - 1;
+    let total = starts[surfels] as usize;
+    let buckets = surfels.div_ceil(BUCKET_SURFELS);
+    let bucket_start = |b: usize| starts[(b * BUCKET_SURFELS).min(surfels)] as usize;
+    let mut entries = vec![0u64; total];
+    let mut local = vec![0u16; total];
+    // Ranges of buckets of about equal entries, one a thread.
+    let threads = rayon::current_num_threads().max(1);
+    let mut cuts = vec![0usize];
+    for t in 1..threads {
+        let target = total * t / threads;
+        let b = (0..buckets)
+            .find(|&b| bucket_start(b) >= target)
+            .unwrap_or(buckets);
+        if b > *cuts.last().expect("a first cut") {
+            cuts.push(b);
+        }
+    }
+    if *cuts.last().expect("a first cut") < buckets || buckets == 0 {
+        cuts.push(buckets);
+    }
+    cuts.dedup();
+    let mut parts = Vec::with_capacity(cuts.len());
+    {
+        let (mut rest, mut rest_local) = (entries.as_mut_slice(), local.as_mut_slice());
+        for w in cuts.windows(2) {
+            let len = bucket_start(w[1]) - bucket_start(w[0]);
+            let (part, tail) = rest.split_at_mut(len);
+            let (part_local, tail_local) = rest_local.split_at_mut(len);
+            parts.push((w[0]..w[1], part, part_local));
+            (rest, rest_local) = (tail, tail_local);
+        }
+    }
+    parts.into_par_iter().for_each(|(range, part, part_local)| {
+        let base = bucket_start(range.start);
+        let first = range.start * BUCKET_SURFELS;
+        let last = (range.end * BUCKET_SURFELS).min(surfels);
+        // Pass 1: append each link to its bucket.
+        let mut cursor: Vec<usize> = range.clone().map(|b| bucket_start(b) - base).collect();
+        for (d, &offset) in steps.iter().zip(offsets) {
+            d.for_each_link(|to, from, factor| {
+                let s = (to >> 1) as usize;
+                if (first..last).contains(&s) {
+                    let c = &mut cursor[s / BUCKET_SURFELS - range.start];
+                    part[*c] =
+                        from as u64 | ((to & 1) as u64) << 28 | (factor as u64 + offset) << 29;
+                    part_local[*c] = (s % BUCKET_SURFELS) as u16;
+                    *c += 1;
+                }
+            });
+        }
+        // Pass 2: each bucket in surfel order, inside its range.
+        let mut buffer = Vec::new();
+        let mut place = vec![0u32; BUCKET_SURFELS];
+        for b in range.clone() {
+            let (from, to) = (bucket_start(b) - base, bucket_start(b + 1) - base);
+            let s0 = b * BUCKET_SURFELS;
+            let bucket_surfels = BUCKET_SURFELS.min(surfels - s0);
+            for (k, p) in place.iter_mut().take(bucket_surfels).enumerate() {
+                *p = starts[s0 + k] - starts[s0];
+            }
+            buffer.clear();
+            buffer.extend_from_slice(&part[from..to]);
+            let out = &mut part[from..to];
+            for (&entry, &s) in buffer.iter().zip(&part_local[from..to]) {
+                let p = &mut place[s as usize];
+                out[*p as usize] = entry;
+                *p += 1;
+            }
+        }
+    });
+    entries
+}
+
+/// Surfel bounds cutting `starts` (a prefix sum of entries) into about `pieces` runs of equal
+/// entries, first 0 and last the surfel count.
+fn split_by_entries(starts: &[u32], pieces: u64) -> Vec<usize> {
+    let surfels = starts.len() - 1;
+    let total = starts[surfels] as u64;
+    let mut bounds = vec![0usize];
+    for p in 1..pieces {
+        let target = (total * p / pieces) as u32;
+        let at = starts.partition_point(|&s| s < target).min(surfels);
+        if at > *bounds.last().expect("a first bound") {
+            bounds.push(at);
+        }
+    }
+    if *bounds.last().expect("a first bound") < surfels || surfels == 0 {
+        bounds.push(surfels);
+    }
+    bounds.dedup();
+    bounds
+}
+
+/// What one run of [`BLOCK_STEPS`] steps holds.
+#[derive(Debug, Default)]
+enum Block {
+    /// Its steps' links apart (those kept so far).
+    #[default]
+    Apart,
+    /// Its steps' links in one block.
+    Fused(LinkBlock),
+    /// Some step's links were not kept, or a block cannot hold them: they stay apart.
+    Refused,
+}
+
+/// The links of one rank's steps, kept within a budget, apart or in blocks.
+pub struct KeptLinks {
+    /// By step: the links kept apart.
+    apart: Vec<Option<DirectionLinks>>,
+    /// By step: whether its links were written down once (kept or not).
+    tried: Vec<bool>,
+    blocks: Vec<Block>,
+    budget: LinkBudget,
+    /// Whether this iteration replays blocks (every step's links kept, on every rank).
+    blocks_on: bool,
+}
+
+impl KeptLinks {
+    /// Nothing kept yet for `steps` steps, with `budget` bytes to keep links in.
+    pub fn new(steps: usize, budget: u64) -> Self {
+        KeptLinks {
+            apart: (0..steps).map(|_| None).collect(),
+            tried: vec![false; steps],
+            blocks: (0..steps.div_ceil(BLOCK_STEPS))
+                .map(|_| Block::Apart)
+                .collect(),
+            budget: LinkBudget { left: budget },
+            blocks_on: false,
+        }
+    }
+
+    /// Whether step `step`'s links are kept (apart or in a block).
+    pub fn kept(&self, step: usize) -> bool {
+        self.apart[step].is_some() || matches!(self.blocks[step / BLOCK_STEPS], Block::Fused(_))
+    }
+
+    /// Whether the first gather of step `step` should write its links down: not yet tried, and
+    /// some budget left.
+    pub fn should_record(&self, step: usize) -> bool {
+        !self.tried[step] && self.budget.left > 0
+    }
+
+    /// Whether step `step`'s links were written down once.
+    pub fn tried(&self, step: usize) -> bool {
+        self.tried[step]
+    }
+
+    /// Keeps `recorded` as step `step`'s links if the budget allows.
+    pub fn keep(&mut self, step: usize, recorded: DirectionLinks) {
+        self.tried[step] = true;
+        if self.budget.take(recorded.bytes()) {
+            self.apart[step] = Some(recorded);
+        } else {
+            self.blocks[step / BLOCK_STEPS] = Block::Refused;
+        }
+    }
+
+    /// Whether every step's links are kept (apart or in blocks).
+    pub fn all_kept(&self) -> bool {
+        (0..self.apart.len()).all(|s| self.kept(s))
+    }
+
+    /// An iteration starts; `blocks` says whether it replays blocks, which needs
+    /// [`Self::all_kept`] on every rank whose sweep agrees on where to stop with this one's.
+    pub fn begin_iteration(&mut self, blocks: bool) {
+        debug_assert!(!blocks || self.all_kept());
+        self.blocks_on = blocks;
+    }
+
+    /// Gathers step `step` into `acc` from its kept links (the first `channels` channels of
+    /// `radiosity`); false (nothing done) where they are not kept. In an iteration that replays
+    /// blocks, the first step of a block gathers the whole block (made from its steps' links
+    /// the first time); its other steps then do nothing.
+    pub fn replay(
+        &mut self,
+        step: usize,
+        radiosity: &[Radiosity],
+        channels: usize,
+        acc: &mut [Gathered],
+    ) -> bool {
+        let b = step / BLOCK_STEPS;
+        if self.blocks_on && step % BLOCK_STEPS == 0 {
+            self.fuse_if_whole(b, acc.len());
+        }
+        if let Block::Fused(block) = &self.blocks[b] {
+            if step % BLOCK_STEPS == 0 {
+                block.replay(radiosity, channels, acc);
+            }
+            return true;
+        }
+        match &self.apart[step] {
+            Some(links) => {
+                links.replay(radiosity, channels, acc);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Moves block `b`'s links into one [`LinkBlock`] over `surfels` surfels (every link names
+    /// one of them) if all its steps' links are kept apart and the budget holds what the block
+    /// adds.
+    fn fuse_if_whole(&mut self, b: usize, surfels: usize) {
+        if !matches!(self.blocks[b], Block::Apart) {
+            return;
+        }
+        let range = b * BLOCK_STEPS..((b + 1) * BLOCK_STEPS).min(self.apart.len());
+        let Some(steps) = self.apart[range.clone()]
+            .iter()
+            .map(Option::as_ref)
+            .collect::<Option<Vec<_>>>()
+        else {
+            return;
+        };
+        let apart_bytes: u64 = steps.iter().map(|d| d.bytes()).sum();
+        let fused = LinkBlock::fuse(&steps, surfels);
+        self.blocks[b] = match fused {
+            Some(block) if self.budget.take(block.bytes().saturating_sub(apart_bytes)) => {
+                self.budget.left += apart_bytes.saturating_sub(block.bytes());
+                self.apart[range].iter_mut().for_each(|d| *d = None);
+                Block::Fused(block)
+            }
+            _ => Block::Refused,
+        };
+    }
+
+    /// Whether the light can be saved `done` steps into this iteration: at the bounds of the
+    /// blocks where it replays them (the same steps on every rank), anywhere else.
+    pub fn can_save_within(&self, done: usize) -> bool {
+        !self.blocks_on || done % BLOCK_STEPS == 0
+    }
+
+    /// Steps whose links are kept, and the bytes held.
+    pub fn held(&self) -> (usize, u64) {
+        let steps = (0..self.apart.len()).filter(|&s| self.kept(s)).count();
+        let apart: u64 = self.apart.iter().flatten().map(DirectionLinks::bytes).sum();
+        let blocks: u64 = self
+            .blocks
+            .iter()
+            .map(|b| match b {
+                Block::Fused(block) => block.bytes(),
+                _ => 0,
+            })
+            .sum();
+        (steps, apart + blocks)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pieces_cut_by_entries_cover_every_surfel_once() {
+        let starts = [0u32, 5, 5, 9, 20, 21, 40];
+        for pieces in [1, 2, 3, 7, 50] {
+            let b = split_by_entries(&starts, pieces);
+            assert_eq!(b[0], 0);
+            assert_eq!(*b.last().unwrap(), 6);
+            assert!(b.windows(2).all(|w| w[0] < w[1]), "{b:?}");
+        }
+        assert_eq!(split_by_entries(&[0], 4), vec![0]);
+    }
+
+    /// Links of `steps` directions over `surfels` surfels: each side of most surfels gathers
+    /// from some other side, a few twice (an open edge), a few not at all; factors of the
+    /// direction's own table.
+    fn some_links(steps: usize, surfels: u32) -> Vec<DirectionLinks> {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move |below: u32| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % below as u64) as u32
+        };
+        (0..steps)
+            .map(|d| {
+                let factors: Vec<f64> = (0..3 + d % 4).map(|f| 0.1 + f as f64 / 7.0).collect();
+                let mut links = Vec::new();
+                // In a shuffled order of receivers, as lines visit them.
+                let mut order: Vec<u32> = (0..2 * surfels).collect();
+                for k in (1..order.len()).rev() {
+                    order.swap(k, next(k as u32 + 1) as usize);
+                }
+                for to in order {
+                    for _ in 0..[0, 1, 1, 1, 1, 2][next(6) as usize] {
+                        let from = next(2 * surfels);
+                        links.push((to, from, next(factors.len() as u32)));
+                    }
+                }
+                DirectionLinks::from_triples(&links, factors)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn a_block_replays_to_the_bits_of_its_directions() {
+        let surfels = 5_000u32;
+        let steps = BLOCK_STEPS + 5;
+        let directions = some_links(steps, surfels);
+        let radiosity: Vec<Radiosity> = (0..surfels)
+            .map(|s| {
+                let v = |c: u32| ((s * 2_654_435_761u32.wrapping_add(c)) % 1000) as f32 / 997.0;
+                [[v(1), v(2), v(3)], [v(4), v(5), v(6)]]
+            })
+            .collect();
+        for channels in [1, 3] {
+            // Step after step, apart.
+            let mut expected = vec![[[0.25f64; 3]; 2]; surfels as usize];
+            for d in &directions {
+                d.replay(&radiosity, channels, &mut expected);
+            }
+            let mut kept = KeptLinks::new(steps, u64::MAX);
+            for (step, d) in directions.iter().enumerate() {
+                assert!(kept.should_record(step));
+                kept.keep(step, d.clone());
+            }
+            for iteration in 0..2 {
+                kept.begin_iteration(true);
+                let mut acc = vec![[[0.25f64; 3]; 2]; surfels as usize];
+                for step in 0..steps {
+                    assert!(kept.replay(step, &radiosity, channels, &mut acc));
+                    // The light holds whole blocks only.
+                    let bound = (step + 1) % BLOCK_STEPS == 0;
+                    assert_eq!(kept.can_save_within(step + 1), bound, "step {step}");
+                }
+                assert_eq!(
+                    acc, expected,
+                    "iteration {iteration}, {channels} channel(s)"
+                );
+                assert!(matches!(kept.blocks[0], Block::Fused(_)));
+                assert!(matches!(kept.blocks[1], Block::Fused(_)));
+                assert_eq!(kept.held().0, steps);
+            }
+        }
+    }
+
+    #[test]
+    fn a_block_with_a_step_not_kept_stays_apart() {
+        let surfels = 300u32;
+        let directions = some_links(BLOCK_STEPS, surfels);
+        let budget: u64 = directions[1..].iter().map(DirectionLinks::bytes).sum();
+        let mut kept = KeptLinks::new(BLOCK_STEPS, budget);
+        for (step, d) in directions.iter().enumerate().rev() {
+            kept.keep(step, d.clone());
+        }
+        assert!(!kept.kept(0) && kept.kept(1) && kept.tried(0));
+        let radiosity = vec![[[1.0f32; 3]; 2]; surfels as usize];
+        let mut acc = vec![[[0.0f64; 3]; 2]; surfels as usize];
+        assert!(!kept.all_kept());
+        kept.begin_iteration(false);
+        assert!(!kept.replay(0, &radiosity, 3, &mut acc));
+        assert!(kept.replay(1, &radiosity, 3, &mut acc));
+        assert!(matches!(kept.blocks[0], Block::Refused));
+        assert!(kept.can_save_within(2));
+    }
+}
