@@ -919,48 +919,109 @@ fn a_rank_needs_only_the_shards_of_its_slice_on_its_node() {
     let tmp = tempfile::tempdir().unwrap();
     let set = tmp.path().join("set");
     cornell_set(&set, 32, 4);
-    let common_args = [
-        "--memory",
-        "1MiB",
-        "--directions",
-        "49",
-        "--iterations",
-        "2",
-        "--direct-directions",
-        "0",
-        "--threads",
-        "1",
-    ];
     let single = tmp.path().join("single");
     let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
         .args(["solve", set.to_str().unwrap(), "--out"])
         .arg(&single)
-        .args(common_args)
+        .args(STAGED_ARGS)
         .output()
         .unwrap();
     ok(&o, "one process");
     let manifest = voxrad::storage::Manifest::read_dir(&set).unwrap();
     let shard_file = |k: usize| manifest.shards[k].file.clone();
-    // The "nodes": rank 0's holds the whole set, rank 1's the manifest and shards 1 to 3.
-    let node = |rank: usize, shards: &[usize]| {
-        let dir = tmp.path().join(format!("nodes/node{rank}/set"));
+    // Shards cut by count: rank 1's slice begins in shard 1 and ends in shard 2 or 3.
+    let nodes = tmp.path().join("nodes");
+    let out = tmp.path().join("staged");
+    ok(
+        &run_staged(&set, &nodes, &[&[0, 1, 2, 3], &[1, 2, 3]], &out),
+        "2 ranks, shards staged per node",
+    );
+    assert!(
+        radiosity(&out) == radiosity(&single),
+        "staged shards change bits"
+    );
+    // Without shard 1 on rank 1's node.
+    let o = run_staged(
+        &set,
+        &tmp.path().join("nodes2"),
+        &[&[0, 1, 2, 3], &[2, 3]],
+        &tmp.path().join("missing"),
+    );
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{stderr}");
+    assert!(
+        stderr.contains(&shard_file(1)) && stderr.contains("is not on this node"),
+        "{stderr}"
+    );
+    // A set cut by `voxrad-shard convert --ranks 2` (at voxel boundaries, one shard per rank):
+    // rank 1's node holds shard 1 alone.
+    let cut = tmp.path().join("cut");
+    let obj = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/cornell_box.obj");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad-shard"))
+        .arg("convert")
+        .arg(&obj)
+        .arg("--out")
+        .arg(&cut)
+        .args(["--resolution", "32", "--ranks", "2"])
+        .output()
+        .unwrap();
+    ok(&o, "voxrad-shard convert --ranks 2");
+    let cut_manifest = voxrad::storage::Manifest::read_dir(&cut).unwrap();
+    assert!(cut_manifest.voxel_aligned);
+    let single_cut = tmp.path().join("single_cut");
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .args(["solve", cut.to_str().unwrap(), "--out"])
+        .arg(&single_cut)
+        .args(STAGED_ARGS)
+        .output()
+        .unwrap();
+    ok(&o, "one process, the cut set");
+    let out = tmp.path().join("one_each");
+    ok(
+        &run_staged(&cut, &tmp.path().join("nodes3"), &[&[0, 1], &[1]], &out),
+        "2 ranks, one shard each",
+    );
+    assert!(
+        radiosity(&out) == radiosity(&single_cut),
+        "one shard per rank changes bits"
+    );
+}
+
+/// The options of the staged runs: small, quick.
+const STAGED_ARGS: [&str; 10] = [
+    "--memory",
+    "1MiB",
+    "--directions",
+    "49",
+    "--iterations",
+    "2",
+    "--direct-directions",
+    "0",
+    "--threads",
+    "1",
+];
+
+/// Copies the manifest of `set` and, for each rank `r`, the shards `shards[r]` into
+/// `nodes/node{r}/set` (the rank's "node-local disk"), then solves in the data mode on 2 ranks,
+/// each rank given its own node's copy at one path as on a cluster.
+fn run_staged(set: &Path, nodes: &Path, shards: &[&[usize]], out: &Path) -> Output {
+    let manifest = voxrad::storage::Manifest::read_dir(set).unwrap();
+    for (rank, list) in shards.iter().enumerate() {
+        let dir = nodes.join(format!("node{rank}/set"));
         std::fs::create_dir_all(&dir).unwrap();
         let copy = |name: &str| std::fs::copy(set.join(name), dir.join(name)).unwrap();
         copy(voxrad::storage::MANIFEST_FILE);
-        for &k in shards {
-            copy(&shard_file(k));
+        for &k in *list {
+            copy(&manifest.shards[k].file);
         }
-    };
-    node(0, &[0, 1, 2, 3]);
-    node(1, &[1, 2, 3]);
-    // Each rank is given its own node's copy, at one path as on a cluster.
-    let pick = tmp.path().join("pick.sh");
+    }
+    let pick = nodes.join("pick.sh");
     std::fs::write(
         &pick,
         format!(
             "#!/bin/sh\nbin=$1\nshift\nexec \"$bin\" solve \"{}/node$OMPI_COMM_WORLD_RANK/set\" \
              \"$@\"\n",
-            tmp.path().join("nodes").display()
+            nodes.display()
         ),
     )
     .unwrap();
@@ -968,34 +1029,17 @@ fn a_rank_needs_only_the_shards_of_its_slice_on_its_node() {
         use std::os::unix::fs::PermissionsExt;
         std::fs::set_permissions(&pick, std::fs::Permissions::from_mode(0o755)).unwrap();
     }
-    let run = |out: &Path| {
-        let launcher = common::mpi::launcher(2);
-        Command::new(&launcher[0])
-            .args(&launcher[1..])
-            .arg(&pick)
-            .arg(env!("CARGO_BIN_EXE_voxrad"))
-            .arg("--out")
-            .arg(out)
-            .args(common_args)
-            .args(["--distribute", "data"])
-            .envs(common::mpi::AS_ROOT)
-            .env("NO_COLOR", "1")
-            .output()
-            .unwrap()
-    };
-    let out = tmp.path().join("staged");
-    ok(&run(&out), "2 ranks, shards staged per node");
-    assert!(
-        radiosity(&out) == radiosity(&single),
-        "staged shards change bits"
-    );
-    // Without shard 1 on rank 1's node.
-    std::fs::remove_file(tmp.path().join("nodes/node1/set").join(shard_file(1))).unwrap();
-    let o = run(&tmp.path().join("missing"));
-    let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(!o.status.success(), "{stderr}");
-    assert!(
-        stderr.contains(&shard_file(1)) && stderr.contains("is not on this node"),
-        "{stderr}"
-    );
+    let launcher = common::mpi::launcher(2);
+    Command::new(&launcher[0])
+        .args(&launcher[1..])
+        .arg(&pick)
+        .arg(env!("CARGO_BIN_EXE_voxrad"))
+        .arg("--out")
+        .arg(out)
+        .args(STAGED_ARGS)
+        .args(["--distribute", "data"])
+        .envs(common::mpi::AS_ROOT)
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap()
 }

@@ -372,6 +372,16 @@ fn sigterm_inside_an_iteration_saves_its_partial_sums_and_resumes_to_the_same_by
         &tmp.path().join("ref.log"),
     );
     let (out, done) = stopped_inside_an_iteration(tmp.path(), "term", &LONG_ITERATIONS);
+    // After the first iteration every direction's links are kept and replayed in blocks: the
+    // stop waited for a block's end.
+    let saved = CheckpointFile::open(&checkpoint::path_in(&out)).unwrap();
+    if saved.header.state.iteration >= 1 {
+        assert_eq!(
+            done % voxrad::solve::kept_links::BLOCK_STEPS as u64,
+            0,
+            "{done}"
+        );
+    }
     let (text, _) = run_to_end(
         solve_command(&out, &[&LONG_ITERATIONS[..], &["--resume"]].concat()),
         &tmp.path().join("resume.log"),

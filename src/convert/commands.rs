@@ -158,14 +158,16 @@ pub fn convert(o: &ConvertOptions) -> Result<ConvertSummary, ConvertError> {
         .iter()
         .map(ShardEntry::from_info)
         .collect::<Result<Vec<_>, _>>()?;
-    Manifest::new(
+    let mut manifest = Manifest::new(
         streamed.grid,
         &streamed.materials,
         streamed.normals,
         o.order,
         entries,
-    )
-    .write(staging.path())?;
+    );
+    // One shard, or `write_split`'s cuts.
+    manifest.voxel_aligned = true;
+    manifest.write(staging.path())?;
     staging.commit()?;
     let summary = ConvertSummary {
         surfels: streamed.surfels,
@@ -311,6 +313,7 @@ pub fn reshard(
     let mut new = manifest.clone();
     new.format_version = crate::storage::manifest::VERSION;
     new.shards = entries;
+    new.voxel_aligned = true;
     new.write(staging.path())?;
 
     // The new set must verify and hold the same records in the same order.

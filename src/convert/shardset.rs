@@ -130,8 +130,11 @@ impl Staging {
     }
 }
 
-/// Writes `total` sorted records into `ranks` shards in `dir`: shard `k` takes records
-/// `[k * total / ranks, (k + 1) * total / ranks)`. Holds one write buffer of `buffer_bytes`.
+/// Writes `total` sorted records into `ranks` shards in `dir`: shard `k` begins at the first
+/// voxel boundary at or after record `k * total / ranks` (so no voxel's surfels are split over
+/// two shards, and a shard may be empty where one voxel spans a whole share), the rule by which
+/// the data mode out of core slices the stream over its ranks. Holds one write buffer of
+/// `buffer_bytes`.
 pub fn write_split(
     records: impl Iterator<Item = Result<Surfel, ConvertError>>,
     total: u64,
@@ -145,21 +148,33 @@ pub fn write_split(
         buffer_bytes,
         sync: true,
     };
-    let mut records = records;
+    let mut records = records.peekable();
     let mut infos = Vec::with_capacity(ranks);
+    let (mut index, mut last_voxel) = (0u64, None);
     for k in 0..ranks {
         let path = dir.join(shard_file_name(k));
         let mut w = ShardWriter::create_with(&path, order, options)?;
-        for _ in bound(k)..bound(k + 1) {
-            match records.next() {
-                Some(s) => w.push(&s?)?,
-                None => {
-                    return Err(failed(
-                        &path,
-                        format!("the input ended before the {total} records it announced"),
-                    ))
-                }
+        // The first voxel boundary at or after the next shard's nominal start ends this one;
+        // the last shard ends with the records announced.
+        let end = bound(k + 1);
+        while let Some(peeked) = records.peek() {
+            let stop = match peeked {
+                Ok(s) => index >= end && (k + 1 == ranks || Some(s.voxel) != last_voxel),
+                Err(_) => false,
+            };
+            if stop {
+                break;
             }
+            let s = records.next().expect("a record was peeked")?;
+            last_voxel = Some(s.voxel);
+            w.push(&s)?;
+            index += 1;
+        }
+        if index < end {
+            return Err(failed(
+                &path,
+                format!("the input ended before the {total} records it announced"),
+            ));
         }
         infos.push(w.finish()?);
     }
@@ -427,6 +442,37 @@ mod tests {
         let (_, v) = verify_set(dir2.path()).unwrap();
         assert!(v.problems.is_empty(), "{:?}", v.problems);
         drop(dir);
+    }
+
+    #[test]
+    fn shards_begin_at_voxel_boundaries() {
+        // Four surfels a voxel: the nominal cuts at 4 and 9 of 14 records fall at a boundary
+        // and inside a voxel (records 8 to 11).
+        let dir = tempfile::TempDir::new().unwrap();
+        let v: Vec<Surfel> = surfels(14)
+            .into_iter()
+            .enumerate()
+            .map(|(k, s)| Surfel {
+                voxel: [(k / 4) as i32, 0, 0],
+                ..s
+            })
+            .collect();
+        let infos = write_split(v.iter().map(|s| Ok(*s)), 14, 3, dir.path(), 0, 4096).unwrap();
+        let counts: Vec<u64> = infos.iter().map(|i| i.count).collect();
+        assert_eq!(counts, [4, 8, 2]);
+        // One voxel spanning a whole share leaves that share's shard empty.
+        let dir = tempfile::TempDir::new().unwrap();
+        let one: Vec<Surfel> = surfels(6)
+            .into_iter()
+            .enumerate()
+            .map(|(k, s)| Surfel {
+                voxel: [(k / 5) as i32, 0, 0],
+                ..s
+            })
+            .collect();
+        let infos = write_split(one.iter().map(|s| Ok(*s)), 6, 3, dir.path(), 0, 4096).unwrap();
+        let counts: Vec<u64> = infos.iter().map(|i| i.count).collect();
+        assert_eq!(counts, [5, 0, 1]);
     }
 
     #[test]

@@ -41,6 +41,12 @@ pub trait SurfelSource: Sync {
     ) -> Result<(SurfelStream<'_>, u64), OocError> {
         Ok((self.stream(window_bytes)?, 0))
     }
+    /// Where each part of the source begins in the canonical stream (and the count at the
+    /// end), where its parts are cut at voxel boundaries (a shard set that says so), else
+    /// `None`. A rank of the data mode out of core whose slice is one part reads it alone.
+    fn voxel_aligned_parts(&self) -> Option<Vec<u64>> {
+        None
+    }
     /// What to call the source in messages.
     fn describe(&self) -> String;
     /// Whether the scene's light is sealed in (`solve::enclosure`), the check taking at most
@@ -142,6 +148,8 @@ pub struct ShardSetSource {
     readers: Vec<(Option<ShardReader>, ShardEntry)>,
     /// The manifest's order (the shards' key order).
     order: usize,
+    /// The manifest says no voxel is split over two shards.
+    voxel_aligned: bool,
     info: SourceInfo,
 }
 
@@ -172,6 +180,7 @@ impl ShardSetSource {
             dir: dir.to_path_buf(),
             readers,
             order: manifest.order,
+            voxel_aligned: manifest.voxel_aligned,
             info: SourceInfo {
                 grid: manifest.grid,
                 normals: manifest.normals.clone(),
@@ -189,6 +198,16 @@ impl SurfelSource for ShardSetSource {
 
     fn stream(&self, window_bytes: u64) -> Result<SurfelStream<'_>, OocError> {
         Ok(self.stream_from(0, window_bytes)?.0)
+    }
+
+    fn voxel_aligned_parts(&self) -> Option<Vec<u64>> {
+        self.voxel_aligned.then(|| {
+            let mut starts = vec![0u64];
+            for (_, entry) in &self.readers {
+                starts.push(starts.last().expect("a first start") + entry.records);
+            }
+            starts
+        })
     }
 
     fn stream_from(

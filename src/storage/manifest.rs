@@ -148,6 +148,12 @@ pub struct Manifest {
     pub normals: Vec<[f32; 3]>,
     pub order: usize,
     pub shards: Vec<ShardEntry>,
+    /// Every shard begins at a voxel boundary of the canonical stream (no voxel's surfels are
+    /// split over two shards), as `voxrad-shard convert` and `reshard` cut them: a rank of the
+    /// data mode out of core whose slice is one shard then reads that shard alone. Written only
+    /// when true, so that other sets read and write as before.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub voxel_aligned: bool,
 }
 
 /// Only the fields that say what a file is, read before trusting the rest of its structure.
@@ -201,6 +207,7 @@ impl Manifest {
             normals,
             order,
             shards,
+            voxel_aligned: false,
         }
     }
 

@@ -41,11 +41,18 @@ impl Solver<'_> {
         let (ranks, me) = (self.group.size() as u64, self.group.rank() as u64);
         // A slice starts at the first voxel boundary at or after its nominal start, and ends
         // where the next one starts: the voxel of the record before the nominal start decides.
-        let lo = n * me / ranks;
-        let hi = n * (me + 1) / ranks;
-        let (stream, mut index) = self
+        // A shard set cut by that rule into one shard per rank (`voxrad-shard convert --ranks`)
+        // gives each rank its shard, read alone: its node needs no other.
+        let parts = self.source.voxel_aligned_parts();
+        let own_part = parts.filter(|p| p.len() as u64 == ranks + 1);
+        let (lo, hi) = match &own_part {
+            Some(p) => (p[me as usize], p[me as usize + 1]),
+            None => (n * me / ranks, n * (me + 1) / ranks),
+        };
+        let look_behind = if own_part.is_some() { 0 } else { 1 };
+        let (mut stream, mut index) = self
             .source
-            .stream_from(lo.saturating_sub(1), plan.io_bytes as u64)?;
+            .stream_from(lo.saturating_sub(look_behind), plan.io_bytes as u64)?;
         let mut writer = HeldWriter::create(dir, 0, plan.io_bytes, None)?;
         let mut group: Vec<Surfel> = Vec::new();
         let mut first_id = 0u64;
@@ -62,7 +69,12 @@ impl Solver<'_> {
             emitting: 0,
             coloured: false,
         };
-        for s in stream {
+        loop {
+            // A slice that is one shard ends there: the next shard is not read (nor needed).
+            if own_part.is_some() && index >= hi {
+                break;
+            }
+            let Some(s) = stream.next() else { break };
             let s = s?;
             let i = index;
             index += 1;
