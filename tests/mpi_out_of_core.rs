@@ -920,13 +920,7 @@ fn a_rank_needs_only_the_shards_of_its_slice_on_its_node() {
     let set = tmp.path().join("set");
     cornell_set(&set, 32, 4);
     let single = tmp.path().join("single");
-    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
-        .args(["solve", set.to_str().unwrap(), "--out"])
-        .arg(&single)
-        .args(STAGED_ARGS)
-        .output()
-        .unwrap();
-    ok(&o, "one process");
+    solve_staged_on_one_process(&set, &single);
     let manifest = voxrad::storage::Manifest::read_dir(&set).unwrap();
     let shard_file = |k: usize| manifest.shards[k].file.clone();
     // Shards cut by count: rank 1's slice begins in shard 1 and ends in shard 2 or 3.
@@ -969,13 +963,7 @@ fn a_rank_needs_only_the_shards_of_its_slice_on_its_node() {
     let cut_manifest = voxrad::storage::Manifest::read_dir(&cut).unwrap();
     assert!(cut_manifest.voxel_aligned);
     let single_cut = tmp.path().join("single_cut");
-    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
-        .args(["solve", cut.to_str().unwrap(), "--out"])
-        .arg(&single_cut)
-        .args(STAGED_ARGS)
-        .output()
-        .unwrap();
-    ok(&o, "one process, the cut set");
+    solve_staged_on_one_process(&cut, &single_cut);
     let out = tmp.path().join("one_each");
     ok(
         &run_staged(&cut, &tmp.path().join("nodes3"), &[&[0, 1], &[1]], &out),
@@ -1000,6 +988,19 @@ const STAGED_ARGS: [&str; 10] = [
     "--threads",
     "1",
 ];
+
+/// Solves `set` on one process into `out` with [`STAGED_ARGS`].
+fn solve_staged_on_one_process(set: &Path, out: &Path) {
+    let o = Command::new(env!("CARGO_BIN_EXE_voxrad"))
+        .arg("solve")
+        .arg(set)
+        .arg("--out")
+        .arg(out)
+        .args(STAGED_ARGS)
+        .output()
+        .unwrap();
+    ok(&o, &format!("one process, {}", set.display()));
+}
 
 /// Copies the manifest of `set` and, for each rank `r`, the shards `shards[r]` into
 /// `nodes/node{r}/set` (the rank's "node-local disk"), then solves in the data mode on 2 ranks,

@@ -394,19 +394,18 @@ mod tests {
     }
 
     fn split(n: i32, ranks: usize) -> (tempfile::TempDir, Vec<ShardInfo>, Vec<Surfel>) {
-        let dir = tempfile::TempDir::new().unwrap();
         let mut v = surfels(n);
         v.sort_by_key(|s| shard::key(0, s));
-        let infos = write_split(
-            v.iter().map(|s| Ok(*s)),
-            n as u64,
-            ranks,
-            dir.path(),
-            0,
-            4096,
-        )
-        .unwrap();
+        let (dir, infos) = split_sorted(&v, ranks);
         (dir, infos, v)
+    }
+
+    /// `v` (sorted) written into `ranks` shards in a new directory.
+    fn split_sorted(v: &[Surfel], ranks: usize) -> (tempfile::TempDir, Vec<ShardInfo>) {
+        let dir = tempfile::TempDir::new().unwrap();
+        let total = v.len() as u64;
+        let infos = write_split(v.iter().map(|s| Ok(*s)), total, ranks, dir.path(), 0, 4096);
+        (dir, infos.unwrap())
     }
 
     #[test]
@@ -444,35 +443,26 @@ mod tests {
         drop(dir);
     }
 
+    /// `n` surfels, `per_voxel` to a voxel, in order; split into `ranks` shards: their counts.
+    fn split_counts(n: i32, per_voxel: usize, ranks: usize) -> Vec<u64> {
+        let v: Vec<Surfel> = surfels(n)
+            .into_iter()
+            .enumerate()
+            .map(|(k, s)| Surfel {
+                voxel: [(k / per_voxel) as i32, 0, 0],
+                ..s
+            })
+            .collect();
+        split_sorted(&v, ranks).1.iter().map(|i| i.count).collect()
+    }
+
     #[test]
     fn shards_begin_at_voxel_boundaries() {
         // Four surfels a voxel: the nominal cuts at 4 and 9 of 14 records fall at a boundary
         // and inside a voxel (records 8 to 11).
-        let dir = tempfile::TempDir::new().unwrap();
-        let v: Vec<Surfel> = surfels(14)
-            .into_iter()
-            .enumerate()
-            .map(|(k, s)| Surfel {
-                voxel: [(k / 4) as i32, 0, 0],
-                ..s
-            })
-            .collect();
-        let infos = write_split(v.iter().map(|s| Ok(*s)), 14, 3, dir.path(), 0, 4096).unwrap();
-        let counts: Vec<u64> = infos.iter().map(|i| i.count).collect();
-        assert_eq!(counts, [4, 8, 2]);
+        assert_eq!(split_counts(14, 4, 3), [4, 8, 2]);
         // One voxel spanning a whole share leaves that share's shard empty.
-        let dir = tempfile::TempDir::new().unwrap();
-        let one: Vec<Surfel> = surfels(6)
-            .into_iter()
-            .enumerate()
-            .map(|(k, s)| Surfel {
-                voxel: [(k / 5) as i32, 0, 0],
-                ..s
-            })
-            .collect();
-        let infos = write_split(one.iter().map(|s| Ok(*s)), 6, 3, dir.path(), 0, 4096).unwrap();
-        let counts: Vec<u64> = infos.iter().map(|i| i.count).collect();
-        assert_eq!(counts, [5, 0, 1]);
+        assert_eq!(split_counts(6, 5, 3), [5, 0, 1]);
     }
 
     #[test]
