@@ -294,6 +294,13 @@ pub fn verify_set(dir: &Path) -> Result<(Manifest, Verification), ConvertError> 
                                 prev_path.display(),
                                 manifest.order
                             ));
+                        } else if manifest.voxel_aligned && *prev == first {
+                            // The data mode out of core would slice a voxel's surfels apart.
+                            v.problems.push(format!(
+                                "{}: its first voxel {first:?} is also the last voxel of {},                                  but the manifest says no voxel is split over two shards",
+                                path.display(),
+                                prev_path.display(),
+                            ));
                         }
                     }
                     previous = Some((path.clone(), last));
@@ -349,7 +356,12 @@ pub fn describe(dir: &Path, m: &Manifest) -> String {
             mat.name, mat.reflectance, mat.emission
         );
     }
-    let _ = writeln!(t, "shards        {}", m.shards.len());
+    let cut = if m.voxel_aligned {
+        "at voxel boundaries"
+    } else {
+        "by count"
+    };
+    let _ = writeln!(t, "shards        {} (cut {cut})", m.shards.len());
     for (k, s) in m.shards.iter().enumerate() {
         let _ = writeln!(
             t,
@@ -463,6 +475,52 @@ mod tests {
         assert_eq!(split_counts(14, 4, 3), [4, 8, 2]);
         // One voxel spanning a whole share leaves that share's shard empty.
         assert_eq!(split_counts(6, 5, 3), [5, 0, 1]);
+    }
+
+    #[test]
+    fn verify_refuses_a_voxel_split_over_shards_where_the_manifest_says_none_is() {
+        let v: Vec<Surfel> = surfels(4)
+            .into_iter()
+            .map(|s| Surfel {
+                voxel: [1, 1, 0],
+                ..s
+            })
+            .collect();
+        for aligned in [false, true] {
+            let dir = tempfile::TempDir::new().unwrap();
+            let entries = v
+                .chunks(2)
+                .enumerate()
+                .map(|(k, part)| {
+                    let path = dir.path().join(shard_file_name(k));
+                    let mut w = ShardWriter::create(&path, 0).unwrap();
+                    part.iter().for_each(|s| w.push(s).unwrap());
+                    ShardEntry::from_info(&w.finish().unwrap()).unwrap()
+                })
+                .collect();
+            let grid = Grid {
+                origin: [0.0; 3],
+                voxel_size: 1.0,
+                dims: [3, 4, 1],
+            };
+            let mut m = Manifest::new(grid, &[], vec![[0.0, 0.0, 1.0]], 0, entries);
+            m.voxel_aligned = aligned;
+            m.write(dir.path()).unwrap();
+            let (_, report) = verify_set(dir.path()).unwrap();
+            assert_eq!(
+                report.problems.len(),
+                aligned as usize,
+                "{:?}",
+                report.problems
+            );
+            if aligned {
+                assert!(
+                    report.problems[0].contains("split"),
+                    "{:?}",
+                    report.problems
+                );
+            }
+        }
     }
 
     #[test]
