@@ -22,8 +22,8 @@ use super::propagate::prefetch;
 use super::update::{Gathered, Radiosity};
 use rayon::prelude::*;
 
-/// Steps whose links make one block. Larger blocks read the sums fewer times; a block's
-/// conversion holds its links twice for a moment.
+/// Steps whose links make one block. Larger blocks read the receivers' sums fewer times; one
+/// block of 32 already reads them a thirty-second as often as its steps would apart.
 pub const BLOCK_STEPS: usize = 32;
 
 /// How many entries ahead a block's replay asks for the partner a link names.
