@@ -914,6 +914,8 @@ fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
 /// every rank used to make (rank 0 makes it and sends it). With 4 shards on 2 ranks, rank 1's
 /// node holds the manifest and shards 1 to 3: the one-process answer to the bit. Without
 /// shard 1, which rank 1's first voxel may begin in, it stops with a message naming the file.
+/// A set from `voxrad-shard convert --ranks 2` is cut where the slices are: rank 1's node holds
+/// shard 1 alone, and the answer is the one process's.
 #[test]
 fn a_rank_needs_only_the_shards_of_its_slice_on_its_node() {
     let tmp = tempfile::tempdir().unwrap();
