@@ -12,7 +12,7 @@
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
-use super::kept_links::KeptLinks;
+use super::kept_links::{Blocks, KeptLinks};
 use super::links::gather_and_record;
 use super::normalize::cosine_sums;
 use super::propagate::{
@@ -439,10 +439,16 @@ impl Sweep for InMemory<'_> {
         if from == 0 {
             self.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         }
-        // Blocks of links only where every rank kept every direction's: then the steps at
-        // which the light can be saved are the same on every rank (`kept_links`).
-        let ready = self.links.all_kept();
-        let blocks = self.comm.max_u64(u64::from(!ready)) == 0;
+        // On several ranks, blocks of links only where every rank kept every direction's:
+        // then the steps at which the light can be saved are the same on every rank
+        // (`kept_links`).
+        let blocks = if self.comm.size() == 1 {
+            Blocks::WhereWhole
+        } else if self.comm.max_u64(u64::from(!self.links.all_kept())) == 0 {
+            Blocks::Uniform
+        } else {
+            Blocks::Off
+        };
         self.links.begin_iteration(blocks);
         if let Some(d) = &self.direct {
             d.reflected(&self.radiosity, &self.emission, &mut self.reflected);

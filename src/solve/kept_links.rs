@@ -12,10 +12,11 @@
 //! the order the first gather applied them, so every side adds the same terms in the same order
 //! as step after step: the same bits (see `a_block_replays_to_the_bits_of_its_directions`).
 //! A block is replayed whole at its first step and the steps after it inside the block do
-//! nothing, so the light can be saved inside an iteration only at a block's bounds
+//! nothing, so the light can be saved inside a block only at its bounds
 //! ([`KeptLinks::can_save_within`]). Where the ranks must agree on that, blocks are used only in
-//! iterations in which every rank kept every step's links (the sweep says so at
-//! [`KeptLinks::begin_iteration`]): then the bounds are the same steps on every rank.
+//! iterations in which every rank kept every step's links ([`Blocks::Uniform`]): then the bounds
+//! are the same steps on every rank. One process makes a block of every run whose steps' links
+//! are all kept ([`Blocks::WhereWhole`]), even where the budget held only some runs.
 
 use super::links::{DirectionLinks, LinkBudget};
 use super::propagate::prefetch;
@@ -316,6 +317,19 @@ enum Block {
     Refused,
 }
 
+/// Where an iteration replays blocks (see the module header).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Blocks {
+    /// Nowhere: every kept step replays apart.
+    Off,
+    /// Everywhere, on every rank: every rank kept every step's links. The light can be saved
+    /// at multiples of [`BLOCK_STEPS`] only, the same steps on every rank.
+    Uniform,
+    /// One process: every run whose steps' links are all kept. The light can be saved anywhere
+    /// but inside a block it has replayed.
+    WhereWhole,
+}
+
 /// The links of one rank's steps, kept within a budget, apart or in blocks.
 pub struct KeptLinks {
     /// By step: the links kept apart.
@@ -324,8 +338,10 @@ pub struct KeptLinks {
     tried: Vec<bool>,
     blocks: Vec<Block>,
     budget: LinkBudget,
-    /// Whether this iteration replays blocks (every step's links kept, on every rank).
-    blocks_on: bool,
+    /// Where this iteration replays blocks.
+    mode: Blocks,
+    /// The steps of this iteration up to which a replayed block has gathered.
+    gathered_until: usize,
 }
 
 impl KeptLinks {
@@ -338,7 +354,8 @@ impl KeptLinks {
                 .map(|_| Block::Apart)
                 .collect(),
             budget: LinkBudget { left: budget },
-            blocks_on: false,
+            mode: Blocks::Off,
+            gathered_until: 0,
         }
     }
 
@@ -373,11 +390,12 @@ impl KeptLinks {
         (0..self.apart.len()).all(|s| self.kept(s))
     }
 
-    /// An iteration starts; `blocks` says whether it replays blocks, which needs
+    /// An iteration starts, replaying blocks where `mode` says: [`Blocks::Uniform`] needs
     /// [`Self::all_kept`] on every rank whose sweep agrees on where to stop with this one's.
-    pub fn begin_iteration(&mut self, blocks: bool) {
-        debug_assert!(!blocks || self.all_kept());
-        self.blocks_on = blocks;
+    pub fn begin_iteration(&mut self, mode: Blocks) {
+        debug_assert!(mode != Blocks::Uniform || self.all_kept());
+        self.mode = mode;
+        self.gathered_until = 0;
     }
 
     /// Gathers step `step` into `acc` from its kept links (the first `channels` channels of
@@ -392,12 +410,13 @@ impl KeptLinks {
         acc: &mut [Gathered],
     ) -> bool {
         let b = step / BLOCK_STEPS;
-        if self.blocks_on && step % BLOCK_STEPS == 0 {
+        if self.mode != Blocks::Off && step % BLOCK_STEPS == 0 {
             self.fuse_if_whole(b, acc.len());
         }
         if let Block::Fused(block) = &self.blocks[b] {
             if step % BLOCK_STEPS == 0 {
                 block.replay(radiosity, channels, acc);
+                self.gathered_until = (step + BLOCK_STEPS).min(self.apart.len());
             }
             return true;
         }
@@ -442,10 +461,13 @@ impl KeptLinks {
         give_back_freed_memory();
     }
 
-    /// Whether the light can be saved `done` steps into this iteration: at the bounds of the
-    /// blocks where it replays them (the same steps on every rank), anywhere else.
+    /// Whether the light can be saved `done` steps into this iteration (see [`Blocks`]).
     pub fn can_save_within(&self, done: usize) -> bool {
-        !self.blocks_on || done % BLOCK_STEPS == 0
+        match self.mode {
+            Blocks::Off => true,
+            Blocks::Uniform => done % BLOCK_STEPS == 0,
+            Blocks::WhereWhole => done >= self.gathered_until,
+        }
     }
 
     /// Steps whose links are kept, and the bytes held.
@@ -534,7 +556,7 @@ mod tests {
                 kept.keep(step, d.clone());
             }
             for iteration in 0..2 {
-                kept.begin_iteration(true);
+                kept.begin_iteration(Blocks::Uniform);
                 let mut acc = vec![[[0.25f64; 3]; 2]; surfels as usize];
                 for step in 0..steps {
                     assert!(kept.replay(step, &radiosity, channels, &mut acc));
@@ -566,10 +588,47 @@ mod tests {
         let radiosity = vec![[[1.0f32; 3]; 2]; surfels as usize];
         let mut acc = vec![[[0.0f64; 3]; 2]; surfels as usize];
         assert!(!kept.all_kept());
-        kept.begin_iteration(false);
+        kept.begin_iteration(Blocks::Off);
         assert!(!kept.replay(0, &radiosity, 3, &mut acc));
         assert!(kept.replay(1, &radiosity, 3, &mut acc));
         assert!(matches!(kept.blocks[0], Block::Refused));
         assert!(kept.can_save_within(2));
+    }
+
+    #[test]
+    fn one_process_makes_blocks_of_the_whole_runs_where_the_budget_held_only_some() {
+        let surfels = 300u32;
+        let steps = 2 * BLOCK_STEPS;
+        let directions = some_links(steps, surfels);
+        // Every step's links but the first's, and room for a block's starts.
+        let budget = directions[1..]
+            .iter()
+            .map(DirectionLinks::bytes)
+            .sum::<u64>()
+            + 2_000;
+        let mut kept = KeptLinks::new(steps, budget);
+        for (step, d) in directions.iter().enumerate().rev() {
+            kept.keep(step, d.clone());
+        }
+        assert!(!kept.kept(0) && !kept.all_kept());
+        let radiosity: Vec<Radiosity> = (0..surfels)
+            .map(|s| [[s as f32 / 7.0, 1.0, 0.5], [0.25, s as f32 / 3.0, 2.0]])
+            .collect();
+        let mut expected = vec![[[0.0f64; 3]; 2]; surfels as usize];
+        for d in &directions[1..] {
+            d.replay(&radiosity, 3, &mut expected);
+        }
+        kept.begin_iteration(Blocks::WhereWhole);
+        let mut acc = vec![[[0.0f64; 3]; 2]; surfels as usize];
+        for step in 0..steps {
+            // Inside the second run, which is replayed whole at its first step, and only there,
+            // the light holds steps beyond `step`.
+            let inside = step > BLOCK_STEPS;
+            assert_eq!(kept.can_save_within(step), !inside, "step {step}");
+            assert_eq!(kept.replay(step, &radiosity, 3, &mut acc), step > 0);
+        }
+        assert!(matches!(kept.blocks[0], Block::Refused));
+        assert!(matches!(kept.blocks[1], Block::Fused(_)));
+        assert_eq!(acc, expected);
     }
 }

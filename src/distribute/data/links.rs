@@ -3,7 +3,7 @@
 //! (`solve::links` keeps them; this names their surfels).
 
 use crate::comm::Comm;
-use crate::solve::kept_links::KeptLinks;
+use crate::solve::kept_links::{Blocks, KeptLinks};
 use crate::solve::links::DirectionLinks;
 use crate::solve::propagate::DirectionInput;
 use crate::solve::stats::LinkStats;
@@ -45,9 +45,9 @@ impl HeldLinks {
         self.kept.all_kept()
     }
 
-    /// An iteration starts; `blocks`: it replays blocks of links, which needs
-    /// [`Self::all_kept`] on every rank of the world (see `KeptLinks::begin_iteration`).
-    pub(super) fn begin_iteration(&mut self, blocks: bool) {
+    /// An iteration starts, replaying blocks of links where `blocks` says (see
+    /// `KeptLinks::begin_iteration`).
+    pub(super) fn begin_iteration(&mut self, blocks: Blocks) {
         self.kept.begin_iteration(blocks);
     }
 

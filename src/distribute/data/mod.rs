@@ -72,6 +72,7 @@ use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::jacobi::{
     gather_all_lines, material_tables, worker_pool, Checkpoints, SolveError, SolveOptions,
 };
+use crate::solve::kept_links::Blocks;
 use crate::solve::links::{gather_and_record, rank_budget};
 use crate::solve::normalize::cosine_sums;
 use crate::solve::propagate::{prop_surfels, DirectionInput, PropSurfel};
@@ -840,9 +841,16 @@ impl Sweep for DataSweep<'_, '_> {
         // links (the exchanges are collective in the group).
         let all_kept = self.links.all_kept();
         self.replaying = self.group_comm.max_u64(u64::from(!all_kept)) == 0;
-        // Blocks of links where every rank of every group kept every link: the steps at which
-        // the light can be saved are then the same on every rank (`solve::kept_links`).
-        let blocks = self.world.max_u64(u64::from(!all_kept)) == 0;
+        // On several ranks, blocks of links where every rank of every group kept every link:
+        // the steps at which the light can be saved are then the same on every rank
+        // (`solve::kept_links`).
+        let blocks = if self.world.size() == 1 {
+            Blocks::WhereWhole
+        } else if self.world.max_u64(u64::from(!all_kept)) == 0 {
+            Blocks::Uniform
+        } else {
+            Blocks::Off
+        };
         self.links.begin_iteration(blocks);
         Ok(())
     }
