@@ -47,6 +47,17 @@ pub trait SurfelSource: Sync {
     fn voxel_aligned_parts(&self) -> Option<Vec<u64>> {
         None
     }
+    /// A pass over the parts holding surfels `first..end`, whole (so that a shard's checksum is
+    /// checked at its end): the stream and the canonical index of its first surfel. By default
+    /// [`Self::stream_from`], which goes on to the end.
+    fn stream_between(
+        &self,
+        first: u64,
+        _end: u64,
+        window_bytes: u64,
+    ) -> Result<(SurfelStream<'_>, u64), OocError> {
+        self.stream_from(first, window_bytes)
+    }
     /// What to call the source in messages.
     fn describe(&self) -> String;
     /// Whether the scene's light is sealed in (`solve::enclosure`), the check taking at most
@@ -215,8 +226,18 @@ impl SurfelSource for ShardSetSource {
         first: u64,
         window_bytes: u64,
     ) -> Result<(SurfelStream<'_>, u64), OocError> {
+        self.stream_between(first, u64::MAX, window_bytes)
+    }
+
+    fn stream_between(
+        &self,
+        first: u64,
+        end: u64,
+        window_bytes: u64,
+    ) -> Result<(SurfelStream<'_>, u64), OocError> {
         // Whole shards before `first` are not read at all; the shard holding it is read from its
-        // start, so that its checksum is still checked at its end.
+        // start, so that its checksum is still checked at its end. Shards from `end` on are not
+        // read either.
         let mut start = 0u64;
         let mut skip = 0;
         for (_, entry) in &self.readers {
@@ -229,7 +250,12 @@ impl SurfelSource for ShardSetSource {
             skip += 1;
         }
         let mut parts: Vec<SurfelStream<'_>> = Vec::with_capacity(self.readers.len());
+        let mut at = start;
         for (reader, entry) in &self.readers[skip..] {
+            if at >= end {
+                break;
+            }
+            at += entry.records;
             let Some(reader) = reader else {
                 // Not on this node: an error if the stream gets this far.
                 let path = Manifest::shard_path(&self.dir, entry);
@@ -366,5 +392,45 @@ impl<'a> VoxelGroups<'a> {
             }
         }
         Ok(!group.is_empty())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::voxel::voxelize::{voxelize, GridSpec};
+
+    /// A rank that reads its own shard alone (`stream_between`) still finds a damaged record by
+    /// the shard's checksum at its end, and reads nothing of the next shard (here not on its
+    /// node).
+    #[test]
+    fn a_shard_read_alone_is_checked_and_the_next_is_not_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let set = voxelize(&crate::gen::cornell_box(), GridSpec::Resolution(16)).unwrap();
+        crate::storage::write_shard_set(&set, dir.path(), 2, 0).unwrap();
+        let manifest = Manifest::read_dir(dir.path()).unwrap();
+        let first = manifest.shards[0].records;
+        std::fs::remove_file(Manifest::shard_path(dir.path(), &manifest.shards[1])).unwrap();
+        let source = ShardSetSource::open_present(dir.path()).unwrap();
+        let read = |source: &ShardSetSource| -> Result<u64, OocError> {
+            let (stream, start) = source.stream_between(0, first, 1 << 16)?;
+            assert_eq!(start, 0);
+            let mut count = 0;
+            for s in stream {
+                s?;
+                count += 1;
+            }
+            Ok(count)
+        };
+        assert_eq!(read(&source).unwrap(), first);
+        // The lowest bit of a record's byte flipped: a value still plausible, the checksum not.
+        let path = Manifest::shard_path(dir.path(), &manifest.shards[0]);
+        let mut bytes = std::fs::read(&path).unwrap();
+        let record_3 = crate::storage::shard::HEADER_LEN as usize + 3 * crate::storage::RECORD_LEN;
+        bytes[record_3 + 13] ^= 1;
+        std::fs::write(&path, bytes).unwrap();
+        let source = ShardSetSource::open_present(dir.path()).unwrap();
+        let e = read(&source).unwrap_err().to_string();
+        assert!(e.contains("shard-00000"), "{e}");
     }
 }

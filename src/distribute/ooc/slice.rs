@@ -49,10 +49,14 @@ impl Solver<'_> {
             Some(p) => (p[me as usize], p[me as usize + 1]),
             None => (n * me / ranks, n * (me + 1) / ranks),
         };
-        let look_behind = if own_part.is_some() { 0 } else { 1 };
-        let (mut stream, mut index) = self
-            .source
-            .stream_from(lo.saturating_sub(look_behind), plan.io_bytes as u64)?;
+        // Its own shard is read whole (its checksum is checked at its end) and no other; else
+        // from the record before the nominal start on.
+        let (stream, mut index) = match own_part {
+            Some(_) => self.source.stream_between(lo, hi, plan.io_bytes as u64)?,
+            None => self
+                .source
+                .stream_from(lo.saturating_sub(1), plan.io_bytes as u64)?,
+        };
         let mut writer = HeldWriter::create(dir, 0, plan.io_bytes, None)?;
         let mut group: Vec<Surfel> = Vec::new();
         let mut first_id = 0u64;
@@ -69,12 +73,7 @@ impl Solver<'_> {
             emitting: 0,
             coloured: false,
         };
-        loop {
-            // A slice that is one shard ends there: the next shard is not read (nor needed).
-            if own_part.is_some() && index >= hi {
-                break;
-            }
-            let Some(s) = stream.next() else { break };
+        for s in stream {
             let s = s?;
             let i = index;
             index += 1;
