@@ -22,9 +22,12 @@
 //!    - hybrid with `G` groups of `Q = P / G` ranks: the data mode's terms on `Q` ranks for `D / G`
 //!      directions, and the same end of iteration over all `P` ranks with `m(Q)`;
 //!    - without the links (they do not fit): every iteration is a first one;
-//!    - the data mode out of core: every iteration a first one, or the time its disk takes to
-//!      move the bytes measured at 2 ranks (per surfel-direction of the scene, shared by the
-//!      ranks) if that is longer; the disk's bandwidth per rank is assumed (`--disk`).
+//!    - the data mode out of core: each iteration takes the in-memory data mode's time for it,
+//!      or the time its disk takes to move the bytes measured at 2 ranks (per surfel-direction
+//!      of the scene, shared by the ranks) if that is longer. The first iteration's bytes and a
+//!      later one's (replaying the links from disk) are measured apart, from runs of 1 and 3
+//!      iterations; where the links do not fit the disk, every iteration is a first one. The
+//!      disk's bandwidth per rank is assumed (`--disk`).
 //!
 //!    `c1` and `cr` (seconds per voxel-direction of a first and of a later iteration) come from
 //!    one-process runs of 1 and `I` iterations, `o` from the 2-rank data run's phases (the
@@ -345,36 +348,46 @@ fn main() {
     } else {
         f64::INFINITY
     };
-    // The data mode out of core at 2 ranks, first iteration: the bytes each rank reads and
-    // writes per surfel-direction (with one rank's share of `n / 2` surfels).
-    let ooc = solve(
-        Some(2),
-        &[
-            "--distribute",
-            "data",
-            "--direct-directions",
-            "0",
-            "--memory",
-            "4MiB",
-        ],
-        res,
-        dirs,
-        1,
-    );
-    let ooc_bytes = ooc["data_distribution"]["out_of_core"]
-        .as_array()
-        .map(|ranks| {
-            ranks
-                .iter()
-                .map(|r| {
-                    r["bytes_read_per_voxel_direction"].as_f64().unwrap_or(0.0)
-                        + r["bytes_written_per_voxel_direction"]
-                            .as_f64()
-                            .unwrap_or(0.0)
-                })
-                .sum::<f64>()
-                / ranks.len().max(1) as f64
-        })
+    // The data mode out of core at 2 ranks: the bytes each rank reads and writes per
+    // surfel-direction of the scene in its first iteration (searching, links written to disk)
+    // and in each later one (replaying them), from runs of 1 and 3 iterations.
+    let ooc_run = |iterations: usize| {
+        solve(
+            Some(2),
+            &[
+                "--distribute",
+                "data",
+                "--direct-directions",
+                "0",
+                "--memory",
+                "4MiB",
+            ],
+            res,
+            dirs,
+            iterations,
+        )
+    };
+    let moved_per_rank = |report: &Value| {
+        report["data_distribution"]["out_of_core"]
+            .as_array()
+            .map(|ranks| {
+                ranks
+                    .iter()
+                    .map(|r| {
+                        r["bytes_read"].as_f64().unwrap_or(0.0)
+                            + r["bytes_written"].as_f64().unwrap_or(0.0)
+                    })
+                    .sum::<f64>()
+                    / ranks.len().max(1) as f64
+            })
+            .unwrap_or(0.0)
+    };
+    let (ooc1, ooc3) = (ooc_run(1), ooc_run(3));
+    let ooc_first_bytes = moved_per_rank(&ooc1) / (n * d);
+    let ooc_later_bytes =
+        ((moved_per_rank(&ooc3) - moved_per_rank(&ooc1)) / 2.0).max(0.0) / (n * d);
+    let ooc_link_bytes = ooc3["links"]["bytes_per_surfel_direction"]
+        .as_f64()
         .unwrap_or(0.0);
     let b = sent_per_moved.iter().sum::<f64>() / sent_per_moved.len().max(1) as f64;
     let (fa, fb) = power_law(&fractions);
@@ -404,24 +417,29 @@ fn main() {
          (shared memory), {:.2} GB/s assumed for a network; alpha = {:.1} us per peer per \
          exchange (assumed); f(P) = {fa:.4} P^{fb:.3}, imbalance(P) - 1 = {ia:.4} P^{ib:.3}, \
          m(P) = {ma:.3} P^{mb:.3} beyond the measured ranks; the data mode out of core moved \
-         {ooc_bytes:.0} bytes per surfel-direction through each of 2 ranks' disks (read and \
-         written, first iteration), so {:.0} per surfel-direction of the scene in all, and a \
-         disk of {:.2} GB/s per rank is assumed.\n",
+         {ooc_first_bytes:.0} bytes per surfel-direction of the scene through each of 2 ranks' \
+         disks (read and written) in its first iteration and {ooc_later_bytes:.0} in each later \
+         one (replaying its links from disk, {ooc_link_bytes:.2} bytes per surfel-direction), \
+         so {:.0} and {:.0} per surfel-direction of the scene in all, and a disk of {:.2} GB/s \
+         per rank is assumed.\n",
         beta_here / 1e9,
         args.network_beta / 1e9,
         args.alpha * 1e6,
-        2.0 * ooc_bytes,
+        2.0 * ooc_first_bytes,
+        2.0 * ooc_later_bytes,
         args.disk / 1e9,
     );
     let (big_n, big_d, big_i) = (1e10, 589.0, 10.0);
     println!(
         "Predicted seconds for a solve of {big_i} iterations, n = 10^10 surfels, D = {big_d} \
          directions, with the network's beta (parallel efficiency against one process; links \
-         per rank: the bytes each rank's links would take, which must fit beside the scene; \
-         without links, against one process that searches in every iteration too):\n"
+         per rank: the bytes each rank's links would take, in memory beside the scene or on its \
+         disk out of core; without links, against one process that searches in every iteration \
+         too; out of core, an iteration takes the longer of its disk's time for the bytes \
+         measured at 2 ranks, shared by the ranks, and the in-memory data mode's time):\n"
     );
-    println!("| ranks | links per rank | directions | data | hybrid G = sqrt P | data, links not kept | data, shared-memory beta | data out of core (disk) |");
-    println!("|---|---|---|---|---|---|---|---|");
+    println!("| ranks | links per rank (memory) | links per rank (disk) | directions | data | hybrid G = sqrt P | data, links not kept | data, shared-memory beta | data out of core, links on disk | data out of core, links not kept |");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     for p in [8.0f64, 64.0, 512.0] {
         let one = (c1 + (big_i - 1.0) * cr) * big_n * big_d;
         let sum = |ranks: f64, values: f64, beta: f64| {
@@ -430,15 +448,19 @@ fn main() {
         let directions_mode = |beta: f64| one / p + big_i * sum(p, 6.0 * big_n, beta);
         // The data mode's iterations on `q` ranks of a group taking `dirs` directions, with
         // `p` ranks in all adding the light at the ends of iterations.
-        let data_mode = |p: f64, q: f64, dirs: f64, beta: f64, links: bool| {
+        // The data mode's first iteration, a later one (replaying the links) and the end of
+        // each, on `q` ranks of a group taking `dirs` directions, with `p` ranks in all adding
+        // the light at the ends of iterations.
+        let data_parts = |p: f64, q: f64, dirs: f64, beta: f64| {
             let first = (c1 + o) * big_n * dirs * imbalance(q) / q
                 + dirs * (args.alpha * (q - 1.0) + fraction(q) * (big_n / q) * b / beta);
-            let later = if links {
-                cr * big_n * dirs * imbalance(q) / q
-            } else {
-                first
-            };
+            let later = cr * big_n * dirs * imbalance(q) / q;
             let end = 2.0 * args.alpha * (p - 1.0) + met_share(q) * (big_n / q) * 76.0 / beta;
+            (first, later, end)
+        };
+        let data_mode = |p: f64, q: f64, dirs: f64, beta: f64, links: bool| {
+            let (first, later, end) = data_parts(p, q, dirs, beta);
+            let later = if links { later } else { first };
             first + (big_i - 1.0) * later + big_i * end
         };
         let g = (p.sqrt().floor()).max(1.0);
@@ -446,10 +468,14 @@ fn main() {
         let eff = |t: f64| 100.0 * one / p / t;
         // Against one process that cannot keep its links either.
         let one_searching = big_i * c1 * big_n * big_d;
-        // Out of core every iteration searches (no links) and moves its bytes through the disk,
-        // which sets the pace unless the search is slower.
-        let disk_seconds = 2.0 * ooc_bytes * big_n * big_d / p / args.disk;
-        let tooc = big_i * disk_seconds.max(data_mode(p, p, big_d, beta, false) / big_i);
+        // Out of core an iteration moves its bytes through the disk, which sets the pace
+        // unless the computing is slower: the first searches and writes the links down, the
+        // later ones replay them from disk, or search again where the disk cannot hold them.
+        let disk = |bytes: f64| 2.0 * bytes * big_n * big_d / p / args.disk;
+        let (first, later, end) = data_parts(p, p, big_d, beta);
+        let ooc_first = disk(ooc_first_bytes).max(first + end);
+        let tooc_links = ooc_first + (big_i - 1.0) * disk(ooc_later_bytes).max(later + end);
+        let tooc = big_i * ooc_first;
         let (tdir, tdata, thyb, tnolinks, tdata_here) = (
             directions_mode(beta),
             data_mode(p, p, big_d, beta, true),
@@ -458,13 +484,15 @@ fn main() {
             data_mode(p, p, big_d, beta_here, true),
         );
         println!(
-            "| {p} | {:.0} GB | {tdir:.0} ({:.0}%) | {tdata:.0} ({:.0}%) | {thyb:.0} ({:.0}%) | {tnolinks:.0} ({:.0}%) | {tdata_here:.0} ({:.0}%) | {tooc:.0} ({:.0}%) |",
+            "| {p} | {:.0} GB | {:.0} GB | {tdir:.0} ({:.0}%) | {tdata:.0} ({:.0}%) | {thyb:.0} ({:.0}%) | {tnolinks:.0} ({:.0}%) | {tdata_here:.0} ({:.0}%) | {tooc_links:.0} ({:.0}%) | {tooc:.0} ({:.0}%) |",
             link_bytes * big_n * big_d / p / 1e9,
+            ooc_link_bytes * big_n * big_d / p / 1e9,
             eff(tdir),
             eff(tdata),
             eff(thyb),
             100.0 * one_searching / p / tnolinks,
             eff(tdata_here),
+            eff(tooc_links),
             100.0 * one_searching / p / tooc,
         );
     }
