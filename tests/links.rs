@@ -173,3 +173,55 @@ fn links_kept_in_files_out_of_core_give_the_bits_of_searching_again() {
         }
     }
 }
+
+/// Out of core, a replay reads the light of several bands of a direction at once and replays
+/// each band's links in place (`outcore::band`): at a budget of many bands a direction, the
+/// groups must join bands, and the answer must keep the bits of searching again.
+#[test]
+fn replays_out_of_core_join_bands_and_keep_the_bits() {
+    let scene = voxrad::gen::cornell_box();
+    let set = voxelize(&scene, GridSpec::Resolution(48)).expect("voxelize");
+    let source = voxrad::outcore::InMemorySource::new(&set);
+    let solve = |links_disk: u64| {
+        let options = SolveOptions {
+            directions: 49,
+            max_iterations: 4,
+            tolerance: None,
+            threads: 2,
+            accelerate: true,
+            direct: DirectPass::Off,
+            links_disk: Some(links_disk),
+            ..Default::default()
+        };
+        let directions = voxrad::geometry::directions::DirectionSet::with_count(49);
+        let work = tempfile::tempdir().expect("tempdir");
+        let solution =
+            voxrad::outcore::solve_out_of_core(&source, &directions, &options, 1 << 20, work.path())
+                .expect("out of core");
+        let bits: Vec<u32> = solution
+            .radiosity()
+            .expect("radiosity")
+            .iter()
+            .flatten()
+            .flatten()
+            .map(|v| v.to_bits())
+            .collect();
+        (bits, solution.stats)
+    };
+    let (searched, none) = solve(0);
+    assert_eq!(none.replayed_bands, 0);
+    let (replayed, kept) = solve(u64::MAX);
+    let directions = kept.solve.directions as u64;
+    assert!(
+        kept.replayed_bands > 3 * 3 * directions,
+        "several bands a direction: {} bands replayed over 3 iterations of {directions} directions",
+        kept.replayed_bands
+    );
+    assert!(
+        kept.replay_groups * 2 <= kept.replayed_bands,
+        "the groups join bands: {} groups for {} bands",
+        kept.replay_groups,
+        kept.replayed_bands
+    );
+    assert!(replayed == searched, "replaying in groups changed the answer");
+}

@@ -71,6 +71,15 @@ pub struct BandBuffers {
     cursor: Vec<u64>,
     next_row: Vec<usize>,
     columns: Vec<u64>,
+    /// A replay's bands waiting to be replayed together ([`DirectionPass::replay_group`]):
+    /// each band's surfels and the end of its ranges in `group_ranges`.
+    group: Vec<(u64, usize)>,
+    group_ranges: Vec<(u64, u64)>,
+    /// The group's ranges in file order, adjacent ones joined, each with where its light
+    /// begins in `radiosity` and `gathered`.
+    joined: Vec<(u64, u64, u64)>,
+    /// One band's surfels, by their place in the band, as places in the group's light.
+    map: Vec<u32>,
 }
 
 /// Time spent per phase of the directions, summed.
@@ -83,6 +92,10 @@ pub struct BandTimes {
     pub bands: u64,
     /// Columns too big for one band, solved in blocks.
     pub tiled_columns: u64,
+    /// Bands whose links were replayed, and the groups their light was read in
+    /// ([`DirectionPass::replay_group`]).
+    pub replayed_bands: u64,
+    pub replay_groups: u64,
 }
 
 /// A block of lines: rows `i0..i0 + rows` of columns `j0..j0 + width`, numbered
@@ -148,6 +161,9 @@ impl DirectionPass<'_> {
         let copy = self.copy;
         let frame = LineFrame::new(d.vector, self.dims);
         debug_assert_eq!((frame.main, frame.u, frame.v), (copy.main, copy.u, copy.v));
+        // What an earlier direction stopped by a signal left waiting.
+        buffers.group.clear();
+        buffers.group_ranges.clear();
         // Lines run through the layers in increasing order: point the search that way.
         let unit = if d.vector[copy.main] < 0 {
             -d.unit
@@ -216,6 +232,9 @@ impl DirectionPass<'_> {
                 self.tiled_column(&frame, unit, weight, column, links, buffers, io, times)?;
             }
             j0 += width;
+        }
+        if let BandLinks::Replay(replaying) = links {
+            self.replay_group(replaying, buffers, io, times)?;
         }
         Ok(())
     }
@@ -348,8 +367,9 @@ impl DirectionPass<'_> {
     }
 
     /// Reads the records of `buffers.ranges` (`band.surfels` of them), solves their lines,
-    /// which all lie in `band.block`, and adds the light gathered to the copy's file. Replaying
-    /// links, it reads neither the static records nor the lines: only the light.
+    /// which all lie in `band.block`, and adds the light gathered to the copy's file. A replay
+    /// of links only sets the band aside: its light is read, and its links replayed, with the
+    /// bands after it ([`Self::replay_group`]).
     #[allow(clippy::too_many_arguments)]
     fn process(
         &self,
@@ -362,104 +382,223 @@ impl DirectionPass<'_> {
         io: &mut IoCounters,
         times: &mut BandTimes,
     ) -> Result<(), OocError> {
-        let t0 = Instant::now();
         let Band { block, surfels } = band;
+        if let BandLinks::Replay(replaying) = links {
+            let waiting: u64 = buffers.group.iter().map(|&(n, _)| n).sum();
+            if waiting > 0 && waiting + surfels > self.plan.replay_surfels {
+                self.replay_group(replaying, buffers, io, times)?;
+            }
+            buffers.group_ranges.extend_from_slice(&buffers.ranges);
+            buffers.group.push((surfels, buffers.group_ranges.len()));
+            return Ok(());
+        }
+        let t0 = Instant::now();
         let n = surfels as usize;
-        let replay = matches!(links, BandLinks::Replay(_));
+        if buffers.radiosity.capacity() > self.plan.band_surfels as usize {
+            // A replay's group held more: a search needs the room for its other arrays.
+            buffers.radiosity = Vec::new();
+            buffers.gathered = Vec::new();
+        }
         buffers.props.clear();
-        // A replay needs neither the static records nor the lines.
-        let searched = if replay { 0 } else { n };
-        buffers.props.reserve_exact(searched);
-        buffers.radiosity.clear();
-        buffers.radiosity.reserve_exact(n);
-        buffers.gathered.clear();
-        buffers.gathered.reserve_exact(n);
+        buffers.props.reserve_exact(n);
         buffers.entries.clear();
-        buffers.entries.reserve_exact(searched);
+        buffers.entries.reserve_exact(n);
         let piece = (self.plan.io_bytes / STATIC_LEN).max(1) as u64;
         buffers.bytes.resize(piece as usize * STATIC_LEN, 0);
         for &(start, count) in &buffers.ranges {
-            if !replay {
-                let mut at = 0;
-                while at < count {
-                    let k = piece.min(count - at);
-                    let bytes = &mut buffers.bytes[..k as usize * STATIC_LEN];
-                    self.files
-                        .statics
-                        .read_at((start + at) * STATIC_LEN as u64, bytes, io)?;
-                    for rec in bytes.chunks_exact(STATIC_LEN) {
-                        let r = decode_static(rec);
-                        buffers.entries.push(OrderedEntry {
-                            voxel: r.prop.voxel,
-                            index: buffers.props.len() as u32,
-                        });
-                        buffers.props.push(r.prop);
-                    }
-                    at += k;
+            let mut at = 0;
+            while at < count {
+                let k = piece.min(count - at);
+                let bytes = &mut buffers.bytes[..k as usize * STATIC_LEN];
+                self.files
+                    .statics
+                    .read_at((start + at) * STATIC_LEN as u64, bytes, io)?;
+                for rec in bytes.chunks_exact(STATIC_LEN) {
+                    let r = decode_static(rec);
+                    buffers.entries.push(OrderedEntry {
+                        voxel: r.prop.voxel,
+                        index: buffers.props.len() as u32,
+                    });
+                    buffers.props.push(r.prop);
                 }
+                at += k;
             }
-            // The light records are the arrays' own bytes (see `files`): read
-            // straight into them, one read per range.
-            let from = buffers.radiosity.len();
-            buffers
-                .radiosity
-                .resize(from + count as usize, [[0.0; 3]; 2]);
+        }
+        let BandBuffers {
+            ranges,
+            radiosity,
+            gathered,
+            ..
+        } = buffers;
+        self.read_light(ranges.iter().copied(), n, radiosity, gathered, io)?;
+        let t1 = Instant::now();
+        let numbering = BandNumbering { frame, block };
+        dispatch(
+            &buffers.entries,
+            &numbering,
+            self.threads,
+            &mut buffers.lines,
+        );
+        let t2 = Instant::now();
+        let input = DirectionInput {
+            unit,
+            weight,
+            surfels: &buffers.props,
+            radiosity: &buffers.radiosity,
+            channels: self.channels,
+        };
+        let (lines, acc) = (&buffers.lines, &mut buffers.gathered);
+        if let BandLinks::Record(recording) = links {
+            let kept = gather_and_record(lines, &input, acc, self.threads);
+            recording.band(n, &kept, io)?;
+        } else {
+            gather_all_lines(lines, &input, acc, self.threads);
+        }
+        let t3 = Instant::now();
+        self.write_light(buffers.ranges.iter().copied(), &buffers.gathered, io)?;
+        times.read += (t1 - t0).as_secs_f64();
+        times.dispatch += (t2 - t1).as_secs_f64();
+        times.propagate += (t3 - t2).as_secs_f64();
+        times.write += t3.elapsed().as_secs_f64();
+        times.bands += 1;
+        Ok(())
+    }
+
+    /// Replays the links of the bands set aside by [`Self::process`], in their order, and
+    /// empties the group.
+    ///
+    /// A replay reads and writes only the light, but a band's light lies in one short range
+    /// of the copy per layer: with bands sized for a search (props, lines, links), a replay
+    /// made a read of the radiosity, a read of the earlier light and a write per layer and
+    /// band, and waited on these calls more than on the bytes. So the light of consecutive
+    /// bands, as many as [`MemoryPlan::replay_surfels`] allows, is read and written together,
+    /// their ranges joined where they meet in a layer, and each band's links are replayed in
+    /// place through a map from the band's numbering to the group's
+    /// (`DirectionLinks::replay_mapped`). Each surfel still gathers its own line's links in
+    /// their order: the same bits.
+    fn replay_group(
+        &self,
+        replaying: &mut super::links::Replaying,
+        buffers: &mut BandBuffers,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
+        if buffers.group.is_empty() {
+            return Ok(());
+        }
+        let t0 = Instant::now();
+        // A search before (links not kept for some direction) left its arrays: the group's
+        // light takes their room.
+        buffers.props = Vec::new();
+        buffers.entries = Vec::new();
+        buffers.lines = Lines::default();
+        let BandBuffers {
+            radiosity,
+            gathered,
+            group,
+            group_ranges,
+            joined,
+            map,
+            ..
+        } = buffers;
+        // The bands' ranges in file order (they never overlap), joined where they meet.
+        joined.clear();
+        joined.extend(group_ranges.iter().map(|&(start, count)| (start, count, 0)));
+        joined.sort_unstable_by_key(|r| r.0);
+        let mut kept = 0;
+        for k in 0..joined.len() {
+            let (start, count, _) = joined[k];
+            if kept > 0 && joined[kept - 1].0 + joined[kept - 1].1 == start {
+                joined[kept - 1].1 += count;
+            } else {
+                joined[kept] = (start, count, 0);
+                kept += 1;
+            }
+        }
+        joined.truncate(kept);
+        let mut place = 0;
+        for range in joined.iter_mut() {
+            range.2 = place;
+            place += range.1;
+        }
+        let joined = &*joined;
+        let ranges = || joined.iter().map(|&(start, count, _)| (start, count));
+        self.read_light(ranges(), place as usize, radiosity, gathered, io)?;
+        let t1 = Instant::now();
+        let mut first_range = 0;
+        for &(surfels, end) in group.iter() {
+            map.clear();
+            for &(start, count) in &group_ranges[first_range..end] {
+                let k = joined.partition_point(|r| r.0 + r.1 <= start);
+                let base = joined[k].2 + (start - joined[k].0);
+                map.extend((base..base + count).map(|p| p as u32));
+            }
+            first_range = end;
+            let kept = replaying.band(surfels as usize, io)?;
+            kept.replay_mapped(map, radiosity, self.channels, gathered);
+        }
+        let t2 = Instant::now();
+        self.write_light(ranges(), gathered, io)?;
+        times.read += (t1 - t0).as_secs_f64();
+        times.propagate += (t2 - t1).as_secs_f64();
+        times.write += t2.elapsed().as_secs_f64();
+        times.bands += group.len() as u64;
+        times.replayed_bands += group.len() as u64;
+        times.replay_groups += 1;
+        group.clear();
+        group_ranges.clear();
+        Ok(())
+    }
+
+    /// Reads the radiosity and the earlier directions' light (zero for the copy's first
+    /// direction) of the copy records of `ranges`, `surfels` in all, into `radiosity` and
+    /// `gathered`, one read of each per range. The light records are the arrays' own bytes
+    /// (see `files`), read straight into them.
+    fn read_light(
+        &self,
+        ranges: impl Iterator<Item = (u64, u64)>,
+        surfels: usize,
+        radiosity: &mut Vec<Radiosity>,
+        gathered: &mut Vec<Gathered>,
+        io: &mut IoCounters,
+    ) -> Result<(), OocError> {
+        radiosity.clear();
+        radiosity.reserve_exact(surfels);
+        gathered.clear();
+        gathered.reserve_exact(surfels);
+        for (start, count) in ranges {
+            let from = radiosity.len();
+            radiosity.resize(from + count as usize, [[0.0; 3]; 2]);
             self.files.radiosity.read_at(
                 start * RADIOSITY_LEN as u64,
-                bytemuck::cast_slice_mut(&mut buffers.radiosity[from..]),
+                bytemuck::cast_slice_mut(&mut radiosity[from..]),
                 io,
             )?;
-            let from = buffers.gathered.len();
-            buffers
-                .gathered
-                .resize(from + count as usize, [[0.0; 3]; 2]);
+            gathered.resize(from + count as usize, [[0.0; 3]; 2]);
             if !self.first {
                 let earlier = self.files.previous.as_ref();
                 earlier.unwrap_or(&self.files.gathered).read_at(
                     start * GATHER_LEN as u64,
-                    bytemuck::cast_slice_mut(&mut buffers.gathered[from..]),
+                    bytemuck::cast_slice_mut(&mut gathered[from..]),
                     io,
                 )?;
             }
         }
-        debug_assert_eq!(buffers.radiosity.len(), n);
-        let t1 = Instant::now();
-        let t2;
-        match links {
-            BandLinks::Replay(replaying) => {
-                let kept = replaying.band(n, io)?;
-                t2 = Instant::now();
-                kept.replay(&buffers.radiosity, self.channels, &mut buffers.gathered);
-            }
-            BandLinks::Search | BandLinks::Record(_) => {
-                let numbering = BandNumbering { frame, block };
-                dispatch(
-                    &buffers.entries,
-                    &numbering,
-                    self.threads,
-                    &mut buffers.lines,
-                );
-                t2 = Instant::now();
-                let input = DirectionInput {
-                    unit,
-                    weight,
-                    surfels: &buffers.props,
-                    radiosity: &buffers.radiosity,
-                    channels: self.channels,
-                };
-                let (lines, acc) = (&buffers.lines, &mut buffers.gathered);
-                if let BandLinks::Record(recording) = links {
-                    let kept = gather_and_record(lines, &input, acc, self.threads);
-                    recording.band(n, &kept, io)?;
-                } else {
-                    gather_all_lines(lines, &input, acc, self.threads);
-                }
-            }
-        }
-        let t3 = Instant::now();
+        debug_assert_eq!(radiosity.len(), surfels);
+        Ok(())
+    }
+
+    /// Writes `gathered`, the light of the copy records of `ranges` in their order, to the
+    /// copy's file of gathered light, one write per range.
+    fn write_light(
+        &self,
+        ranges: impl Iterator<Item = (u64, u64)>,
+        gathered: &[Gathered],
+        io: &mut IoCounters,
+    ) -> Result<(), OocError> {
         let mut done = 0usize;
-        for &(start, count) in &buffers.ranges {
-            let light = &buffers.gathered[done..done + count as usize];
+        for (start, count) in ranges {
+            let light = &gathered[done..done + count as usize];
             self.files.gathered.write_at(
                 start * GATHER_LEN as u64,
                 bytemuck::cast_slice(light),
@@ -467,11 +606,6 @@ impl DirectionPass<'_> {
             )?;
             done += count as usize;
         }
-        times.read += (t1 - t0).as_secs_f64();
-        times.dispatch += (t2 - t1).as_secs_f64();
-        times.propagate += (t3 - t2).as_secs_f64();
-        times.write += t3.elapsed().as_secs_f64();
-        times.bands += 1;
         Ok(())
     }
 }

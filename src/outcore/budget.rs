@@ -77,6 +77,15 @@ pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
     + 48
     + 3 * 27 / 2) as u64;
 
+/// Bytes a replay holds per surfel of the bands whose light it has read together (see
+/// `super::band`): their radiosity and gathered light.
+pub const REPLAY_BYTES_PER_SURFEL: u64 =
+    (std::mem::size_of::<Radiosity>() + std::mem::size_of::<Gathered>()) as u64;
+
+/// Bytes a replay holds per surfel of the one band whose links it replays: the band's map into
+/// the light read, and its links read and decoded (twice about 13.5 bytes).
+pub const REPLAY_BAND_BYTES_PER_SURFEL: u64 = 4 + 27;
+
 /// Bytes a sort bucket holds per record: key, canonical index and the encoded record.
 pub const SORT_BYTES_PER_RECORD: u64 = 88;
 
@@ -96,6 +105,8 @@ pub struct MemoryPlan {
     pub band_surfels: u64,
     /// Largest band, in lines (its line counters).
     pub band_lines: u64,
+    /// Most surfels of the bands whose light a replay reads together (at least a band's).
+    pub replay_surfels: u64,
     /// Largest sort bucket, in records.
     pub sort_records: u64,
     /// Permutation chunk, in surfels.
@@ -125,12 +136,18 @@ impl MemoryPlan {
         }
         let working = budget - fixed;
         let counters = 4 * (threads as u64 + 2);
+        let band_surfels = working * 3 / 4 / BAND_BYTES_PER_SURFEL;
+        let replay_surfels = ((working * 3 / 4)
+            .saturating_sub(band_surfels * REPLAY_BAND_BYTES_PER_SURFEL)
+            / REPLAY_BYTES_PER_SURFEL)
+            .max(band_surfels);
         Ok(MemoryPlan {
             budget,
             io_bytes,
             working,
-            band_surfels: working * 3 / 4 / BAND_BYTES_PER_SURFEL,
+            band_surfels,
             band_lines: working / 4 / counters,
+            replay_surfels,
             sort_records: working / 2 / SORT_BYTES_PER_RECORD,
             chunk_surfels: working / 2 / CHUNK_BYTES_PER_SURFEL,
         })

@@ -72,6 +72,10 @@ pub struct OocStats {
     /// for one band, solved in blocks.
     pub bands: u64,
     pub tiled_columns: u64,
+    /// Bands replayed from kept links, and the groups their light was read and written in
+    /// (several bands of a direction at once where the budget holds them).
+    pub replayed_bands: u64,
+    pub replay_groups: u64,
 }
 
 /// The result: statistics and the work set whose canonical radiosity file holds the answer.
@@ -419,6 +423,8 @@ fn run(
     stats.write_seconds = times.write;
     stats.bands = times.bands;
     stats.tiled_columns = times.tiled_columns;
+    stats.replayed_bands = times.replayed_bands;
+    stats.replay_groups = times.replay_groups;
     stats.bytes_read = io.read;
     stats.bytes_written = io.written;
     Ok(OocSolution {
