@@ -193,7 +193,8 @@ fn main() {
             );
             println!(
                 "         split (s): setup {:.2}, band reads {:.2}, dispatch {:.2}, propagate \
-                 {:.2}, band writes {:.2}, updates {:.2}; {} bands, {} columns in blocks",
+                 {:.2}, band writes {:.2}, updates {:.2}; {} bands, {} columns in blocks, {} \
+                 bands replayed in {} groups",
                 o.setup_seconds,
                 o.read_seconds,
                 o.solve.dispatch_seconds,
@@ -201,7 +202,9 @@ fn main() {
                 o.write_seconds,
                 o.update_seconds,
                 o.bands,
-                o.tiled_columns
+                o.tiled_columns,
+                o.replayed_bands,
+                o.replay_groups
             );
         }
     }
