@@ -523,6 +523,13 @@ impl DirectionPass<'_> {
         }
         let joined = &*joined;
         let ranges = || joined.iter().map(|&(start, count, _)| (start, count));
+        if radiosity.capacity() < place as usize {
+            // Room for the largest group at once: growing by steps would hold the old and the
+            // new arrays together, over the budget.
+            let most = (self.plan.replay_surfels as usize).max(place as usize);
+            *radiosity = Vec::with_capacity(most);
+            *gathered = Vec::with_capacity(most);
+        }
         self.read_light(ranges(), place as usize, radiosity, gathered, io)?;
         let t1 = Instant::now();
         let mut first_range = 0;
