@@ -195,9 +195,14 @@ fn replays_out_of_core_join_bands_and_keep_the_bits() {
         };
         let directions = voxrad::geometry::directions::DirectionSet::with_count(49);
         let work = tempfile::tempdir().expect("tempdir");
-        let solution =
-            voxrad::outcore::solve_out_of_core(&source, &directions, &options, 1 << 20, work.path())
-                .expect("out of core");
+        let solution = voxrad::outcore::solve_out_of_core(
+            &source,
+            &directions,
+            &options,
+            1 << 20,
+            work.path(),
+        )
+        .expect("out of core");
         let bits: Vec<u32> = solution
             .radiosity()
             .expect("radiosity")
@@ -223,5 +228,8 @@ fn replays_out_of_core_join_bands_and_keep_the_bits() {
         kept.replay_groups,
         kept.replayed_bands
     );
-    assert!(replayed == searched, "replaying in groups changed the answer");
+    assert!(
+        replayed == searched,
+        "replaying in groups changed the answer"
+    );
 }
