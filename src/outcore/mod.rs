@@ -25,13 +25,15 @@
 //!
 //! **Partner links** ([`links`]): a direction's first pass writes its bands' links to a work
 //! file of its own, within a disk allowance; later iterations replay them band by band instead
-//! of reading the static records, dispatching and searching (the same bits).
+//! of reading the static records, dispatching and searching (the same bits), reading the light
+//! of several consecutive bands at once ([`band`]).
 //!
 //! **The direct-light pass** ([`direct`]) for small emitters runs before the iterations, on
 //! parts of the scene that hold its emitters' lines, within the same budget.
 //!
 //! **Memory** ([`budget`]): the row histogram of one copy, the per-layer cursors, then one of
-//! (a band's arrays and line counters | a sort bucket | a permutation chunk) at a time, and
+//! (a band's arrays and line counters | a replay's light of several bands and one band's links |
+//! a sort bucket | a permutation chunk) at a time, and
 //! fixed-size I/O buffers. Not counted: code, stacks and the allocator's own overhead, a few
 //! MiB; see the tests for the allowance measured under an address-space limit.
 
