@@ -75,11 +75,11 @@ pub struct BandBuffers {
     /// each band's surfels and the end of its ranges in `group_ranges`.
     group: Vec<(u64, usize)>,
     group_ranges: Vec<(u64, u64)>,
-    /// The group's ranges in file order, adjacent ones joined, each with where its light
-    /// begins in `radiosity` and `gathered`.
-    joined: Vec<(u64, u64, u64)>,
-    /// One band's surfels, by their place in the band, as places in the group's light.
-    map: Vec<u32>,
+    /// The group's ranges in file order, each with its place in `radiosity` and `gathered`.
+    pieces: Vec<(u64, u64, u64)>,
+    /// The light of one run of the copy, read or written at once.
+    staged_radiosity: Vec<Radiosity>,
+    staged_gathered: Vec<Gathered>,
 }
 
 /// Time spent per phase of the directions, summed.
@@ -471,11 +471,11 @@ impl DirectionPass<'_> {
     /// of the copy per layer: with bands sized for a search (props, lines, links), a replay
     /// made a read of the radiosity, a read of the earlier light and a write per layer and
     /// band, and waited on these calls more than on the bytes. So the light of consecutive
-    /// bands, as many as [`MemoryPlan::replay_surfels`] allows, is read and written together,
-    /// their ranges joined where they meet in a layer, and each band's links are replayed in
-    /// place through a map from the band's numbering to the group's
-    /// (`DirectionLinks::replay_mapped`). Each surfel still gathers its own line's links in
-    /// their order: the same bits.
+    /// bands, as many as [`MemoryPlan::replay_surfels`] allows, is read and written together:
+    /// their ranges are joined where they meet in a layer, each joined range is read (and
+    /// written back) at once through a buffer of a few hundred KiB at most, and each band's
+    /// part is copied to a section of its own, in the band's order, where its links replay as
+    /// they would in the band alone: the same bits.
     fn replay_group(
         &self,
         replaying: &mut super::links::Replaying,
@@ -497,57 +497,91 @@ impl DirectionPass<'_> {
             gathered,
             group,
             group_ranges,
-            joined,
-            map,
+            pieces,
+            staged_radiosity,
+            staged_gathered,
             ..
         } = buffers;
-        // The bands' ranges in file order (they never overlap), joined where they meet.
-        joined.clear();
-        joined.extend(group_ranges.iter().map(|&(start, count)| (start, count, 0)));
-        joined.sort_unstable_by_key(|r| r.0);
-        let mut kept = 0;
-        for k in 0..joined.len() {
-            let (start, count, _) = joined[k];
-            if kept > 0 && joined[kept - 1].0 + joined[kept - 1].1 == start {
-                joined[kept - 1].1 += count;
-            } else {
-                joined[kept] = (start, count, 0);
-                kept += 1;
-            }
+        // Every range of every band, with where it goes in the arrays (the bands one after the
+        // other, each in its own order), then in file order: the ranges of different bands
+        // never overlap, and those that meet are read and written as one.
+        pieces.clear();
+        let mut place = 0u64;
+        for &(start, count) in group_ranges.iter() {
+            pieces.push((start, count, place));
+            place += count;
         }
-        joined.truncate(kept);
-        let mut place = 0;
-        for range in joined.iter_mut() {
-            range.2 = place;
-            place += range.1;
-        }
-        let joined = &*joined;
-        let ranges = || joined.iter().map(|&(start, count, _)| (start, count));
-        if radiosity.capacity() < place as usize {
+        pieces.sort_unstable_by_key(|p| p.0);
+        let total = place as usize;
+        if radiosity.capacity() < total {
             // Room for the largest group at once: growing by steps would hold the old and the
             // new arrays together, over the budget.
-            let most = (self.plan.replay_surfels as usize).max(place as usize);
+            let most = (self.plan.replay_surfels as usize).max(total);
             *radiosity = Vec::with_capacity(most);
             *gathered = Vec::with_capacity(most);
         }
-        self.read_light(ranges(), place as usize, radiosity, gathered, io)?;
-        let t1 = Instant::now();
-        let mut first_range = 0;
-        for &(surfels, end) in group.iter() {
-            map.clear();
-            for &(start, count) in &group_ranges[first_range..end] {
-                let k = joined.partition_point(|r| r.0 + r.1 <= start);
-                let base = joined[k].2 + (start - joined[k].0);
-                map.extend((base..base + count).map(|p| p as u32));
+        radiosity.clear();
+        radiosity.resize(total, [[0.0; 3]; 2]);
+        gathered.clear();
+        gathered.resize(total, [[0.0; 3]; 2]);
+        let chunk = self.plan.replay_chunk();
+        for_each_run(pieces, chunk, |run, parts| {
+            let (start, count) = run;
+            staged_radiosity.resize(count as usize, [[0.0; 3]; 2]);
+            self.files.radiosity.read_at(
+                start * RADIOSITY_LEN as u64,
+                bytemuck::cast_slice_mut(&mut staged_radiosity[..]),
+                io,
+            )?;
+            staged_gathered.clear();
+            staged_gathered.resize(count as usize, [[0.0; 3]; 2]);
+            if !self.first {
+                let earlier = self.files.previous.as_ref();
+                earlier.unwrap_or(&self.files.gathered).read_at(
+                    start * GATHER_LEN as u64,
+                    bytemuck::cast_slice_mut(&mut staged_gathered[..]),
+                    io,
+                )?;
             }
-            first_range = end;
-            let kept = replaying.band(surfels as usize, io)?;
-            kept.replay_mapped(map, radiosity, self.channels, gathered);
+            for &(from, len, to) in parts {
+                let (from, len, to) = ((from - start) as usize, len as usize, to as usize);
+                radiosity[to..to + len].copy_from_slice(&staged_radiosity[from..from + len]);
+                gathered[to..to + len].copy_from_slice(&staged_gathered[from..from + len]);
+            }
+            Ok(())
+        })?;
+        let t1 = Instant::now();
+        // Reading the links counts as reading.
+        let mut link_reads = 0.0;
+        let mut base = 0usize;
+        for &(surfels, _) in group.iter() {
+            let n = surfels as usize;
+            let read = Instant::now();
+            let kept = replaying.band(n, io)?;
+            link_reads += read.elapsed().as_secs_f64();
+            kept.replay(
+                &radiosity[base..base + n],
+                self.channels,
+                &mut gathered[base..base + n],
+            );
+            base += n;
         }
         let t2 = Instant::now();
-        self.write_light(ranges(), gathered, io)?;
-        times.read += (t1 - t0).as_secs_f64();
-        times.propagate += (t2 - t1).as_secs_f64();
+        for_each_run(pieces, chunk, |run, parts| {
+            let (start, count) = run;
+            staged_gathered.resize(count as usize, [[0.0; 3]; 2]);
+            for &(from, len, to) in parts {
+                let (from, len, to) = ((from - start) as usize, len as usize, to as usize);
+                staged_gathered[from..from + len].copy_from_slice(&gathered[to..to + len]);
+            }
+            self.files.gathered.write_at(
+                start * GATHER_LEN as u64,
+                bytemuck::cast_slice(&staged_gathered[..]),
+                io,
+            )
+        })?;
+        times.read += (t1 - t0).as_secs_f64() + link_reads;
+        times.propagate += (t2 - t1).as_secs_f64() - link_reads;
         times.write += t2.elapsed().as_secs_f64();
         times.bands += group.len() as u64;
         times.replayed_bands += group.len() as u64;
@@ -617,6 +651,46 @@ impl DirectionPass<'_> {
     }
 }
 
+/// Calls `f` on the runs of `pieces` (copy ranges `(start, count, place)` in file order, none
+/// overlapping): each stretch of the copy where pieces meet, cut into runs of at most `chunk`
+/// records, with the parts of the pieces that fall in the run (`(start, count, place)` again).
+fn for_each_run(
+    pieces: &[(u64, u64, u64)],
+    chunk: u64,
+    mut f: impl FnMut((u64, u64), &[(u64, u64, u64)]) -> Result<(), OocError>,
+) -> Result<(), OocError> {
+    let mut parts = Vec::new();
+    let mut k = 0;
+    while k < pieces.len() {
+        // The stretch of pieces k.. that meet.
+        let mut end = k + 1;
+        while end < pieces.len() && pieces[end - 1].0 + pieces[end - 1].1 == pieces[end].0 {
+            end += 1;
+        }
+        let (first, last) = (pieces[k].0, pieces[end - 1].0 + pieces[end - 1].1);
+        let mut at = first;
+        let mut p = k;
+        while at < last {
+            let stop = last.min(at + chunk.max(1));
+            parts.clear();
+            while p < end && pieces[p].0 < stop {
+                let (start, count, place) = pieces[p];
+                let (from, to) = (start.max(at), (start + count).min(stop));
+                parts.push((from, to - from, place + (from - start)));
+                if start + count <= stop {
+                    p += 1;
+                } else {
+                    break;
+                }
+            }
+            f((at, stop - at), &parts)?;
+            at = stop;
+        }
+        k = end;
+    }
+    Ok(())
+}
+
 /// The lines of one band and the surfels they hold.
 #[derive(Clone, Copy, Debug)]
 struct Band {
@@ -630,4 +704,51 @@ struct Column {
     vector: [i64; 3],
     j0: u64,
     surfels: u64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Runs cover exactly the pieces, meeting pieces share a run, no run is longer than the
+    /// chunk, and every part lands at its piece's place plus its offset in the piece.
+    #[test]
+    fn runs_cover_the_pieces_in_chunks() {
+        // Copy ranges (start, count, place): three that meet (10..14, 14..20, 20..21), one
+        // apart (30..37), and one alone that a chunk of 4 cuts (50..59).
+        let pieces = [
+            (10, 4, 100),
+            (14, 6, 0),
+            (20, 1, 50),
+            (30, 7, 200),
+            (50, 9, 300),
+        ];
+        for chunk in [1, 3, 4, 100] {
+            let mut seen: Vec<(u64, u64)> = Vec::new();
+            let mut runs = Vec::new();
+            for_each_run(&pieces, chunk, |run, parts| {
+                runs.push(run);
+                assert!(run.1 <= chunk && run.1 > 0);
+                let mut at = run.0;
+                for &(from, len, place) in parts {
+                    assert_eq!(from, at, "parts follow each other through the run");
+                    at += len;
+                    for r in from..from + len {
+                        seen.push((r, place + (r - from)));
+                    }
+                }
+                assert_eq!(at, run.0 + run.1, "the parts fill the run");
+                Ok(())
+            })
+            .expect("no error");
+            let expected: Vec<(u64, u64)> = pieces
+                .iter()
+                .flat_map(|&(s, c, p)| (s..s + c).map(move |r| (r, p + r - s)))
+                .collect();
+            assert_eq!(seen, expected, "chunk {chunk}");
+            if chunk == 100 {
+                assert_eq!(runs, [(10, 11), (30, 7), (50, 9)]);
+            }
+        }
+    }
 }

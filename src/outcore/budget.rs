@@ -140,6 +140,7 @@ impl MemoryPlan {
         let band_surfels = working * 3 / 4 / BAND_BYTES_PER_SURFEL;
         let replay_surfels = ((working * 3 / 4)
             .saturating_sub(band_surfels * REPLAY_BAND_BYTES_PER_SURFEL)
+            .saturating_sub(Self::replay_chunk_of(io_bytes) * REPLAY_BYTES_PER_SURFEL)
             / REPLAY_BYTES_PER_SURFEL)
             .max(band_surfels);
         Ok(MemoryPlan {
@@ -152,6 +153,16 @@ impl MemoryPlan {
             sort_records: working / 2 / SORT_BYTES_PER_RECORD,
             chunk_surfels: working / 2 / CHUNK_BYTES_PER_SURFEL,
         })
+    }
+
+    /// Records of the copy a replay reads or writes at once (see `super::band`): the light of
+    /// about four I/O buffers.
+    pub fn replay_chunk(&self) -> u64 {
+        Self::replay_chunk_of(self.io_bytes)
+    }
+
+    fn replay_chunk_of(io_bytes: usize) -> u64 {
+        (4 * io_bytes as u64 / REPLAY_BYTES_PER_SURFEL).max(1)
     }
 
     /// Write buffer of each of `count` bucket files sharing half the working memory.
