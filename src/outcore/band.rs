@@ -520,28 +520,47 @@ impl DirectionPass<'_> {
             *radiosity = Vec::with_capacity(most);
             *gathered = Vec::with_capacity(most);
         }
-        radiosity.clear();
-        radiosity.resize(total, [[0.0; 3]; 2]);
-        gathered.clear();
-        gathered.resize(total, [[0.0; 3]; 2]);
+        // Every place below `total` is written before it is read: the arrays only grow.
+        if radiosity.len() < total {
+            radiosity.resize(total, [[0.0; 3]; 2]);
+            gathered.resize(total, [[0.0; 3]; 2]);
+        }
         let chunk = self.plan.replay_chunk();
-        for_each_run(pieces, chunk, |run, parts| {
-            let (start, count) = run;
-            staged_radiosity.resize(count as usize, [[0.0; 3]; 2]);
+        let earlier = self.files.previous.as_ref().unwrap_or(&self.files.gathered);
+        for_each_run(pieces, chunk, |(start, count), parts| {
+            if apart(count, parts.len()) {
+                for &(from, len, to) in parts {
+                    let (len, to) = (len as usize, to as usize);
+                    self.files.radiosity.read_at(
+                        from * RADIOSITY_LEN as u64,
+                        bytemuck::cast_slice_mut(&mut radiosity[to..to + len]),
+                        io,
+                    )?;
+                    let light = &mut gathered[to..to + len];
+                    if self.first {
+                        light.fill([[0.0; 3]; 2]);
+                    } else {
+                        let bytes = bytemuck::cast_slice_mut(light);
+                        earlier.read_at(from * GATHER_LEN as u64, bytes, io)?;
+                    }
+                }
+                return Ok(());
+            }
+            let n = count as usize;
+            if staged_radiosity.len() < n {
+                staged_radiosity.resize(n, [[0.0; 3]; 2]);
+                staged_gathered.resize(n, [[0.0; 3]; 2]);
+            }
             self.files.radiosity.read_at(
                 start * RADIOSITY_LEN as u64,
-                bytemuck::cast_slice_mut(&mut staged_radiosity[..]),
+                bytemuck::cast_slice_mut(&mut staged_radiosity[..n]),
                 io,
             )?;
-            staged_gathered.clear();
-            staged_gathered.resize(count as usize, [[0.0; 3]; 2]);
-            if !self.first {
-                let earlier = self.files.previous.as_ref();
-                earlier.unwrap_or(&self.files.gathered).read_at(
-                    start * GATHER_LEN as u64,
-                    bytemuck::cast_slice_mut(&mut staged_gathered[..]),
-                    io,
-                )?;
+            if self.first {
+                staged_gathered[..n].fill([[0.0; 3]; 2]);
+            } else {
+                let bytes = bytemuck::cast_slice_mut(&mut staged_gathered[..n]);
+                earlier.read_at(start * GATHER_LEN as u64, bytes, io)?;
             }
             for &(from, len, to) in parts {
                 let (from, len, to) = ((from - start) as usize, len as usize, to as usize);
@@ -567,18 +586,26 @@ impl DirectionPass<'_> {
             base += n;
         }
         let t2 = Instant::now();
-        for_each_run(pieces, chunk, |run, parts| {
-            let (start, count) = run;
-            staged_gathered.resize(count as usize, [[0.0; 3]; 2]);
+        for_each_run(pieces, chunk, |(start, count), parts| {
+            if apart(count, parts.len()) {
+                for &(from, len, to) in parts {
+                    let (len, to) = (len as usize, to as usize);
+                    let bytes = bytemuck::cast_slice(&gathered[to..to + len]);
+                    self.files
+                        .gathered
+                        .write_at(from * GATHER_LEN as u64, bytes, io)?;
+                }
+                return Ok(());
+            }
+            let n = count as usize;
             for &(from, len, to) in parts {
                 let (from, len, to) = ((from - start) as usize, len as usize, to as usize);
                 staged_gathered[from..from + len].copy_from_slice(&gathered[to..to + len]);
             }
-            self.files.gathered.write_at(
-                start * GATHER_LEN as u64,
-                bytemuck::cast_slice(&staged_gathered[..]),
-                io,
-            )
+            let bytes = bytemuck::cast_slice(&staged_gathered[..n]);
+            self.files
+                .gathered
+                .write_at(start * GATHER_LEN as u64, bytes, io)
         })?;
         times.read += (t1 - t0).as_secs_f64() + link_reads;
         times.propagate += (t2 - t1).as_secs_f64() - link_reads;
@@ -649,6 +676,17 @@ impl DirectionPass<'_> {
         }
         Ok(())
     }
+}
+
+/// Pieces of a run this long on average (records) are read and written each on its own, in
+/// place: a call then costs little beside the bytes, and going through the staging buffer
+/// would copy them once more. Shorter ones (a small budget's bands, tens of records a layer)
+/// are read and written as one run: the calls cost more than the copy.
+const APART_RECORDS: u64 = 1024;
+
+/// Whether a run of `count` records holding `parts` parts is read and written part by part.
+fn apart(count: u64, parts: usize) -> bool {
+    parts == 1 || count / parts as u64 >= APART_RECORDS
 }
 
 /// Calls `f` on the runs of `pieces` (copy ranges `(start, count, place)` in file order, none
