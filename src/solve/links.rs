@@ -257,45 +257,12 @@ impl DirectionLinks {
 
     /// Adds to `acc` what the links bring from `radiosity` (the first `channels` channels).
     pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
-        self.replay_with(radiosity, channels, acc, |surfel| surfel);
-    }
-
-    /// As [`Self::replay`], for links numbered within a part of larger arrays: the links'
-    /// surfel `i` is surfel `map[i]` of `radiosity` and `acc`. `map` is one-to-one, so the
-    /// pieces still add into sums no other piece touches. (Out of core, a replay reads the
-    /// light of several bands of a direction at once and replays each band's links in place:
-    /// `outcore::band`.)
-    pub fn replay_mapped(
-        &self,
-        map: &[u32],
-        radiosity: &[Radiosity],
-        channels: usize,
-        acc: &mut [Gathered],
-    ) {
-        // A surfel beyond the map is a bounds panic, as a link beyond the arrays is below.
-        self.replay_with(radiosity, channels, acc, |surfel| map[surfel as usize]);
-    }
-
-    fn replay_with(
-        &self,
-        radiosity: &[Radiosity],
-        channels: usize,
-        acc: &mut [Gathered],
-        surfel: impl Fn(u32) -> u32 + Sync,
-    ) {
         let acc_ptr = AccPtr(acc.as_mut_ptr());
         let len = acc.len();
         assert!(
             radiosity.len() >= len,
             "the radiosity holds every surfel the links name"
         );
-        // A side `2 i + s` of the links' numbering as a side of the arrays.
-        let side = |n: u32| surfel(n >> 1) << 1 | n & 1;
-        let mapped = |l: Link| Link {
-            to: side(l.to),
-            from: side(l.from),
-            factor: l.factor,
-        };
         self.pieces.par_windows(2).for_each(|w| {
             let at = Arrays {
                 factors: &self.factors,
@@ -304,18 +271,13 @@ impl DirectionLinks {
                 len,
             };
             // SAFETY: the surfels of one piece's links are no other piece's (see the module
-            // header; `surfel` is one-to-one), so the pieces write disjoint parts of `acc`;
-            // `AccPtr` is shared for that.
+            // header), so the pieces write disjoint parts of `acc`; `AccPtr` is shared for that.
             unsafe {
                 match (&self.packed, channels) {
-                    (Packed::Narrow(v), 1) => {
-                        replay_piece::<1, _>(&v[w[0]..w[1]], |x| mapped(unpack(x)), &at)
-                    }
-                    (Packed::Narrow(v), _) => {
-                        replay_piece::<3, _>(&v[w[0]..w[1]], |x| mapped(unpack(x)), &at)
-                    }
-                    (Packed::Wide(v), 1) => replay_piece::<1, _>(&v[w[0]..w[1]], mapped, &at),
-                    (Packed::Wide(v), _) => replay_piece::<3, _>(&v[w[0]..w[1]], mapped, &at),
+                    (Packed::Narrow(v), 1) => replay_piece::<1, _>(&v[w[0]..w[1]], unpack, &at),
+                    (Packed::Narrow(v), _) => replay_piece::<3, _>(&v[w[0]..w[1]], unpack, &at),
+                    (Packed::Wide(v), 1) => replay_piece::<1, _>(&v[w[0]..w[1]], |l| l, &at),
+                    (Packed::Wide(v), _) => replay_piece::<3, _>(&v[w[0]..w[1]], |l| l, &at),
                 }
             }
         });
