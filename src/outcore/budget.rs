@@ -82,10 +82,10 @@ pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
 pub const REPLAY_BYTES_PER_SURFEL: u64 =
     (std::mem::size_of::<Radiosity>() + std::mem::size_of::<Gathered>()) as u64;
 
-/// Bytes a replay holds per surfel of the one band whose links it replays: the band's map into
-/// the light read, and its links read and decoded (twice about 20 bytes in a building, whose
-/// surfels have more links than those of a plain room).
-pub const REPLAY_BAND_BYTES_PER_SURFEL: u64 = 4 + 40;
+/// Bytes a replay holds per surfel of the one band whose links it replays: its links read and
+/// decoded (twice about 20 bytes in a building, whose surfels have more links than those of a
+/// plain room), and a margin.
+pub const REPLAY_BAND_BYTES_PER_SURFEL: u64 = 40 + 4;
 
 /// Bytes a sort bucket holds per record: key, canonical index and the encoded record.
 pub const SORT_BYTES_PER_RECORD: u64 = 88;

@@ -32,10 +32,10 @@
 //! parts of the scene that hold its emitters' lines, within the same budget.
 //!
 //! **Memory** ([`budget`]): the row histogram of one copy, the per-layer cursors, then one of
-//! (a band's arrays and line counters | a replay's light of several bands and one band's links |
-//! a sort bucket | a permutation chunk) at a time, and
-//! fixed-size I/O buffers. Not counted: code, stacks and the allocator's own overhead, a few
-//! MiB; see the tests for the allowance measured under an address-space limit.
+//! (a band's arrays and line counters | a replay's light of several bands, its staging buffer
+//! and one band's links | a sort bucket | a permutation chunk) at a time, and fixed-size I/O
+//! buffers. Not counted: code, stacks and the allocator's own overhead, a few MiB; see the
+//! tests for the allowance measured under an address-space limit.
 
 pub mod band;
 pub mod budget;
