@@ -92,8 +92,8 @@ pub struct BandTimes {
     pub bands: u64,
     /// Columns too big for one band, solved in blocks.
     pub tiled_columns: u64,
-    /// Bands whose links were replayed, and the groups their light was read in
-    /// ([`DirectionPass::replay_group`]).
+    /// Bands whose links were replayed, and the groups their light was read in (several
+    /// consecutive bands of a direction at once, see `DirectionPass::replay_group`).
     pub replayed_bands: u64,
     pub replay_groups: u64,
 }
