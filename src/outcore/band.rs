@@ -394,8 +394,12 @@ impl DirectionPass<'_> {
         }
         let t0 = Instant::now();
         let n = surfels as usize;
+        // A replay before (some direction's links kept) left its staging buffer, and its
+        // group's arrays where they held more than a band: a search needs the room for its
+        // other arrays.
+        buffers.staged_radiosity = Vec::new();
+        buffers.staged_gathered = Vec::new();
         if buffers.radiosity.capacity() > self.plan.band_surfels as usize {
-            // A replay's group held more: a search needs the room for its other arrays.
             buffers.radiosity = Vec::new();
             buffers.gathered = Vec::new();
         }
