@@ -57,10 +57,17 @@ pub(crate) trait Sweep {
     fn step(&mut self, step: usize) -> Result<bool, Self::Error>;
 
     /// Whether a checkpoint can hold the state `done` steps into an iteration (0 < done). The
-    /// same on every rank. Where it is false, a stop signal with mid-iteration checkpoints on
-    /// waits for the next step where it is true (or the iteration's end): the sweep answers
-    /// false only where the steps until then do nothing (blocks of links, `kept_links`).
+    /// same on every rank. Where it is false after [`Sweep::settle`], a stop signal with
+    /// mid-iteration checkpoints on waits for the next step where it is true (or the
+    /// iteration's end): the sweep answers so only where the steps until then do nothing
+    /// (blocks of links replayed, `kept_links`).
     fn can_save_within(&self, done: usize) -> bool;
+
+    /// Gathers the steps done whose light the sweep left for later (the one-process solver's
+    /// first iteration writes the links of a run of steps down and replays them together at
+    /// its end, `kept_links`), so that the light can be saved here: called where a checkpoint
+    /// or a stop inside the iteration asks and [`Sweep::can_save_within`] is false.
+    fn settle(&mut self) {}
 
     /// Saves the state `done` steps into iteration `state.iteration + 1` (collective).
     fn save_within(
@@ -175,6 +182,9 @@ pub(crate) fn iterate<S: Sweep>(
             // Where the light holds steps beyond this one (links replayed in blocks, see
             // `Sweep::can_save_within`), the stop waits for the next step it can be saved at:
             // the steps until then add nothing, and every rank agrees on that step.
+            if within && step > 0 && (signal != 0 || save) && !sweep.can_save_within(step) {
+                sweep.settle();
+            }
             let defer = within && step > 0 && !sweep.can_save_within(step);
             if signal != 0 && !defer {
                 progress.finish_and_clear();

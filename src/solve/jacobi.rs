@@ -13,7 +13,7 @@
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
 use super::kept_links::{Blocks, KeptLinks};
-use super::links::gather_and_record;
+use super::links::{gather_and_record, record_links};
 use super::normalize::cosine_sums;
 use super::propagate::{
     gather_lines, prop_surfels, DirectionInput, LineScratch, PropSurfel, Record,
@@ -484,24 +484,39 @@ impl Sweep for InMemory<'_> {
             self.seconds[1] += t0.elapsed().as_secs_f64();
             return Ok(true);
         }
-        // The first gather of a direction writes its links down while they may still be kept.
-        let record = self.links.should_record(step);
-        let (t1, links) = self.pool.install(|| {
+        // The first gather of a direction writes its links down while they may still be kept;
+        // in a run of directions that can be replayed as one block, it only writes them down.
+        let defer = kept.defers(step);
+        let record = kept.should_record(step);
+        let t1 = self.pool.install(|| {
+            if !defer {
+                kept.settle(input.radiosity, input.channels, acc);
+            }
             dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
             let t1 = Instant::now();
-            if record {
-                (t1, Some(gather_and_record(lines, &input, acc, threads)))
+            if defer {
+                let links = record_links(lines, &input, threads);
+                kept.keep_deferred(step, links, input.radiosity, input.channels, acc);
+            } else if record {
+                kept.keep(step, gather_and_record(lines, &input, acc, threads));
             } else {
                 gather_all_lines(lines, &input, acc, threads);
-                (t1, None)
             }
+            t1
         });
-        if let Some(links) = links {
-            self.links.keep(step, links);
-        }
         self.seconds[0] += (t1 - t0).as_secs_f64();
         self.seconds[1] += t1.elapsed().as_secs_f64();
         Ok(true)
+    }
+
+    fn settle(&mut self) {
+        let input = if self.direct.is_some() {
+            &self.reflected
+        } else {
+            &self.radiosity
+        };
+        let (kept, acc) = (&mut self.links, &mut self.acc);
+        self.pool.install(|| kept.settle(input, self.channels, acc));
     }
 
     fn can_save_within(&self, done: usize) -> bool {
@@ -527,6 +542,8 @@ impl Sweep for InMemory<'_> {
     }
 
     fn end(&mut self, omega: f64) -> Result<[f64; 4], SolveError> {
+        // Every run of deferred steps ends within the iteration; nothing is left for later.
+        self.settle();
         if self.comm.size() > 1 {
             let t = Instant::now();
             let mut flat: Vec<f64> = self.acc.iter().flatten().flatten().copied().collect();
@@ -597,12 +614,13 @@ pub(crate) fn gather_all_lines(
     acc: &mut [[[f64; 3]; 2]],
     threads: usize,
 ) {
-    gather_pieces::<()>(lines, input, acc, threads);
+    gather_pieces::<(), true>(lines, input, acc, threads);
 }
 
 /// Gathers direction `input` along `lines` into `acc` in [`line_pieces`] spread over the
-/// threads; returns what each piece's `R` recorded, in piece order.
-pub(crate) fn gather_pieces<R: Record + Default + Send>(
+/// threads; returns what each piece's `R` recorded, in piece order. Without `ADD`, only
+/// records (`acc` is not touched and may be empty).
+pub(crate) fn gather_pieces<R: Record + Default + Send, const ADD: bool>(
     lines: &Lines,
     input: &DirectionInput,
     acc: &mut [[[f64; 3]; 2]],
@@ -616,12 +634,12 @@ pub(crate) fn gather_pieces<R: Record + Default + Send>(
             let mut scratch = LineScratch::default();
             let mut record = R::default();
             record.expect((lines.starts[w[1]] - lines.starts[w[0]]) as usize);
-            // SAFETY: `acc` has one entry per surfel; each surfel lies on exactly one line of
-            // this direction and line ranges are disjoint, so no entry is touched by two
-            // threads.
+            // SAFETY: with `ADD`, `acc` has one entry per surfel; each surfel lies on exactly
+            // one line of this direction and line ranges are disjoint, so no entry is touched
+            // by two threads. Without, `acc` is not touched.
             let range = w[0]..w[1];
             unsafe {
-                gather_lines(
+                gather_lines::<R, ADD>(
                     lines,
                     range,
                     input,

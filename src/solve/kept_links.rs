@@ -17,6 +17,14 @@
 //! iterations in which every rank kept every step's links ([`Blocks::Uniform`]): then the bounds
 //! are the same steps on every rank. One process makes a block of every run whose steps' links
 //! are all kept ([`Blocks::WhereWhole`]), even where the budget held only some runs.
+//!
+//! **The first iteration.** One process does not wait for the second iteration: in the first,
+//! the steps of a run only write their links down ([`KeptLinks::defers`]), and the run's last
+//! step makes the block and replays it ([`KeptLinks::keep_deferred`]). The gather of a search
+//! waits on the same random reads a replay of single directions does, so this saves most of
+//! the first iteration's gather, with the same bits. Where the budget refuses a step's links, or
+//! a checkpoint or a stop falls inside the run ([`KeptLinks::settle`]), the steps waiting are
+//! gathered apart at once, in order, and the run's remaining steps gather as they search.
 
 use super::links::{DirectionLinks, LinkBudget};
 use super::propagate::prefetch;
@@ -342,6 +350,10 @@ pub struct KeptLinks {
     mode: Blocks,
     /// The steps of this iteration up to which a replayed block has gathered.
     gathered_until: usize,
+    /// Steps of this iteration whose links were written down without gathering, to be
+    /// gathered together at the end of their run ([`Self::defers`]): consecutive, from the
+    /// first step of a run.
+    pending: Vec<usize>,
 }
 
 impl KeptLinks {
@@ -356,6 +368,7 @@ impl KeptLinks {
             budget: LinkBudget { left: budget },
             mode: Blocks::Off,
             gathered_until: 0,
+            pending: Vec::new(),
         }
     }
 
@@ -377,11 +390,82 @@ impl KeptLinks {
 
     /// Keeps `recorded` as step `step`'s links if the budget allows.
     pub fn keep(&mut self, step: usize, recorded: DirectionLinks) {
+        let _ = self.keep_or_return(step, recorded);
+    }
+
+    /// As [`Self::keep`], giving the links back where the budget refuses them.
+    fn keep_or_return(&mut self, step: usize, recorded: DirectionLinks) -> Option<DirectionLinks> {
         self.tried[step] = true;
         if self.budget.take(recorded.bytes()) {
             self.apart[step] = Some(recorded);
+            None
         } else {
             self.blocks[step / BLOCK_STEPS] = Block::Refused;
+            Some(recorded)
+        }
+    }
+
+    /// Whether the first gather of step `step` should only write its links down
+    /// ([`Self::keep_deferred`]) and leave the light to a replay of its whole run: in one
+    /// process ([`Blocks::WhereWhole`]), for the runs whose steps are all written down for
+    /// the first time from their first step on, while the budget holds them. A block's replay
+    /// adds each side's terms in the order the steps' gathers would have (the same bits) and
+    /// costs about a third of what those gathers spend on the light, which waits on the caches
+    /// (the partners' radiosity and the receivers' sums, read at random).
+    pub fn defers(&self, step: usize) -> bool {
+        let b = step / BLOCK_STEPS;
+        let continues = match self.pending.last() {
+            None => step % BLOCK_STEPS == 0,
+            Some(&last) => last + 1 == step,
+        };
+        self.mode == Blocks::WhereWhole
+            && continues
+            && self.should_record(step)
+            && matches!(self.blocks[b], Block::Apart)
+    }
+
+    /// Keeps step `step`'s links, written down without gathering ([`Self::defers`]); at the
+    /// last step of its run, gathers the run's steps into `acc` (the first `channels` channels
+    /// of `radiosity`) as one block, or apart where a block cannot hold them. Where the budget
+    /// refuses the links, the steps waiting and this one are gathered apart at once, in order.
+    pub fn keep_deferred(
+        &mut self,
+        step: usize,
+        recorded: DirectionLinks,
+        radiosity: &[Radiosity],
+        channels: usize,
+        acc: &mut [Gathered],
+    ) {
+        debug_assert!(self.defers(step));
+        if let Some(refused) = self.keep_or_return(step, recorded) {
+            self.settle(radiosity, channels, acc);
+            refused.replay(radiosity, channels, acc);
+            return;
+        }
+        self.pending.push(step);
+        let b = step / BLOCK_STEPS;
+        let run_end = ((b + 1) * BLOCK_STEPS).min(self.apart.len());
+        if step + 1 < run_end {
+            return;
+        }
+        self.fuse_if_whole(b, acc.len());
+        if let Block::Fused(block) = &self.blocks[b] {
+            block.replay(radiosity, channels, acc);
+            self.pending.clear();
+        } else {
+            self.settle(radiosity, channels, acc);
+        }
+    }
+
+    /// Gathers the steps whose links were written down without gathering, apart and in
+    /// order, so that the light holds every step done (before a checkpoint inside their
+    /// run, or a step that is not deferred).
+    pub fn settle(&mut self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
+        for step in std::mem::take(&mut self.pending) {
+            self.apart[step]
+                .as_ref()
+                .expect("a deferred step's links are kept")
+                .replay(radiosity, channels, acc);
         }
     }
 
@@ -394,8 +478,13 @@ impl KeptLinks {
     /// [`Self::all_kept`] on every rank whose sweep agrees on where to stop with this one's.
     pub fn begin_iteration(&mut self, mode: Blocks) {
         debug_assert!(mode != Blocks::Uniform || self.all_kept());
+        debug_assert!(
+            self.pending.is_empty(),
+            "the last iteration gathered every step"
+        );
         self.mode = mode;
         self.gathered_until = 0;
+        self.pending.clear();
     }
 
     /// Gathers step `step` into `acc` from its kept links (the first `channels` channels of
@@ -461,12 +550,13 @@ impl KeptLinks {
         give_back_freed_memory();
     }
 
-    /// Whether the light can be saved `done` steps into this iteration (see [`Blocks`]).
+    /// Whether the light can be saved `done` steps into this iteration (see [`Blocks`]); not
+    /// while steps wait to be gathered ([`Self::settle`] gathers them).
     pub fn can_save_within(&self, done: usize) -> bool {
         match self.mode {
             Blocks::Off => true,
             Blocks::Uniform => done % BLOCK_STEPS == 0,
-            Blocks::WhereWhole => done >= self.gathered_until,
+            Blocks::WhereWhole => done >= self.gathered_until && self.pending.is_empty(),
         }
     }
 
@@ -630,5 +720,93 @@ mod tests {
         assert!(matches!(kept.blocks[0], Block::Refused));
         assert!(matches!(kept.blocks[1], Block::Fused(_)));
         assert_eq!(acc, expected);
+    }
+
+    /// The one-process solver's first iteration as `jacobi` runs it: each step either writes
+    /// its links down for a replay of its run ([`KeptLinks::defers`]) or, after the steps
+    /// waiting are settled, gathers at once (here: its links replayed apart, the bits of a
+    /// gather) and keeps them if it may; `settle_at` settles before that step, as a checkpoint
+    /// inside the iteration does.
+    fn first_iteration(
+        kept: &mut KeptLinks,
+        directions: &[DirectionLinks],
+        radiosity: &[Radiosity],
+        acc: &mut [Gathered],
+        settle_at: Option<usize>,
+    ) -> usize {
+        kept.begin_iteration(Blocks::WhereWhole);
+        let mut deferred = 0;
+        for (step, d) in directions.iter().enumerate() {
+            if settle_at == Some(step) {
+                kept.settle(radiosity, 3, acc);
+                assert!(kept.can_save_within(step));
+            }
+            if kept.defers(step) {
+                deferred += 1;
+                kept.keep_deferred(step, d.clone(), radiosity, 3, acc);
+            } else {
+                kept.settle(radiosity, 3, acc);
+                d.replay(radiosity, 3, acc);
+                if kept.should_record(step) {
+                    kept.keep(step, d.clone());
+                }
+            }
+            // The light can be saved wherever no step waits: at the end of each run here.
+            let run_end = (step + 1) % BLOCK_STEPS == 0 || step + 1 == directions.len();
+            if run_end {
+                assert!(kept.can_save_within(step + 1), "step {step}");
+            }
+        }
+        assert!(kept.pending.is_empty());
+        deferred
+    }
+
+    #[test]
+    fn a_first_iteration_replays_its_runs_to_the_bits_of_gathering_step_after_step() {
+        let surfels = 2_000u32;
+        let steps = 2 * BLOCK_STEPS + 5;
+        let directions = some_links(steps, surfels);
+        let radiosity: Vec<Radiosity> = (0..surfels)
+            .map(|s| [[s as f32 / 7.0, 1.0, 0.5], [0.25, s as f32 / 3.0, 2.0]])
+            .collect();
+        let mut expected = vec![[[0.5f64; 3]; 2]; surfels as usize];
+        for d in &directions {
+            d.replay(&radiosity, 3, &mut expected);
+        }
+        let all: u64 = directions.iter().map(DirectionLinks::bytes).sum();
+        // Every run whole; a checkpoint inside the second run (its steps before it gathered
+        // apart, those after it gathered at once); the budget running out inside the second.
+        let cases = [
+            (u64::MAX, None, steps),
+            (u64::MAX, Some(BLOCK_STEPS + 7), BLOCK_STEPS + 7 + 5),
+            (all / 2, None, 0),
+        ];
+        for (budget, settle_at, expect_deferred) in cases {
+            let mut kept = KeptLinks::new(steps, budget);
+            let mut acc = vec![[[0.5f64; 3]; 2]; surfels as usize];
+            let deferred = first_iteration(&mut kept, &directions, &radiosity, &mut acc, settle_at);
+            let case = format!("budget {budget}, settled at {settle_at:?}");
+            assert!(acc == expected, "{case}");
+            if expect_deferred > 0 {
+                assert_eq!(deferred, expect_deferred, "{case}");
+            } else {
+                // The runs before the budget ran out were deferred, the rest not.
+                assert!(
+                    deferred >= BLOCK_STEPS && deferred < steps,
+                    "{case}: {deferred}"
+                );
+                assert!(matches!(kept.blocks[0], Block::Fused(_)), "{case}");
+                assert!(matches!(kept.blocks[2], Block::Refused), "{case}");
+            }
+            // The next iteration replays what was kept, to the same bits.
+            kept.begin_iteration(Blocks::WhereWhole);
+            let mut again = vec![[[0.5f64; 3]; 2]; surfels as usize];
+            for (step, d) in directions.iter().enumerate() {
+                if !kept.replay(step, &radiosity, 3, &mut again) {
+                    d.replay(&radiosity, 3, &mut again);
+                }
+            }
+            assert!(again == expected, "{case}: second iteration");
+        }
     }
 }

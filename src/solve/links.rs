@@ -454,7 +454,24 @@ pub fn gather_and_record(
     acc: &mut [Gathered],
     threads: usize,
 ) -> DirectionLinks {
-    let pieces: Vec<PieceRecorder> = super::jacobi::gather_pieces(lines, input, acc, threads);
+    packed(super::jacobi::gather_pieces::<_, true>(
+        lines, input, acc, threads,
+    ))
+}
+
+/// The links [`gather_and_record`] would return, found without adding any light: replayed
+/// later, they add what that gather would have added, bit for bit.
+pub fn record_links(lines: &Lines, input: &DirectionInput, threads: usize) -> DirectionLinks {
+    packed(super::jacobi::gather_pieces::<_, false>(
+        lines,
+        input,
+        &mut [],
+        threads,
+    ))
+}
+
+/// The links the pieces of one direction recorded, packed into one [`DirectionLinks`].
+fn packed(pieces: Vec<PieceRecorder>) -> DirectionLinks {
     // The pieces' factor tables merged into one of distinct factors (by their bits), so that
     // the direction's factor indices take as few bits as they can.
     let mut factors: Vec<f64> = Vec::new();

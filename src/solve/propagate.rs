@@ -1567,10 +1567,13 @@ pub(crate) fn prefetch<T>(base: *const T, index: usize) {
 
 /// Gathers light along the lines `range` of `lines` into `acc`, as [`gather_line`] on each line
 /// of two surfels or more, in order; the data of the lines a little ahead is prefetched.
+/// Without `ADD` the links are only written down (`acc` is not touched, and may be null): the
+/// one-process solver's first iteration records a run of directions and then replays them
+/// together (`kept_links`).
 ///
 /// # Safety
 /// As for [`gather_line`], for every line of `range`.
-pub unsafe fn gather_lines<R: Record>(
+pub unsafe fn gather_lines<R: Record, const ADD: bool>(
     lines: &crate::solve::dispatch::Lines,
     range: std::ops::Range<usize>,
     input: &DirectionInput,
@@ -1586,8 +1589,10 @@ pub unsafe fn gather_lines<R: Record>(
             if line.len() >= 2 {
                 for &m in line {
                     prefetch(input.surfels.as_ptr(), m as usize);
-                    prefetch(input.radiosity.as_ptr(), m as usize);
-                    prefetch(acc as *const [[f64; 3]; 2], m as usize);
+                    if ADD {
+                        prefetch(input.radiosity.as_ptr(), m as usize);
+                        prefetch(acc as *const [[f64; 3]; 2], m as usize);
+                    }
                 }
             }
             ahead += 1;
@@ -1597,7 +1602,7 @@ pub unsafe fn gather_lines<R: Record>(
             continue;
         }
         // SAFETY: see the function's contract.
-        unsafe { gather_line(line, input, scratch, acc, record) };
+        unsafe { gather_line::<R, ADD>(line, input, scratch, acc, record) };
     }
 }
 
@@ -1618,13 +1623,14 @@ impl Record for () {
     fn link(&mut self, _: u32, _: usize, _: u32, _: usize, _: f64) {}
 }
 
-/// Gathers light along one line into `acc` (indexed by surfel).
+/// Gathers light along one line into `acc` (indexed by surfel); without `ADD`, only writes its
+/// links down.
 ///
 /// # Safety
-/// `acc` must point to an array with one entry per surfel of `input.surfels`, and no other thread
-/// may access the entries of this line's surfels while this runs (each surfel lies on exactly one
-/// line of a direction).
-pub unsafe fn gather_line<R: Record>(
+/// With `ADD`, `acc` must point to an array with one entry per surfel of `input.surfels`, and no
+/// other thread may access the entries of this line's surfels while this runs (each surfel lies
+/// on exactly one line of a direction).
+pub unsafe fn gather_line<R: Record, const ADD: bool>(
     line: &[u32],
     input: &DirectionInput,
     scratch: &mut LineScratch,
@@ -1638,14 +1644,14 @@ pub unsafe fn gather_line<R: Record>(
     for (k, &[ahead, behind]) in scratch.partners.iter().enumerate() {
         // SAFETY (all three): see the function's contract.
         unsafe {
-            add_link(
+            add_link::<R, ADD>(
                 line,
                 input,
                 acc,
                 scratch.link(s, k, 0, ahead.0, ahead.1),
                 record,
             );
-            add_link(
+            add_link::<R, ADD>(
                 line,
                 input,
                 acc,
@@ -1656,7 +1662,7 @@ pub unsafe fn gather_line<R: Record>(
     }
     for &(k, which, position, share) in &scratch.extra {
         let link = scratch.link(s, k as usize, which, position, share);
-        unsafe { add_link(line, input, acc, link, record) };
+        unsafe { add_link::<R, ADD>(line, input, acc, link, record) };
     }
 }
 
@@ -1665,7 +1671,7 @@ pub unsafe fn gather_line<R: Record>(
 /// # Safety
 /// As for [`gather_line`].
 #[inline(always)]
-unsafe fn add_link<R: Record>(
+unsafe fn add_link<R: Record, const ADD: bool>(
     line: &[u32],
     input: &DirectionInput,
     acc: *mut [[f64; 3]; 2],
@@ -1679,12 +1685,14 @@ unsafe fn add_link<R: Record>(
         return;
     }
     let (receiver, partner) = (line[link.receiver], line[link.partner]);
-    let from = input.radiosity[partner as usize][link.from_side];
-    // SAFETY: see the function's contract.
-    let to = unsafe { &mut (*acc.add(receiver as usize))[link.to_side] };
     let f = link.cosine * input.weight * link.share as f64;
-    for (t, b) in to.iter_mut().zip(from).take(input.channels) {
-        *t += b as f64 * f;
+    if ADD {
+        let from = input.radiosity[partner as usize][link.from_side];
+        // SAFETY: see the function's contract.
+        let to = unsafe { &mut (*acc.add(receiver as usize))[link.to_side] };
+        for (t, b) in to.iter_mut().zip(from).take(input.channels) {
+            *t += b as f64 * f;
+        }
     }
     record.link(receiver, link.to_side, partner, link.from_side, f);
 }
