@@ -476,6 +476,15 @@ impl Sweep for InMemory<'_> {
         };
         let t0 = Instant::now();
         let kept = &mut self.links;
+        // The first gather of a direction writes its links down while they may still be kept;
+        // in a run of directions that can be replayed as one block, it only writes them down.
+        // Any other step first gathers the steps waiting for such a replay: each side's terms
+        // are added in step order.
+        let defer = kept.defers(step);
+        if !defer {
+            self.pool
+                .install(|| kept.settle(input.radiosity, input.channels, acc));
+        }
         if self
             .pool
             .install(|| kept.replay(step, input.radiosity, input.channels, acc))
@@ -484,14 +493,8 @@ impl Sweep for InMemory<'_> {
             self.seconds[1] += t0.elapsed().as_secs_f64();
             return Ok(true);
         }
-        // The first gather of a direction writes its links down while they may still be kept;
-        // in a run of directions that can be replayed as one block, it only writes them down.
-        let defer = kept.defers(step);
         let record = kept.should_record(step);
         let t1 = self.pool.install(|| {
-            if !defer {
-                kept.settle(input.radiosity, input.channels, acc);
-            }
             dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
             let t1 = Instant::now();
             if defer {

@@ -727,7 +727,7 @@ mod tests {
     /// waiting are settled, gathers at once (here: its links replayed apart, the bits of a
     /// gather) and keeps them if it may; `settle_at` settles before that step, as a checkpoint
     /// inside the iteration does.
-    fn first_iteration(
+    fn an_iteration(
         kept: &mut KeptLinks,
         directions: &[DirectionLinks],
         radiosity: &[Radiosity],
@@ -741,11 +741,16 @@ mod tests {
                 kept.settle(radiosity, 3, acc);
                 assert!(kept.can_save_within(step));
             }
-            if kept.defers(step) {
+            let defer = kept.defers(step);
+            if !defer {
+                kept.settle(radiosity, 3, acc);
+            }
+            if kept.replay(step, radiosity, 3, acc) {
+                assert!(!defer);
+            } else if defer {
                 deferred += 1;
                 kept.keep_deferred(step, d.clone(), radiosity, 3, acc);
             } else {
-                kept.settle(radiosity, 3, acc);
                 d.replay(radiosity, 3, acc);
                 if kept.should_record(step) {
                     kept.keep(step, d.clone());
@@ -775,17 +780,27 @@ mod tests {
         }
         let all: u64 = directions.iter().map(DirectionLinks::bytes).sum();
         // Every run whole; a checkpoint inside the second run (its steps before it gathered
-        // apart, those after it gathered at once); the budget running out inside the second.
+        // apart, those after it gathered at once); the budget running out inside the second;
+        // a solve resumed inside an iteration, which kept the links of the steps after the
+        // checkpoint only (the second run's first steps wait, then its kept steps replay).
+        let resumed_at = BLOCK_STEPS + 8;
         let cases = [
-            (u64::MAX, None, steps),
-            (u64::MAX, Some(BLOCK_STEPS + 7), BLOCK_STEPS + 7 + 5),
-            (all / 2, None, 0),
+            (u64::MAX, None, 0, steps),
+            (u64::MAX, Some(BLOCK_STEPS + 7), 0, BLOCK_STEPS + 7 + 5),
+            (all / 2, None, 0, 0),
+            (u64::MAX, None, resumed_at, BLOCK_STEPS + 8),
         ];
-        for (budget, settle_at, expect_deferred) in cases {
+        for (budget, settle_at, kept_from, expect_deferred) in cases {
             let mut kept = KeptLinks::new(steps, budget);
+            if kept_from > 0 {
+                kept.begin_iteration(Blocks::WhereWhole);
+                for (step, d) in directions.iter().enumerate().skip(kept_from) {
+                    kept.keep(step, d.clone());
+                }
+            }
             let mut acc = vec![[[0.5f64; 3]; 2]; surfels as usize];
-            let deferred = first_iteration(&mut kept, &directions, &radiosity, &mut acc, settle_at);
-            let case = format!("budget {budget}, settled at {settle_at:?}");
+            let deferred = an_iteration(&mut kept, &directions, &radiosity, &mut acc, settle_at);
+            let case = format!("budget {budget}, settled at {settle_at:?}, kept from {kept_from}");
             assert!(acc == expected, "{case}");
             if expect_deferred > 0 {
                 assert_eq!(deferred, expect_deferred, "{case}");
