@@ -69,7 +69,9 @@ fn main() {
             if line.len() < 2 {
                 continue;
             }
-            unsafe { gather_line(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ()) };
+            unsafe {
+                gather_line::<(), true>(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ())
+            };
             if only.is_some()
                 && line
                     .iter()

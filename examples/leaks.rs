@@ -68,7 +68,9 @@ fn main() {
         for l in 0..lines.line_count() {
             let line = lines.line(l);
             // SAFETY: one accumulator entry per surfel, one thread, each surfel on one line.
-            unsafe { gather_line(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ()) };
+            unsafe {
+                gather_line::<(), true>(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ())
+            };
             if let Some(v) = &line_of {
                 if line.iter().any(|&m| surfels[m as usize].voxel == *v) {
                     println!("line {l} dir {:?}", d.vector);
