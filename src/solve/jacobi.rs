@@ -12,7 +12,7 @@
 
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
-use super::kept_links::{Blocks, KeptLinks};
+use super::kept_links::{Blocks, KeptLinks, BLOCK_STEPS};
 use super::links::{gather_and_record, record_links};
 use super::normalize::cosine_sums;
 use super::propagate::{
@@ -422,6 +422,86 @@ struct InMemory<'a> {
     scales: super::closed::Scales,
 }
 
+impl InMemory<'_> {
+    /// Gathers this rank's direction `k` at step `step`: a replay of its kept links, or a
+    /// search that writes them down (only that, where the run is left to one replay).
+    fn gather_step(&mut self, step: usize, k: usize) {
+        let (d, frame) = (&self.directions.directions[k], &self.frames[k]);
+        let (orders, lines, acc, threads) =
+            (&self.orders, &mut self.lines, &mut self.acc, self.threads);
+        let input = DirectionInput {
+            unit: d.unit,
+            weight: d.solid_angle / std::f64::consts::PI,
+            surfels: &self.surfels,
+            radiosity: if self.direct.is_some() {
+                &self.reflected
+            } else {
+                &self.radiosity
+            },
+            channels: self.channels,
+        };
+        let t0 = Instant::now();
+        let kept = &mut self.links;
+        // The first gather of a direction writes its links down while they may still be kept;
+        // in a run of directions that can be replayed as one block, it only writes them down.
+        // Any other step first gathers the steps waiting for such a replay: each side's terms
+        // are added in step order.
+        let defer = kept.defers(step);
+        if !defer {
+            self.pool
+                .install(|| kept.settle(input.radiosity, input.channels, acc));
+        }
+        if self
+            .pool
+            .install(|| kept.replay(step, input.radiosity, input.channels, acc))
+        {
+            // Visibility known: a streaming gather.
+            self.seconds[1] += t0.elapsed().as_secs_f64();
+            return;
+        }
+        let record = kept.should_record(step);
+        let t1 = self.pool.install(|| {
+            dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
+            let t1 = Instant::now();
+            if defer {
+                let links = record_links(lines, &input, threads);
+                kept.keep_deferred(step, links, input.radiosity, input.channels, acc);
+            } else if record {
+                kept.keep(step, gather_and_record(lines, &input, acc, threads));
+            } else {
+                gather_all_lines(lines, &input, acc, threads);
+            }
+            t1
+        });
+        self.seconds[0] += (t1 - t0).as_secs_f64();
+        self.seconds[1] += t1.elapsed().as_secs_f64();
+    }
+
+    /// The end of run `b` (`kept_links::KeptLinks::finish_run`): its steps waiting are
+    /// replayed as one block where every rank can make it, else apart.
+    fn finish_run(&mut self, b: usize) {
+        if self.links.uniform() {
+            return;
+        }
+        let here = self.links.run_waits_whole(b, self.acc.len());
+        let fuse = if self.comm.size() == 1 {
+            here
+        } else {
+            self.comm.max_u64(u64::from(!here)) == 0
+        };
+        let t = Instant::now();
+        let input = if self.direct.is_some() {
+            &self.reflected
+        } else {
+            &self.radiosity
+        };
+        let (kept, acc) = (&mut self.links, &mut self.acc);
+        self.pool
+            .install(|| kept.finish_run(b, fuse, input, self.channels, acc));
+        self.seconds[1] += t.elapsed().as_secs_f64();
+    }
+}
+
 impl Sweep for InMemory<'_> {
     type Error = SolveError;
 
@@ -457,58 +537,13 @@ impl Sweep for InMemory<'_> {
     }
 
     fn step(&mut self, step: usize) -> Result<bool, SolveError> {
-        let Some(&k) = self.mine.get(step) else {
-            return Ok(true);
-        };
-        let (d, frame) = (&self.directions.directions[k], &self.frames[k]);
-        let (orders, lines, acc, threads) =
-            (&self.orders, &mut self.lines, &mut self.acc, self.threads);
-        let input = DirectionInput {
-            unit: d.unit,
-            weight: d.solid_angle / std::f64::consts::PI,
-            surfels: &self.surfels,
-            radiosity: if self.direct.is_some() {
-                &self.reflected
-            } else {
-                &self.radiosity
-            },
-            channels: self.channels,
-        };
-        let t0 = Instant::now();
-        let kept = &mut self.links;
-        // The first gather of a direction writes its links down while they may still be kept;
-        // in a run of directions that can be replayed as one block, it only writes them down.
-        // Any other step first gathers the steps waiting for such a replay: each side's terms
-        // are added in step order.
-        let defer = kept.defers(step);
-        if !defer {
-            self.pool
-                .install(|| kept.settle(input.radiosity, input.channels, acc));
+        if let Some(&k) = self.mine.get(step) {
+            self.gather_step(step, k);
         }
-        if self
-            .pool
-            .install(|| kept.replay(step, input.radiosity, input.channels, acc))
-        {
-            // Visibility known: a streaming gather.
-            self.seconds[1] += t0.elapsed().as_secs_f64();
-            return Ok(true);
+        // Every rank ends a run at the same steps (a rank dealt fewer steps too).
+        if (step + 1) % BLOCK_STEPS == 0 || step + 1 == self.steps() {
+            self.finish_run(step / BLOCK_STEPS);
         }
-        let record = kept.should_record(step);
-        let t1 = self.pool.install(|| {
-            dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
-            let t1 = Instant::now();
-            if defer {
-                let links = record_links(lines, &input, threads);
-                kept.keep_deferred(step, links, input.radiosity, input.channels, acc);
-            } else if record {
-                kept.keep(step, gather_and_record(lines, &input, acc, threads));
-            } else {
-                gather_all_lines(lines, &input, acc, threads);
-            }
-            t1
-        });
-        self.seconds[0] += (t1 - t0).as_secs_f64();
-        self.seconds[1] += t1.elapsed().as_secs_f64();
         Ok(true)
     }
 

@@ -328,7 +328,10 @@ enum Block {
 /// Where an iteration replays blocks (see the module header).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Blocks {
-    /// Nowhere: every kept step replays apart.
+    /// Several ranks, not every one of which kept every step's links: no block is made at the
+    /// start of a run; the runs written down whole in a first iteration are made blocks at
+    /// their ends where every rank agrees ([`KeptLinks::finish_run`]), so that the light can
+    /// be saved at the same steps on every rank.
     Off,
     /// Everywhere, on every rank: every rank kept every step's links. The light can be saved
     /// at multiples of [`BLOCK_STEPS`] only, the same steps on every rank.
@@ -406,28 +409,29 @@ impl KeptLinks {
     }
 
     /// Whether the first gather of step `step` should only write its links down
-    /// ([`Self::keep_deferred`]) and leave the light to a replay of its whole run: in one
-    /// process ([`Blocks::WhereWhole`]), for the runs whose steps are all written down for
-    /// the first time from their first step on, while the budget holds them. A block's replay
-    /// adds each side's terms in the order the steps' gathers would have (the same bits) and
-    /// costs about a third of what those gathers spend on the light, which waits on the caches
-    /// (the partners' radiosity and the receivers' sums, read at random).
+    /// ([`Self::keep_deferred`]) and leave the light to a replay of its whole run
+    /// ([`Self::finish_run`]): for the runs whose steps are all written down for the first
+    /// time from their first step on, while the budget holds them (in an iteration that does
+    /// not replay blocks on every rank, [`Blocks::Uniform`], where every step is kept already).
+    /// A block's replay adds each side's terms in the order the steps' gathers would have (the
+    /// same bits) and costs about a third of what those gathers spend on the light, which
+    /// waits on the caches (the partners' radiosity and the receivers' sums, read at random).
     pub fn defers(&self, step: usize) -> bool {
         let b = step / BLOCK_STEPS;
         let continues = match self.pending.last() {
             None => step % BLOCK_STEPS == 0,
             Some(&last) => last + 1 == step,
         };
-        self.mode == Blocks::WhereWhole
+        self.mode != Blocks::Uniform
             && continues
             && self.should_record(step)
             && matches!(self.blocks[b], Block::Apart)
     }
 
-    /// Keeps step `step`'s links, written down without gathering ([`Self::defers`]); at the
-    /// last step of its run, gathers the run's steps into `acc` (the first `channels` channels
-    /// of `radiosity`) as one block, or apart where a block cannot hold them. Where the budget
-    /// refuses the links, the steps waiting and this one are gathered apart at once, in order.
+    /// Keeps step `step`'s links, written down without gathering ([`Self::defers`]), until
+    /// the end of its run ([`Self::finish_run`]). Where the budget refuses them, the steps
+    /// waiting and this one are gathered into `acc` (the first `channels` channels of
+    /// `radiosity`) apart at once, in order.
     pub fn keep_deferred(
         &mut self,
         step: usize,
@@ -443,18 +447,52 @@ impl KeptLinks {
             return;
         }
         self.pending.push(step);
-        let b = step / BLOCK_STEPS;
-        let run_end = ((b + 1) * BLOCK_STEPS).min(self.apart.len());
-        if step + 1 < run_end {
+    }
+
+    /// Whether run `b` (steps `b * BLOCK_STEPS ..`) waits whole for its replay and a block over
+    /// `surfels` surfels can hold it within the budget: what [`Self::finish_run`] may fuse. On
+    /// several ranks they agree on it, so that every rank has blocks at the same runs (where
+    /// the light can be saved depends on them, [`Self::can_save_within`]).
+    pub fn run_waits_whole(&self, b: usize, surfels: usize) -> bool {
+        let Some(range) = self.run(b) else {
+            return false;
+        };
+        self.pending.len() == range.len()
+            && self.pending.first() == Some(&range.start)
+            && self.block_bytes(b, surfels).is_some()
+    }
+
+    /// The end of run `b` in an iteration: the steps of it waiting are gathered into `acc`
+    /// (the first `channels` channels of `radiosity`), as one block where `fuse` says
+    /// ([`Self::run_waits_whole`], on every rank where there are several), else apart in order.
+    pub fn finish_run(
+        &mut self,
+        b: usize,
+        fuse: bool,
+        radiosity: &[Radiosity],
+        channels: usize,
+        acc: &mut [Gathered],
+    ) {
+        if self.pending.is_empty() {
             return;
         }
-        self.fuse_if_whole(b, acc.len());
-        if let Block::Fused(block) = &self.blocks[b] {
-            block.replay(radiosity, channels, acc);
-            self.pending.clear();
-        } else {
-            self.settle(radiosity, channels, acc);
+        if fuse {
+            debug_assert!(self.run_waits_whole(b, acc.len()));
+            self.fuse_if_whole(b, acc.len());
         }
+        match &self.blocks[b] {
+            Block::Fused(block) if fuse => {
+                block.replay(radiosity, channels, acc);
+                self.pending.clear();
+            }
+            _ => self.settle(radiosity, channels, acc),
+        }
+    }
+
+    /// Whether this iteration replays blocks on every rank ([`Blocks::Uniform`]): then no step
+    /// waits, and run ends need no agreement.
+    pub fn uniform(&self) -> bool {
+        self.mode == Blocks::Uniform
     }
 
     /// Gathers the steps whose links were written down without gathering, apart and in
@@ -505,7 +543,9 @@ impl KeptLinks {
         if let Block::Fused(block) = &self.blocks[b] {
             if step % BLOCK_STEPS == 0 {
                 block.replay(radiosity, channels, acc);
-                self.gathered_until = (step + BLOCK_STEPS).min(self.apart.len());
+                // Not bounded by this rank's steps: a rank dealt fewer steps answers
+                // `can_save_within` as the others do.
+                self.gathered_until = step + BLOCK_STEPS;
             }
             return true;
         }
@@ -518,6 +558,27 @@ impl KeptLinks {
         }
     }
 
+    /// The steps of run `b`, if this rank has any there.
+    fn run(&self, b: usize) -> Option<std::ops::Range<usize>> {
+        let range = b * BLOCK_STEPS..((b + 1) * BLOCK_STEPS).min(self.apart.len());
+        (!range.is_empty()).then_some(range)
+    }
+
+    /// The bytes of a block of run `b` over `surfels` surfels, if all its steps' links are kept
+    /// apart and the budget holds what the block adds.
+    fn block_bytes(&self, b: usize, surfels: usize) -> Option<u64> {
+        if !matches!(self.blocks.get(b), Some(Block::Apart)) {
+            return None;
+        }
+        let steps = self.apart[self.run(b)?]
+            .iter()
+            .map(Option::as_ref)
+            .collect::<Option<Vec<_>>>()?;
+        let apart_bytes: u64 = steps.iter().map(|d| d.bytes()).sum();
+        LinkBlock::bytes_for(&steps, surfels)
+            .filter(|&bytes| bytes.saturating_sub(apart_bytes) <= self.budget.left)
+    }
+
     /// Moves block `b`'s links into one [`LinkBlock`] over `surfels` surfels (every link names
     /// one of them) if all its steps' links are kept apart and the budget holds what the block
     /// adds.
@@ -525,20 +586,23 @@ impl KeptLinks {
         if !matches!(self.blocks[b], Block::Apart) {
             return;
         }
-        let range = b * BLOCK_STEPS..((b + 1) * BLOCK_STEPS).min(self.apart.len());
-        let Some(steps) = self.apart[range.clone()]
-            .iter()
-            .map(Option::as_ref)
-            .collect::<Option<Vec<_>>>()
-        else {
+        let Some(range) = self.run(b) else {
             return;
         };
-        let apart_bytes: u64 = steps.iter().map(|d| d.bytes()).sum();
-        let fits = LinkBlock::bytes_for(&steps, surfels);
-        let Some(bytes) = fits.filter(|b| self.budget.take(b.saturating_sub(apart_bytes))) else {
+        if self.apart[range.clone()].iter().any(Option::is_none) {
+            return;
+        }
+        let Some(bytes) = self.block_bytes(b, surfels) else {
             self.blocks[b] = Block::Refused;
             return;
         };
+        let apart_bytes: u64 = self.apart[range.clone()]
+            .iter()
+            .flatten()
+            .map(DirectionLinks::bytes)
+            .sum();
+        let taken = self.budget.take(bytes.saturating_sub(apart_bytes));
+        debug_assert!(taken, "block_bytes checked the budget");
         self.budget.left += apart_bytes.saturating_sub(bytes);
         let steps = self.apart[range]
             .iter_mut()
@@ -553,10 +617,13 @@ impl KeptLinks {
     /// Whether the light can be saved `done` steps into this iteration (see [`Blocks`]); not
     /// while steps wait to be gathered ([`Self::settle`] gathers them).
     pub fn can_save_within(&self, done: usize) -> bool {
+        // Off: blocks are made only at the ends of runs the ranks agreed on (`finish_run`),
+        // so every rank has them at the same runs.
         match self.mode {
-            Blocks::Off => true,
             Blocks::Uniform => done % BLOCK_STEPS == 0,
-            Blocks::WhereWhole => done >= self.gathered_until && self.pending.is_empty(),
+            Blocks::Off | Blocks::WhereWhole => {
+                done >= self.gathered_until && self.pending.is_empty()
+            }
         }
     }
 
@@ -759,7 +826,13 @@ mod tests {
             // The light can be saved wherever no step waits: at the end of each run here.
             let run_end = (step + 1) % BLOCK_STEPS == 0 || step + 1 == directions.len();
             if run_end {
-                assert!(kept.can_save_within(step + 1), "step {step}");
+                let b = step / BLOCK_STEPS;
+                let fuse = kept.run_waits_whole(b, acc.len());
+                kept.finish_run(b, fuse, radiosity, 3, acc);
+                // (Asked inside an iteration only.)
+                if step + 1 < directions.len() {
+                    assert!(kept.can_save_within(step + 1), "step {step}");
+                }
             }
         }
         assert!(kept.pending.is_empty());
@@ -822,6 +895,89 @@ mod tests {
                 }
             }
             assert!(again == expected, "{case}: second iteration");
+        }
+    }
+
+    /// Two ranks whose budgets differ (the second's runs out inside the second run): in the
+    /// first iteration a run becomes a block only where both wait for it whole, so both have
+    /// blocks at the same runs and, once their steps waiting are settled, answer alike where
+    /// the light can be saved, in the first iteration and the next (which makes no blocks at
+    /// the start of runs: not every step was kept on every rank).
+    #[test]
+    fn ranks_make_blocks_at_the_same_runs() {
+        let surfels = 1_000u32;
+        let steps = 3 * BLOCK_STEPS;
+        let directions = some_links(steps, surfels);
+        let radiosity: Vec<Radiosity> = (0..surfels)
+            .map(|s| [[s as f32 / 5.0, 1.5, 0.5], [0.75, s as f32 / 9.0, 2.0]])
+            .collect();
+        let mut expected = vec![[[0.0f64; 3]; 2]; surfels as usize];
+        for d in &directions {
+            d.replay(&radiosity, 3, &mut expected);
+        }
+        let first_runs: u64 = directions[..BLOCK_STEPS + 4]
+            .iter()
+            .map(DirectionLinks::bytes)
+            .sum();
+        let mut ranks = [
+            KeptLinks::new(steps, u64::MAX),
+            KeptLinks::new(steps, first_runs),
+        ];
+        let mut acc = vec![vec![[[0.0f64; 3]; 2]; surfels as usize]; 2];
+        for iteration in 0..2 {
+            for (kept, acc) in ranks.iter_mut().zip(&mut acc) {
+                kept.begin_iteration(Blocks::Off);
+                acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+            }
+            for (step, d) in directions.iter().enumerate() {
+                for (kept, acc) in ranks.iter_mut().zip(&mut acc) {
+                    let defer = kept.defers(step);
+                    if !defer {
+                        kept.settle(&radiosity, 3, acc);
+                    }
+                    if kept.replay(step, &radiosity, 3, acc) {
+                        continue;
+                    }
+                    if defer {
+                        kept.keep_deferred(step, d.clone(), &radiosity, 3, acc);
+                    } else {
+                        d.replay(&radiosity, 3, acc);
+                        if kept.should_record(step) {
+                            kept.keep(step, d.clone());
+                        }
+                    }
+                }
+                if (step + 1) % BLOCK_STEPS == 0 {
+                    let b = step / BLOCK_STEPS;
+                    let fuse = ranks.iter().all(|k| k.run_waits_whole(b, surfels as usize));
+                    for (kept, acc) in ranks.iter_mut().zip(&mut acc) {
+                        kept.finish_run(b, fuse, &radiosity, 3, acc);
+                    }
+                }
+                // Where a checkpoint asks (after the steps waiting are settled, as the loop
+                // does): inside the second and third runs in the first iteration, everywhere
+                // in the next.
+                let asked =
+                    iteration == 1 || step == BLOCK_STEPS + 8 || step == 2 * BLOCK_STEPS + 6;
+                if asked && step + 1 < steps {
+                    for (kept, acc) in ranks.iter_mut().zip(&mut acc) {
+                        kept.settle(&radiosity, 3, acc);
+                    }
+                    let answers = ranks.each_ref().map(|k| k.can_save_within(step + 1));
+                    assert_eq!(answers[0], answers[1], "iteration {iteration}, step {step}");
+                }
+            }
+            let fused = |k: &KeptLinks| {
+                k.blocks
+                    .iter()
+                    .map(|b| matches!(b, Block::Fused(_)))
+                    .collect::<Vec<_>>()
+            };
+            assert_eq!(fused(&ranks[0]), vec![true, false, false]);
+            assert_eq!(fused(&ranks[1]), vec![true, false, false]);
+            for a in &acc {
+                assert!(*a == expected, "iteration {iteration}");
+            }
         }
     }
 }
