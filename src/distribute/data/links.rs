@@ -7,6 +7,7 @@ use crate::solve::kept_links::{Blocks, KeptLinks};
 use crate::solve::links::DirectionLinks;
 use crate::solve::propagate::DirectionInput;
 use crate::solve::stats::LinkStats;
+use crate::solve::update::{Gathered, Radiosity};
 
 /// The partner links of this rank's lines, kept between iterations (`solve::links`, in blocks
 /// of steps as `solve::kept_links` keeps them). They name surfels by their place in `Held`,
@@ -71,6 +72,70 @@ impl HeldLinks {
     /// Keeps `recorded` (numbered by place) as direction `k`'s links if the budget allows.
     pub(super) fn keep(&mut self, k: usize, recorded: DirectionLinks) {
         self.kept.keep(k - self.first, recorded);
+    }
+
+    /// Whether direction `k`'s first gather only writes its links down, its run being left to
+    /// one replay (`KeptLinks::defers`).
+    pub(super) fn defers(&self, k: usize) -> bool {
+        self.kept.defers(k - self.first)
+    }
+
+    /// Keeps direction `k`'s links, written down without gathering, for its run's replay (or
+    /// gathers them at once into `acc` where the budget refuses them).
+    pub(super) fn keep_deferred(
+        &mut self,
+        k: usize,
+        recorded: DirectionLinks,
+        input: &DirectionInput,
+        acc: &mut [[[f64; 3]; 2]],
+    ) {
+        self.kept.keep_deferred(
+            k - self.first,
+            recorded,
+            input.radiosity,
+            input.channels,
+            acc,
+        );
+    }
+
+    /// Gathers the directions whose links wait for their run's replay, apart and in order.
+    pub(super) fn settle(
+        &mut self,
+        radiosity: &[Radiosity],
+        channels: usize,
+        acc: &mut [Gathered],
+    ) {
+        self.kept.settle(radiosity, channels, acc);
+    }
+
+    /// Whether the run of steps `b * BLOCK_STEPS ..` is replayed as one block at its end:
+    /// where every rank of `world` waits for it whole and can make the block over `surfels`
+    /// places (collective on `world`); `None` where the iteration replays blocks everywhere
+    /// and no run waits (every rank agrees on that).
+    pub(super) fn agree_on_run(&self, b: usize, world: &dyn Comm, surfels: usize) -> Option<bool> {
+        if self.kept.uniform() {
+            return None;
+        }
+        let here = self.kept.run_waits_whole(b, surfels);
+        Some(if world.size() == 1 {
+            here
+        } else {
+            world.max_u64(u64::from(!here)) == 0
+        })
+    }
+
+    /// The end of run `b`: its directions waiting are gathered into `acc` (the first
+    /// `channels` channels of `radiosity`), as one block where `fuse` ([`Self::agree_on_run`])
+    /// says, else apart in order.
+    pub(super) fn finish_run(
+        &mut self,
+        b: usize,
+        fuse: bool,
+        radiosity: &[Radiosity],
+        channels: usize,
+        acc: &mut [Gathered],
+    ) {
+        self.kept.finish_run(b, fuse, radiosity, channels, acc);
     }
 
     /// What the report says of the links: the directions whose links every rank kept, and

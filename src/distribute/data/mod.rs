@@ -72,8 +72,8 @@ use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::jacobi::{
     gather_all_lines, material_tables, worker_pool, Checkpoints, SolveError, SolveOptions,
 };
-use crate::solve::kept_links::Blocks;
-use crate::solve::links::{gather_and_record, rank_budget};
+use crate::solve::kept_links::{Blocks, BLOCK_STEPS};
+use crate::solve::links::{gather_and_record, rank_budget, record_links};
 use crate::solve::normalize::cosine_sums;
 use crate::solve::propagate::{prop_surfels, DirectionInput, PropSurfel};
 use crate::solve::{Solution, SolveStats};
@@ -405,14 +405,24 @@ impl<'a> DataSolver<'a> {
             },
             channels: self.channels,
         };
+        // As in one process (`solve::jacobi`): a direction's first gather may only write its
+        // links down, its run being replayed whole at the run's end (`Sweep::step`); any other
+        // first gathers the directions waiting, so that each side adds its terms in order.
+        let defer = links.defers(k);
         let t1 = self.pool.install(|| {
-            if links.replay(k, &input, acc) {
-                // Nothing dispatched: the replay is this direction's propagation.
-                return t0;
+            if !defer {
+                links.settle(input.radiosity, input.channels, acc);
+                if links.replay(k, &input, acc) {
+                    // Nothing dispatched: the replay is this direction's propagation.
+                    return t0;
+                }
             }
             dispatch(order, &self.frames[k], self.threads, lines);
             let t1 = Instant::now();
-            if links.tried(k) {
+            if defer {
+                let recorded = record_links(lines, &input, self.threads);
+                links.keep_deferred(k, recorded, &input, acc);
+            } else if links.tried(k) {
                 gather_all_lines(lines, &input, acc, self.threads);
             } else {
                 let recorded = gather_and_record(lines, &input, acc, self.threads);
@@ -856,20 +866,62 @@ impl Sweep for DataSweep<'_, '_> {
     }
 
     fn step(&mut self, step: usize) -> Result<bool, SolveError> {
-        let Some(&k) = self.mine.get(step) else {
-            return Ok(true);
-        };
-        if !self.replaying {
-            self.distribute(k);
+        if let Some(&k) = self.mine.get(step) {
+            if !self.replaying {
+                self.distribute(k);
+            }
+            self.solver.propagate(
+                k,
+                &mut self.held,
+                &mut self.lines,
+                &mut self.links,
+                &mut self.tally,
+            );
         }
-        self.solver.propagate(
-            k,
-            &mut self.held,
-            &mut self.lines,
-            &mut self.links,
-            &mut self.tally,
-        );
+        // Every rank ends a run at the same steps (a group dealt fewer directions too).
+        if (step + 1) % BLOCK_STEPS == 0 || step + 1 == self.steps() {
+            let t = Instant::now();
+            let solver = self.solver;
+            let Held {
+                radiosity,
+                reflected,
+                acc,
+                ..
+            } = &mut self.held;
+            let light = if solver.direct.is_some() {
+                reflected
+            } else {
+                radiosity
+            };
+            let b = step / BLOCK_STEPS;
+            let links = &mut self.links;
+            if let Some(fuse) = links.agree_on_run(b, self.world, acc.len()) {
+                solver
+                    .pool
+                    .install(|| links.finish_run(b, fuse, light, solver.channels, acc));
+            }
+            self.tally.seconds.propagate += t.elapsed().as_secs_f64();
+        }
         Ok(true)
+    }
+
+    fn settle(&mut self) {
+        let solver = self.solver;
+        let Held {
+            radiosity,
+            reflected,
+            acc,
+            ..
+        } = &mut self.held;
+        let light = if solver.direct.is_some() {
+            reflected
+        } else {
+            radiosity
+        };
+        let links = &mut self.links;
+        solver
+            .pool
+            .install(|| links.settle(light, solver.channels, acc));
     }
 
     fn can_save_within(&self, done: usize) -> bool {
@@ -907,6 +959,8 @@ impl Sweep for DataSweep<'_, '_> {
     }
 
     fn end(&mut self, omega: f64) -> Result<[f64; 4], SolveError> {
+        // Every run of deferred directions ends within the iteration; nothing is left for later.
+        self.settle();
         let t = Instant::now();
         let sums = self.solver.reduce(
             &mut self.held,
