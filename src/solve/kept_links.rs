@@ -18,13 +18,16 @@
 //! are the same steps on every rank. One process makes a block of every run whose steps' links
 //! are all kept ([`Blocks::WhereWhole`]), even where the budget held only some runs.
 //!
-//! **The first iteration.** One process does not wait for the second iteration: in the first,
-//! the steps of a run only write their links down ([`KeptLinks::defers`]), and the run's last
-//! step makes the block and replays it ([`KeptLinks::keep_deferred`]). The gather of a search
-//! waits on the same random reads a replay of single directions does, so this saves most of
-//! the first iteration's gather, with the same bits. Where the budget refuses a step's links, or
-//! a checkpoint or a stop falls inside the run ([`KeptLinks::settle`]), the steps waiting are
-//! gathered apart at once, in order, and the run's remaining steps gather as they search.
+//! **The first iteration.** Blocks need not wait for the second iteration: in the first, the
+//! steps of a run only write their links down ([`KeptLinks::defers`]), and at the run's last
+//! step the sweep makes the block and replays it ([`KeptLinks::finish_run`]). The gather of a
+//! search waits on the same random reads a replay of single directions does, so this saves most
+//! of the first iteration's gather, with the same bits. On several ranks a run is made a block
+//! only where every rank agrees ([`KeptLinks::run_waits_whole`]), so that the steps where the
+//! light can be saved stay the same on every rank ([`Blocks::Off`]). Where the budget refuses a
+//! step's links, or a checkpoint or a stop falls inside the run ([`KeptLinks::settle`]), the
+//! steps waiting are gathered apart at once, in order, and the run's remaining steps gather as
+//! they search.
 
 use super::links::{DirectionLinks, LinkBudget};
 use super::propagate::prefetch;
