@@ -480,14 +480,8 @@ impl InMemory<'_> {
     /// The end of run `b` (`kept_links::KeptLinks::finish_run`): its steps waiting are
     /// replayed as one block where every rank can make it, else apart.
     fn finish_run(&mut self, b: usize) {
-        if self.links.uniform() {
+        let Some(fuse) = self.links.agree_on_run(b, self.acc.len(), self.comm) else {
             return;
-        }
-        let here = self.links.run_waits_whole(b, self.acc.len());
-        let fuse = if self.comm.size() == 1 {
-            here
-        } else {
-            self.comm.max_u64(u64::from(!here)) == 0
         };
         let t = Instant::now();
         let input = if self.direct.is_some() {

@@ -32,6 +32,7 @@
 use super::links::{DirectionLinks, LinkBudget};
 use super::propagate::prefetch;
 use super::update::{Gathered, Radiosity};
+use crate::comm::Comm;
 use rayon::prelude::*;
 
 /// Steps whose links make one block. Larger blocks read the receivers' sums fewer times; one
@@ -492,10 +493,20 @@ impl KeptLinks {
         }
     }
 
-    /// Whether this iteration replays blocks on every rank ([`Blocks::Uniform`]): then no step
-    /// waits, and run ends need no agreement.
-    pub fn uniform(&self) -> bool {
-        self.mode == Blocks::Uniform
+    /// Whether run `b` is replayed as one block at its end ([`Self::finish_run`]): where every
+    /// rank of `comm` waits for it whole and can make the block over `surfels` surfels
+    /// (collective on `comm` where it has several ranks); `None` where the iteration replays
+    /// blocks on every rank ([`Blocks::Uniform`]), no step waits and no rank asks.
+    pub fn agree_on_run(&self, b: usize, surfels: usize, comm: &dyn Comm) -> Option<bool> {
+        if self.mode == Blocks::Uniform {
+            return None;
+        }
+        let here = self.run_waits_whole(b, surfels);
+        Some(if comm.size() == 1 {
+            here
+        } else {
+            comm.max_u64(u64::from(!here)) == 0
+        })
     }
 
     /// Gathers the steps whose links were written down without gathering, apart and in

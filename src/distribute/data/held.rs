@@ -60,6 +60,17 @@ impl Held {
         self.ids.len()
     }
 
+    /// What the lines carry by place (the radiosity, or `B - E` with the direct pass), and this
+    /// rank's light, which replays add to.
+    pub(super) fn carried_and_light(&mut self) -> (&[Radiosity], &mut [Gathered]) {
+        let carried = if self.keeps_reflected {
+            &self.reflected
+        } else {
+            &self.radiosity
+        };
+        (carried, &mut self.acc)
+    }
+
     /// The place of surfel `id`, if met.
     pub(super) fn place(&self, id: u32) -> Option<u32> {
         let p = self.place_of[id as usize];

@@ -108,20 +108,10 @@ impl HeldLinks {
         self.kept.settle(radiosity, channels, acc);
     }
 
-    /// Whether the run of steps `b * BLOCK_STEPS ..` is replayed as one block at its end:
-    /// where every rank of `world` waits for it whole and can make the block over `surfels`
-    /// places (collective on `world`); `None` where the iteration replays blocks everywhere
-    /// and no run waits (every rank agrees on that).
+    /// Whether the run of steps `b * BLOCK_STEPS ..` is replayed as one block at its end
+    /// (`KeptLinks::agree_on_run`; collective on `world`).
     pub(super) fn agree_on_run(&self, b: usize, world: &dyn Comm, surfels: usize) -> Option<bool> {
-        if self.kept.uniform() {
-            return None;
-        }
-        let here = self.kept.run_waits_whole(b, surfels);
-        Some(if world.size() == 1 {
-            here
-        } else {
-            world.max_u64(u64::from(!here)) == 0
-        })
+        self.kept.agree_on_run(b, surfels, world)
     }
 
     /// The end of run `b`: its directions waiting are gathered into `acc` (the first

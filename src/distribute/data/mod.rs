@@ -881,24 +881,13 @@ impl Sweep for DataSweep<'_, '_> {
         // Every rank ends a run at the same steps (a group dealt fewer directions too).
         if (step + 1) % BLOCK_STEPS == 0 || step + 1 == self.steps() {
             let t = Instant::now();
-            let solver = self.solver;
-            let Held {
-                radiosity,
-                reflected,
-                acc,
-                ..
-            } = &mut self.held;
-            let light = if solver.direct.is_some() {
-                reflected
-            } else {
-                radiosity
-            };
-            let b = step / BLOCK_STEPS;
+            let (solver, b) = (self.solver, step / BLOCK_STEPS);
+            let (carried, acc) = self.held.carried_and_light();
             let links = &mut self.links;
             if let Some(fuse) = links.agree_on_run(b, self.world, acc.len()) {
                 solver
                     .pool
-                    .install(|| links.finish_run(b, fuse, light, solver.channels, acc));
+                    .install(|| links.finish_run(b, fuse, carried, solver.channels, acc));
             }
             self.tally.seconds.propagate += t.elapsed().as_secs_f64();
         }
@@ -907,21 +896,11 @@ impl Sweep for DataSweep<'_, '_> {
 
     fn settle(&mut self) {
         let solver = self.solver;
-        let Held {
-            radiosity,
-            reflected,
-            acc,
-            ..
-        } = &mut self.held;
-        let light = if solver.direct.is_some() {
-            reflected
-        } else {
-            radiosity
-        };
+        let (carried, acc) = self.held.carried_and_light();
         let links = &mut self.links;
         solver
             .pool
-            .install(|| links.settle(light, solver.channels, acc));
+            .install(|| links.settle(carried, solver.channels, acc));
     }
 
     fn can_save_within(&self, done: usize) -> bool {
