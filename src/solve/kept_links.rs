@@ -468,7 +468,7 @@ impl KeptLinks {
 
     /// The end of run `b` in an iteration: the steps of it waiting are gathered into `acc`
     /// (the first `channels` channels of `radiosity`), as one block where `fuse` says
-    /// ([`Self::run_waits_whole`], on every rank where there are several), else apart in order.
+    /// ([`Self::agree_on_run`]), else apart in order.
     pub fn finish_run(
         &mut self,
         b: usize,
