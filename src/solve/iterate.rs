@@ -63,10 +63,10 @@ pub(crate) trait Sweep {
     /// (blocks of links replayed, `kept_links`).
     fn can_save_within(&self, done: usize) -> bool;
 
-    /// Gathers the steps done whose light the sweep left for later (the one-process solver's
-    /// first iteration writes the links of a run of steps down and replays them together at
-    /// its end, `kept_links`), so that the light can be saved here: called where a checkpoint
-    /// or a stop inside the iteration asks and [`Sweep::can_save_within`] is false.
+    /// Gathers the steps done whose light the sweep left for later (an in-memory sweep's first
+    /// iteration writes the links of a run of steps down and replays them together at its end,
+    /// `kept_links`), so that the light can be saved here: called where a checkpoint or a stop
+    /// inside the iteration asks and [`Sweep::can_save_within`] is false.
     fn settle(&mut self) {}
 
     /// Saves the state `done` steps into iteration `state.iteration + 1` (collective).
