@@ -422,6 +422,20 @@ struct InMemory<'a> {
     scales: super::closed::Scales,
 }
 
+/// What the lines carry, by surfel (`update::carried` for one): `B - E` where the direct pass
+/// gathered the emitters' light, else `B`.
+fn carried_light<'a>(
+    direct: &Option<super::direct::DirectLight>,
+    reflected: &'a [Radiosity],
+    radiosity: &'a [Radiosity],
+) -> &'a [Radiosity] {
+    if direct.is_some() {
+        reflected
+    } else {
+        radiosity
+    }
+}
+
 impl InMemory<'_> {
     /// Gathers this rank's direction `k` at step `step`: a replay of its kept links, or a
     /// search that writes them down (only that, where the run is left to one replay).
@@ -433,11 +447,7 @@ impl InMemory<'_> {
             unit: d.unit,
             weight: d.solid_angle / std::f64::consts::PI,
             surfels: &self.surfels,
-            radiosity: if self.direct.is_some() {
-                &self.reflected
-            } else {
-                &self.radiosity
-            },
+            radiosity: carried_light(&self.direct, &self.reflected, &self.radiosity),
             channels: self.channels,
         };
         let t0 = Instant::now();
@@ -484,11 +494,7 @@ impl InMemory<'_> {
             return;
         };
         let t = Instant::now();
-        let input = if self.direct.is_some() {
-            &self.reflected
-        } else {
-            &self.radiosity
-        };
+        let input = carried_light(&self.direct, &self.reflected, &self.radiosity);
         let (kept, acc) = (&mut self.links, &mut self.acc);
         self.pool
             .install(|| kept.finish_run(b, fuse, input, self.channels, acc));
@@ -542,11 +548,7 @@ impl Sweep for InMemory<'_> {
     }
 
     fn settle(&mut self) {
-        let input = if self.direct.is_some() {
-            &self.reflected
-        } else {
-            &self.radiosity
-        };
+        let input = carried_light(&self.direct, &self.reflected, &self.radiosity);
         let (kept, acc) = (&mut self.links, &mut self.acc);
         self.pool.install(|| kept.settle(input, self.channels, acc));
     }
