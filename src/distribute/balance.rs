@@ -123,7 +123,7 @@ pub struct LineBins<'a> {
 
 impl LineBins<'_> {
     /// The bin `(row, column)` of the line through `voxel`.
-    #[inline]
+    #[inline(always)]
     pub fn bin(&self, voxel: [i32; 3]) -> (usize, usize) {
         let f = self.frame;
         let (su, sv) = f.layer_shift(voxel[f.main] as usize);
@@ -235,7 +235,8 @@ pub fn walk_face(vector: [i64; 3]) -> usize {
 pub const IMBALANCE_GOAL: f64 = 1.05;
 
 /// The elastic distribution over `ranks` ranks. `rows` is the global row histogram; `columns`
-/// gives, for bands of rows, their global column histograms (the caller adds them over ranks).
+/// gives, for bands of rows, their global column histograms (the caller adds them over ranks),
+/// as many bins as `rows`; it is asked only where a band is cut into several pieces.
 ///
 /// It starts with `preferred` bands (the previous direction's count, so that consecutive
 /// directions keep the same shape of pieces), or else the count of [`row_bands`]. A wall seen
@@ -283,6 +284,9 @@ fn cut(
 ) -> Distribution {
     let pieces = ranks / bands;
     let row_cuts = equal_cuts(rows, bands);
+    if pieces == 1 {
+        return whole_bands(row_cuts, rows);
+    }
     let histograms = columns(&row_cuts);
     let mut column_cuts = Vec::with_capacity(bands);
     let mut loads = Vec::with_capacity(ranks);
@@ -296,6 +300,22 @@ fn cut(
     Distribution {
         row_cuts,
         column_cuts,
+        loads,
+    }
+}
+
+/// The bands of `row_cuts`, one rank each: a band's load is its rows' (counts, exact in `f64`
+/// in any order, so the same as its column histogram's), and the column histograms, a pass over
+/// the held surfels and a sum over the ranks for every direction, are not needed. Two and three
+/// ranks cut so.
+fn whole_bands(row_cuts: Vec<usize>, rows: &[f64]) -> Distribution {
+    let loads = row_cuts
+        .windows(2)
+        .map(|w| rows[w[0]..w[1]].iter().sum())
+        .collect();
+    Distribution {
+        column_cuts: vec![vec![0, rows.len()]; row_cuts.len() - 1],
+        row_cuts,
         loads,
     }
 }
@@ -373,6 +393,39 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn whole_bands_need_no_columns_and_cut_as_columns_would() {
+        let rows: Vec<f64> = (0..60).map(|k| ((k * 29) % 13) as f64).collect();
+        // The column histogram of a band: its rows' counts spread over the columns.
+        let columns = |cuts: &[usize]| -> Vec<Vec<f64>> {
+            cuts.windows(2)
+                .map(|w| {
+                    let mut hist = vec![0.0; rows.len()];
+                    for (r, &count) in rows.iter().enumerate().take(w[1]).skip(w[0]) {
+                        hist[(r * 7) % rows.len()] += count;
+                    }
+                    hist
+                })
+                .collect()
+        };
+        for bands in 1..6 {
+            let row_cuts = equal_cuts(&rows, bands);
+            let whole = whole_bands(row_cuts.clone(), &rows);
+            // What cutting each band's column histogram into one piece gives.
+            let histograms = columns(&row_cuts);
+            let by_columns = Distribution {
+                row_cuts,
+                column_cuts: histograms.iter().map(|h| equal_cuts(h, 1)).collect(),
+                loads: histograms.iter().map(|h| h.iter().sum()).collect(),
+            };
+            assert_eq!(whole, by_columns, "{bands} bands");
+        }
+        for ranks in [2, 3] {
+            let dist = distribute(ranks, &rows, None, |_| panic!("no column histogram"));
+            assert_eq!(dist.bands(), ranks);
         }
     }
 
