@@ -16,9 +16,10 @@
 //!      beta)`, each later one `cr n D imb(P) / P` (no surfel moves: the light stays on the rank
 //!      that gathers it), and every iteration ends with `T_end = 2 alpha (P - 1) + m(P) (n / P) 76
 //!      / beta`: each rank sends its part of the light of the `m(P) n / P` surfels it has met to
-//!      their owners (52 bytes) and gets their radiosity back (24). `o` is the data mode's own
-//!      work per held surfel and direction (balance, fill, merge), `b` the bytes sent per
-//!      exchanged surfel, `f` the exchanged fraction, `imb` the imbalance;
+//!      their owners (52 bytes; 20 in a grey scene, which gathers one channel) and gets their
+//!      radiosity back (24; 8). The Cornell box measured here is coloured. `o` is the data
+//!      mode's own work per held surfel and direction (balance, fill, merge), `b` the bytes sent
+//!      per exchanged surfel, `f` the exchanged fraction, `imb` the imbalance;
 //!    - hybrid with `G` groups of `Q = P / G` ranks: the data mode's terms on `Q` ranks for `D / G`
 //!      directions, and the same end of iteration over all `P` ranks with `m(Q)`;
 //!    - without the links (they do not fit): every iteration is a first one;
@@ -300,7 +301,8 @@ fn main() {
             );
             if mode == "data" {
                 // Surfels each rank has met over the iteration, over its share n / P: the end of
-                // the iteration moves 76 bytes for each (one iteration here).
+                // the iteration moves 76 bytes for each of the coloured Cornell box's (one
+                // iteration here).
                 let met_per_rank = f("end_of_iteration_bytes") / 76.0 / p as f64;
                 met.push((p as f64, met_per_rank / (surfels / p as f64)));
                 fractions.push((p as f64, f("exchanged_fraction")));

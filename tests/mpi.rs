@@ -301,6 +301,22 @@ fn furnished_room_gives_the_one_process_answer_in_every_mode() {
     every_mode_gives_the_one_process_answer("window room", &voxrad::gen::window_room().scene, true);
 }
 
+/// The office with every material made grey (each channel the mean of its three): a grey
+/// scene gathers one channel, and the data and hybrid modes send only that one, and get one
+/// back, at the end of each iteration. Every mode gives the one-process answer.
+#[test]
+fn a_grey_office_gives_the_one_process_answer_in_every_mode() {
+    let mut scene = voxrad::gen::office().scene;
+    let grey = |c: [f64; 3]| [(c[0] + c[1] + c[2]) / 3.0; 3];
+    for m in &mut scene.materials {
+        m.reflectance = grey(m.reflectance);
+        m.emission = grey(m.emission);
+    }
+    let set = voxelize(&scene, GridSpec::Resolution(24)).unwrap();
+    assert!(voxrad::solve::effects::is_grey(&set));
+    every_mode_gives_the_one_process_answer("grey office", &scene, true);
+}
+
 /// `scene` solved at resolution 24 with the default preset (49 directions, 3 iterations) in the
 /// directions, data and hybrid modes and in the data and hybrid modes out of core, against the
 /// one-process in-memory solve; `pass`: whether the scene calls for the direct-light pass.

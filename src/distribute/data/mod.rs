@@ -450,14 +450,19 @@ impl<'a> DataSolver<'a> {
         // Parts, by owner (each rank sends each surfel it has once: the owner's sum is in rank
         // order whatever order a pack lists them in).
         sharing.sent = vec![Vec::new(); size];
+        // A grey scene gathers its first channel only (the others stay 0): that one is sent.
+        let channels = self.channels;
+        let part_bytes = 4 + 2 * channels * 8;
         let mut packs = vec![Vec::new(); size];
         for (place, &id) in held.ids.iter().enumerate() {
             let owner = self.owner_of_id(id, size);
             sharing.sent[owner].push(place as u32);
             let pack: &mut Vec<u8> = &mut packs[owner];
             pack.extend_from_slice(&id.to_le_bytes());
-            for a in held.acc[place].iter().flatten() {
-                pack.extend_from_slice(&a.to_le_bytes());
+            for side in &held.acc[place] {
+                for a in &side[..channels] {
+                    pack.extend_from_slice(&a.to_le_bytes());
+                }
             }
         }
         sharing.bytes += packs.iter().map(|p| p.len() as u64).sum::<u64>();
@@ -465,14 +470,14 @@ impl<'a> DataSolver<'a> {
         owned.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         sharing.asked = Vec::with_capacity(size);
         for pack in &received {
-            let mut ids = Vec::with_capacity(pack.len() / PART_BYTES);
-            for r in pack.chunks_exact(PART_BYTES) {
+            let mut ids = Vec::with_capacity(pack.len() / part_bytes);
+            for r in pack.chunks_exact(part_bytes) {
                 let id = u32::from_le_bytes([r[0], r[1], r[2], r[3]]);
                 let sum = &mut owned.acc[id as usize - owned.ids.start];
-                for (k, v) in sum.iter_mut().flatten().enumerate() {
-                    let at = 4 + 8 * k;
+                let values = sum.iter_mut().flat_map(|side| &mut side[..channels]);
+                for (v, bytes) in values.zip(r[4..].chunks_exact(8)) {
                     let mut b = [0u8; 8];
-                    b.copy_from_slice(&r[at..at + 8]);
+                    b.copy_from_slice(bytes);
                     *v += f64::from_le_bytes(b);
                 }
                 ids.push(id);
@@ -537,7 +542,8 @@ impl<'a> DataSolver<'a> {
     }
 
     /// Sends the owners' radiosity to every rank that has the surfel (the ones each rank sent
-    /// its parts of at the last `reduce`). Collective on `world`.
+    /// its parts of at the last `reduce`). A grey scene's radiosity is the same in every channel
+    /// (`update::update_surfel` copies its first): one channel goes. Collective on `world`.
     fn share_radiosity(
         &self,
         held: &mut Held,
@@ -545,17 +551,19 @@ impl<'a> DataSolver<'a> {
         sharing: &mut Sharing,
         world: &dyn Comm,
     ) {
+        let channels = self.channels;
+        let reply_bytes = 2 * channels * 4;
         let replies: Vec<Vec<u8>> = sharing
             .asked
             .iter()
             .map(|ids| {
-                let mut out = Vec::with_capacity(ids.len() * 24);
+                let mut out = Vec::with_capacity(ids.len() * reply_bytes);
                 for &id in ids {
-                    for f in owned.radiosity[id as usize - owned.ids.start]
-                        .iter()
-                        .flatten()
-                    {
-                        out.extend_from_slice(&f.to_le_bytes());
+                    for side in &owned.radiosity[id as usize - owned.ids.start] {
+                        debug_assert!(channels == 3 || side.iter().all(|&b| b == side[0]));
+                        for f in &side[..channels] {
+                            out.extend_from_slice(&f.to_le_bytes());
+                        }
                     }
                 }
                 out
@@ -564,9 +572,16 @@ impl<'a> DataSolver<'a> {
         sharing.bytes += replies.iter().map(|p| p.len() as u64).sum::<u64>();
         let received = world.exchange(replies);
         for (places, pack) in sharing.sent.iter().zip(&received) {
-            for (&place, r) in places.iter().zip(pack.chunks_exact(24)) {
+            for (&place, r) in places.iter().zip(pack.chunks_exact(reply_bytes)) {
                 let f = |k: usize| f32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
-                let b = [[f(0), f(4), f(8)], [f(12), f(16), f(20)]];
+                let side = |first: usize| {
+                    if channels == 1 {
+                        [f(first); 3]
+                    } else {
+                        [f(first), f(first + 4), f(first + 8)]
+                    }
+                };
+                let b = [side(0), side(4 * channels)];
                 let id = held.ids[place as usize] as usize;
                 held.set_radiosity(place as usize, b, &self.emission[id]);
             }
@@ -695,9 +710,6 @@ impl<'a> DataSolver<'a> {
             .collect()
     }
 }
-
-/// Bytes of one surfel's part of the light on its way to the owner: id (4) and light (48).
-const PART_BYTES: usize = 52;
 
 /// The surfels whose radiosity this rank owns (a block of ids of the world): their radiosity,
 /// the light of the last iteration added over the ranks, and the radiosity before the last
