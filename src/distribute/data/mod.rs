@@ -450,7 +450,8 @@ impl<'a> DataSolver<'a> {
         // Parts, by owner (each rank sends each surfel it has once: the owner's sum is in rank
         // order whatever order a pack lists them in).
         sharing.sent = vec![Vec::new(); size];
-        // A grey scene gathers its first channel only (the others stay 0): that one is sent.
+        // Of a grey scene's gathered light only the first channel is read (`update_surfel`,
+        // `ClosureSums`, `add_power`): that one is sent.
         let channels = self.channels;
         let part_bytes = 4 + 2 * channels * 8;
         let mut packs = vec![Vec::new(); size];
