@@ -23,7 +23,8 @@
 //! **Balancing.** The row sums of the bin histogram (added over ranks) are cut into `R` bands of
 //! equal load, then each band's column histogram into `C` pieces, `R * C` ranks in all. `C` is
 //! the largest divisor of the rank count not above half its square root: mostly bands, whose
-//! boundaries follow the drift, with a few column cuts once the bands would get thin.
+//! boundaries follow the drift, with a few column cuts once the bands would get thin. Where
+//! `C` is 1 (two and three ranks) no column histogram is made: a band's load is its rows'.
 
 use crate::geometry::lines::LineFrame;
 use crate::geometry::order;
