@@ -80,7 +80,7 @@
 //! needs only some searches of a line (the direct-light pass) says which ([`Toward`]).
 
 use crate::voxel::{BACK, FRONT};
-use glam::{DVec3, Vec3};
+use glam::{DVec3, Vec3A};
 
 /// Margin (voxel units) below which a point counts as lying on a plane rather than in front of it.
 pub const EPS: f32 = 1e-4;
@@ -119,7 +119,7 @@ pub const RANKED_MATES: usize = 8;
 /// Fills [`PropSurfel::mate_sides`] of the surfels of one voxel, listed in the order of their
 /// surfel set.
 pub fn with_mate_sides(voxel: &mut [PropSurfel]) {
-    let unit = Vec3::X;
+    let unit = Vec3A::X;
     let locals: Vec<Local> = voxel.iter().map(|p| local_of(p, unit)).collect();
     for (piece, p) in voxel.iter_mut().enumerate() {
         p.rank = piece.min(u8::MAX as usize) as u8;
@@ -207,13 +207,13 @@ pub fn prop_surfels(set: &crate::voxel::SurfelSet) -> Vec<PropSurfel> {
 
 /// A surfel as the search of direction `sf` reads it.
 #[inline(always)]
-fn local_of(p: &PropSurfel, sf: Vec3) -> Local {
-    let normal = Vec3::from(p.normal);
+fn local_of(p: &PropSurfel, sf: Vec3A) -> Local {
+    let normal = Vec3A::from(p.normal);
     let ns = normal.dot(sf);
     Local {
         voxel: p.voxel,
         group: p.group,
-        point: Vec3::from(p.point),
+        point: Vec3A::from(p.point),
         normal,
         ns,
         sgn: if ns > 0.0 {
@@ -223,8 +223,8 @@ fn local_of(p: &PropSurfel, sf: Vec3) -> Local {
         } else {
             0.0
         },
-        lo: Vec3::from(p.extent[0]),
-        hi: Vec3::from(p.extent[1]),
+        lo: Vec3A::from(p.extent[0]),
+        hi: Vec3A::from(p.extent[1]),
         coverage: p.coverage,
         inside_back: p.inside_back,
         no_area: p.no_area,
@@ -238,13 +238,13 @@ fn local_of(p: &PropSurfel, sf: Vec3) -> Local {
 struct Local {
     voxel: [i32; 3],
     group: u32,
-    point: Vec3,
-    normal: Vec3,
+    point: Vec3A,
+    normal: Vec3A,
     /// `normal . s` for the unit direction `s`, and its sign (+-1; 0 when `ns` is 0).
     ns: f32,
     sgn: f32,
-    lo: Vec3,
-    hi: Vec3,
+    lo: Vec3A,
+    hi: Vec3A,
     coverage: f32,
     inside_back: bool,
     no_area: bool,
@@ -299,15 +299,15 @@ fn side_of(mate: &Local, piece: &Local) -> Option<f32> {
 /// piece reaches the box's extreme; the box's corner goes beyond that point only along the
 /// other axes: at most `sum_{i != d} |n_i| (hi_i - lo_i)`. Zero for a plane along the grid.
 #[inline(always)]
-fn box_overshoot(n: Vec3, piece: &Local) -> f32 {
+fn box_overshoot(n: Vec3A, piece: &Local) -> f32 {
     let spans = n.abs() * (piece.hi - piece.lo);
     spans.element_sum() - spans.max_element()
 }
 
 /// `p_c - p_r` in voxel units, exact in the integer part.
 #[inline(always)]
-fn offset(r: &Local, c: &Local) -> Vec3 {
-    Vec3::new(
+fn offset(r: &Local, c: &Local) -> Vec3A {
+    Vec3A::new(
         (c.voxel[0] - r.voxel[0]) as f32,
         (c.voxel[1] - r.voxel[1]) as f32,
         (c.voxel[2] - r.voxel[2]) as f32,
@@ -317,7 +317,7 @@ fn offset(r: &Local, c: &Local) -> Vec3 {
 /// How far the candidate's piece reaches along `v` beyond the receiver's point: the largest
 /// `v . (y - p_receiver)` over the corners `y` of the piece's bounding box.
 #[inline(always)]
-fn reach(v: Vec3, receiver: &Local, candidate: &Local) -> f32 {
+fn reach(v: Vec3A, receiver: &Local, candidate: &Local) -> f32 {
     let (a, b) = (v * candidate.lo, v * candidate.hi);
     v.dot(offset(receiver, candidate) - candidate.point) + a.max(b).element_sum()
 }
@@ -495,7 +495,7 @@ pub fn find_partners_toward(
     scratch: &mut LineScratch,
     toward: Option<Toward>,
 ) {
-    let sf = s.as_vec3();
+    let sf = Vec3A::from(s.as_vec3());
     // The line's cross-section across the direction, in voxel-size squared: a line is a tube of
     // unit section across its main axis.
     let section = sf.abs().max_element();
@@ -513,6 +513,20 @@ pub fn find_partners_toward(
     } = scratch;
     locals.clear();
     locals.extend(line.iter().map(|&m| local_of(&surfels[m as usize], sf)));
+    let main = {
+        let a = sf.abs();
+        if a.x >= a.y && a.x >= a.z {
+            0
+        } else if a.y >= a.z {
+            1
+        } else {
+            2
+        }
+    };
+    if toward.is_none() && plain_partners(locals, sf, main, run_after, run_before, partners) {
+        extra.clear();
+        return;
+    }
     groups.clear();
     for k in 0..locals.len() {
         if k == 0 || locals[k].voxel != locals[k - 1].voxel {
@@ -563,16 +577,7 @@ pub fn find_partners_toward(
         open_items,
         open_slot,
         shared,
-        main: {
-            let a = sf.abs();
-            if a.x >= a.y && a.x >= a.z {
-                0
-            } else if a.y >= a.z {
-                1
-            } else {
-                2
-            }
-        },
+        main,
     };
     // The voxel groups whose searches ahead and behind may be needed.
     let group_of = |k: usize| groups.partition_point(|&start| start <= k) - 1;
@@ -648,6 +653,155 @@ pub fn find_partners_toward(
                     extra.push((k as u32, which as u8, position, weight));
                 }
             }
+        }
+    }
+}
+
+/// The partners of every surfel of a plain line, one surfel per voxel and no open edge (the
+/// common line: four in five surfels of the Cornell box lie on one), into `partners`; false,
+/// with `partners` to be filled by the general search, when the line is not plain or a search
+/// meets the side of a solid's face turned inside, which [`LineView::entry_face`] judges.
+///
+/// It finds what [`LineView::nearest_plain`] finds, without the line's voxel groups, the
+/// planes they hold and its open crossings, which such a line does not need: the set-up of
+/// those, for every line, took a fifth of the instructions of a first pass (counted with
+/// callgrind on the Cornell box), about as many as this line's searches.
+fn plain_partners(
+    locals: &[Local],
+    sf: Vec3A,
+    main: usize,
+    run_after: &mut Vec<u32>,
+    run_before: &mut Vec<u32>,
+    partners: &mut Vec<[(u32, f32); 2]>,
+) -> bool {
+    let n = locals.len();
+    // A voxel's surfels are adjacent on a line; `u32::MAX` is no plane (see `LineScratch::single`).
+    let plain = (0..n).all(|k| {
+        let l = &locals[k];
+        l.coverage >= 1.0 && l.group != u32::MAX && (k == 0 || l.voxel != locals[k - 1].voxel)
+    });
+    if !plain {
+        return false;
+    }
+    // Runs of one plane, as `LineScratch::run_after` and `run_before` (voxel groups are
+    // positions here).
+    run_before.clear();
+    run_before.resize(n, 0);
+    for g in 0..n {
+        run_before[g] = if g > 0 && locals[g].group == locals[g - 1].group {
+            run_before[g - 1]
+        } else {
+            g as u32
+        };
+    }
+    run_after.clear();
+    run_after.resize(n, 0);
+    for r in (0..n).rev() {
+        run_after[r] = if r + 1 < n && locals[r].group == locals[r + 1].group {
+            run_after[r + 1]
+        } else {
+            r as u32 + 1
+        };
+    }
+    partners.clear();
+    let line = PlainLine {
+        locals,
+        run_after,
+        run_before,
+        main,
+    };
+    for k in 0..n {
+        let (Some(ahead), Some(behind)) =
+            (line.nearest::<true>(k, sf), line.nearest::<false>(k, -sf))
+        else {
+            return false;
+        };
+        partners.push([ahead, behind]);
+    }
+    true
+}
+
+/// A plain line as [`plain_partners`] searches it.
+struct PlainLine<'a> {
+    locals: &'a [Local],
+    run_after: &'a [u32],
+    run_before: &'a [u32],
+    main: usize,
+}
+
+impl PlainLine<'_> {
+    /// [`LineView::nearest_plain`] on this line: the partner's position and share,
+    /// `(u32::MAX, 0.0)` for none; `None` when the hit is a side inside a solid met from
+    /// behind (left to [`LineView::entry_face`]).
+    #[inline(always)]
+    fn nearest<const FORWARD: bool>(&self, k: usize, dir: Vec3A) -> Option<(u32, f32)> {
+        let locals = self.locals;
+        let x = &locals[k];
+        let none = (u32::MAX, 0.0);
+        if x.ns == 0.0 || gathers_inside::<FORWARD>(x) {
+            return Some(none);
+        }
+        let count = locals.len();
+        let mut g2 = k;
+        loop {
+            if FORWARD {
+                g2 += 1;
+                if g2 >= count {
+                    return Some(none);
+                }
+            } else {
+                if g2 == 0 {
+                    return Some(none);
+                }
+                g2 -= 1;
+            }
+            let candidate = &locals[g2];
+            if candidate.group == x.group {
+                g2 = if FORWARD {
+                    self.run_after[g2] as usize - 1
+                } else {
+                    self.run_before[g2] as usize
+                };
+                continue;
+            }
+            if let Some(t) = LineView::test::<FORWARD>(x, candidate) {
+                let hit = self.where_crossed::<FORWARD>(x, g2, t, dir);
+                let h = &locals[hit];
+                let from_back = if FORWARD { h.ns > 0.0 } else { h.ns < 0.0 };
+                if h.inside_back && from_back {
+                    return None;
+                }
+                return Some((hit as u32, 1.0));
+            }
+        }
+    }
+
+    /// [`LineView::where_crossed`] on this line, where each voxel holds one piece.
+    #[inline(always)]
+    fn where_crossed<const FORWARD: bool>(&self, x: &Local, c: usize, t: f32, dir: Vec3A) -> usize {
+        let locals = self.locals;
+        if locals[c].voxel == x.voxel {
+            return c;
+        }
+        let plane = locals[c].group;
+        let count = locals.len();
+        let next = if FORWARD { c + 1 } else { c.wrapping_sub(1) };
+        if next >= count || locals[next].group != plane {
+            return c;
+        }
+        let main = self.main;
+        let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
+        let at = crossing_group::<FORWARD>(
+            c,
+            count,
+            layer,
+            |g| locals[g].group == plane,
+            |g| locals[g].voxel[main],
+        );
+        if at == c || LineView::test::<FORWARD>(x, &locals[at]).is_none() {
+            c
+        } else {
+            at
         }
     }
 }
@@ -776,13 +930,13 @@ const PASSED_BY: f32 = 1e-3;
 /// crossed one after the other and each takes its share of what the ones before let through.
 #[derive(Default)]
 struct OpenLayer {
-    normal: Option<Vec3>,
+    normal: Option<Vec3A>,
 }
 
 impl OpenLayer {
     /// Pushes the partner at line position `at` with `share` of the section, and updates `left`.
     #[inline(always)]
-    fn take(&mut self, chain: &mut Chain, left: &mut f32, at: usize, share: f32, normal: Vec3) {
+    fn take(&mut self, chain: &mut Chain, left: &mut f32, at: usize, share: f32, normal: Vec3A) {
         let parallel = self
             .normal
             .is_some_and(|n| n.dot(normal).abs() > 1.0 - 1e-4);
@@ -825,6 +979,49 @@ impl Missed {
             self.len += 1;
         }
     }
+}
+
+/// Where along a plane's run [`LineView::where_crossed`] takes the crossing at main-axis layer
+/// `layer`: walking from the candidate's voxel group `g_c` along the search (the search met
+/// nothing of the plane before it), one layer at a time towards the crossing's, while the next
+/// voxel group holds the plane alone (`alone`; a voxel holding another surface too, a wall
+/// standing on the floor, may block the ray before the plane beyond: only the search's own
+/// tests there can tell) and lies in the next layer (`coordinate`: a group's main-axis
+/// coordinate; a gap ends the walk too). The walk is the same whichever way the line is
+/// listed, so the out-of-core solver, which lists some lines the other way, finds the same
+/// partner.
+#[inline(always)]
+fn crossing_group<const FORWARD: bool>(
+    g_c: usize,
+    group_count: usize,
+    layer: i32,
+    alone: impl Fn(usize) -> bool,
+    coordinate: impl Fn(usize) -> i32,
+) -> usize {
+    let mut at = g_c;
+    loop {
+        let here = coordinate(at);
+        if here == layer {
+            break;
+        }
+        let next = if FORWARD {
+            at + 1
+        } else if at == 0 {
+            break;
+        } else {
+            at - 1
+        };
+        if next >= group_count || !alone(next) {
+            break;
+        }
+        let there = coordinate(next);
+        // Towards the crossing's layer, by one layer.
+        if (there - here).abs() != 1 || (layer - there).abs() >= (layer - here).abs() {
+            break;
+        }
+        at = next;
+    }
+    at
 }
 
 /// One line of one direction, with its voxel groups and same-plane runs.
@@ -881,7 +1078,7 @@ impl LineView<'_> {
         c: usize,
         g_c: usize,
         t: f32,
-        dir: Vec3,
+        dir: Vec3A,
     ) -> usize {
         // A voxel-mate of the receiver (the other wall at a corner) is met where the two meet.
         if self.locals[c].voxel == x.voxel {
@@ -901,37 +1098,13 @@ impl LineView<'_> {
         }
         let main = self.main;
         let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
-        let coordinate = |g: usize| self.locals[self.groups[g]].voxel[main];
-        // Walk from the candidate's voxel along the search (the search met nothing of the plane
-        // before it), one layer at a time towards the crossing's, while the next voxel holds the
-        // plane alone (a voxel holding another surface too, a wall standing on the floor, may
-        // block the ray before the plane beyond: only the search's own tests there can tell)
-        // and lies in the next layer (a gap ends it too). The walk is the same whichever way
-        // the line is listed, so the out-of-core solver, which lists some lines the other way,
-        // finds the same partner.
-        let mut at = g_c;
-        loop {
-            let here = coordinate(at);
-            if here == layer {
-                break;
-            }
-            let next = if FORWARD {
-                at + 1
-            } else if at == 0 {
-                break;
-            } else {
-                at - 1
-            };
-            if next >= group_count || self.single[next] != plane {
-                break;
-            }
-            let there = coordinate(next);
-            // Towards the crossing's layer, by one layer.
-            if (there - here).abs() != 1 || (layer - there).abs() >= (layer - here).abs() {
-                break;
-            }
-            at = next;
-        }
+        let at = crossing_group::<FORWARD>(
+            g_c,
+            group_count,
+            layer,
+            |g| self.single[g] == plane,
+            |g| self.locals[self.groups[g]].voxel[main],
+        );
         if self.locals[self.groups[at]].voxel == self.locals[c].voxel {
             return c;
         }
@@ -977,7 +1150,7 @@ impl LineView<'_> {
     /// is judged like a voxel-mate in [`LineView::best_in`], and the candidate's own voxel is
     /// judged there already.
     #[inline(always)]
-    fn off_the_run(&self, x: &Local, c: usize, g_c: usize, t: f32, dir: Vec3) -> bool {
+    fn off_the_run(&self, x: &Local, c: usize, g_c: usize, t: f32, dir: Vec3A) -> bool {
         if !self.shared {
             // No run end holds mates.
             return false;
@@ -1182,7 +1355,13 @@ impl LineView<'_> {
     /// hid these rays in a furnace; dark, each would be light lost (0.6 % of the power of the
     /// thin-slab twin of `tests/hard_case_twins.rs`).
     #[inline(always)]
-    fn entry_face<const FORWARD: bool>(&self, x: &Local, g: usize, hit: usize, dir: Vec3) -> Entry {
+    fn entry_face<const FORWARD: bool>(
+        &self,
+        x: &Local,
+        g: usize,
+        hit: usize,
+        dir: Vec3A,
+    ) -> Entry {
         let h = &self.locals[hit];
         // The side of the hit facing back toward the receiver is its back side.
         let from_back = if FORWARD { h.ns > 0.0 } else { h.ns < 0.0 };
@@ -1198,7 +1377,7 @@ impl LineView<'_> {
         x: &Local,
         g: usize,
         hit: usize,
-        dir: Vec3,
+        dir: Vec3A,
     ) -> Entry {
         let h = &self.locals[hit];
         let Some(t_hit) = Self::test::<FORWARD>(x, h) else {
@@ -1247,7 +1426,7 @@ impl LineView<'_> {
         }
         // Where the ray crosses the hit's plane, in the hit's voxel units.
         let crossing = dir * t_hit - offset(x, h) + h.point;
-        let margin = Vec3::splat(PASSED_BY);
+        let margin = Vec3A::splat(PASSED_BY);
         if crossing.cmplt(h.lo - margin).any() || crossing.cmpgt(h.hi + margin).any() {
             Entry::PassedBy
         } else {
@@ -1274,7 +1453,7 @@ impl LineView<'_> {
         &self,
         g2: usize,
         k: usize,
-        dir: Vec3,
+        dir: Vec3A,
         missed: &mut Missed,
     ) -> Option<(usize, f32)> {
         let locals = self.locals;
@@ -1340,7 +1519,7 @@ impl LineView<'_> {
     /// whole ray. Returns the partner's line position and share, `(u32::MAX, 0.0)` for none, as
     /// the first item of `nearest`'s chain.
     #[inline(always)]
-    fn nearest_plain<const FORWARD: bool>(&self, k: usize, dir: Vec3) -> (u32, f32) {
+    fn nearest_plain<const FORWARD: bool>(&self, k: usize, dir: Vec3A) -> (u32, f32) {
         let x = &self.locals[k];
         if x.ns == 0.0 || gathers_inside::<FORWARD>(x) {
             return (u32::MAX, 0.0);
@@ -1396,7 +1575,7 @@ impl LineView<'_> {
     /// so the plane is remembered as missed for the rest of the search. This is what keeps a ray
     /// that grazes past the outside corner of a room from meeting the inside of the wall beyond it.
     #[inline(always)]
-    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3, chain: &mut Chain) {
+    fn nearest<const FORWARD: bool>(&self, g: usize, k: usize, dir: Vec3A, chain: &mut Chain) {
         chain.len = 0;
         let x = &self.locals[k];
         if x.ns == 0.0 || gathers_inside::<FORWARD>(x) {
@@ -1800,7 +1979,7 @@ mod tests {
             );
             let locals: Vec<Local> = props[first..end]
                 .iter()
-                .map(|q| local_of(q, Vec3::Z))
+                .map(|q| local_of(q, Vec3A::Z))
                 .collect();
             for (piece, q) in props[first..end].iter().enumerate() {
                 assert_eq!(q.rank as usize, piece);
