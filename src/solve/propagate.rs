@@ -71,8 +71,9 @@
 //! hold only the receiver's own plane (a sheet seen at a grazing angle, possibly hundreds of voxels
 //! long) are skipped in one step, so finding all partners of a line costs about its length. Most
 //! lines (four in five surfels of the Cornell box) hold one surfel per voxel and meet no open
-//! edge; their searches take a plain path with none of the bookkeeping for voxel-mates and open
-//! edges (`LineView::nearest_plain`), which gives the same partners. The surfels, radiosity and
+//! edge; they are searched without the line's voxel groups and open crossings and with none of
+//! the bookkeeping for voxel-mates and open edges ([`plain_partners`]; `LineView::nearest_plain`
+//! where only some searches are wanted), which gives the same partners. The surfels, radiosity and
 //! sums of the lines a little ahead are prefetched ([`gather_lines`]): they lie scattered over
 //! arrays far larger than the caches (about a sixth of the kernel's time went to waiting).
 //! Which side of each other's planes two pieces of one voxel lie on depends on them alone: it is
@@ -629,7 +630,7 @@ pub fn find_partners_toward(
             // The chains are filled in place: returned by value, each was copied through the
             // stack with wide loads of narrower stores just written (a store-forwarding stall
             // that cost a tenth of the search).
-            // Every search is wanted without `toward` (the closures' tests were 3 % of the
+            // Every search is wanted without `toward` (the closures' tests were 1.5 % of the
             // instructions of a first pass).
             if every || wanted_ahead(g, k) {
                 view.nearest::<true>(g, k, sf, &mut ahead);
