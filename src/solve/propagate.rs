@@ -72,7 +72,7 @@
 //! long) are skipped in one step, so finding all partners of a line costs about its length. Most
 //! lines (four in five surfels of the Cornell box) hold one surfel per voxel and meet no open
 //! edge; they are searched without the line's voxel groups and open crossings and with none of
-//! the bookkeeping for voxel-mates and open edges ([`plain_partners`]; `LineView::nearest_plain`
+//! the bookkeeping for voxel-mates and open edges (`plain_partners`; `LineView::nearest_plain`
 //! where only some searches are wanted), which gives the same partners. The surfels, radiosity and
 //! sums of the lines a little ahead are prefetched ([`gather_lines`]): they lie scattered over
 //! arrays far larger than the caches (about a sixth of the kernel's time went to waiting).
