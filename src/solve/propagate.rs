@@ -524,7 +524,7 @@ pub fn find_partners_toward(
             2
         }
     };
-    if toward.is_none() && plain_partners(locals, sf, main, run_after, run_before, partners) {
+    if plain_partners(locals, sf, main, toward, run_after, run_before, partners) {
         extra.clear();
         return;
     }
@@ -597,12 +597,14 @@ pub fn find_partners_toward(
     let wanted_ahead = |g: usize, k: usize| {
         also(also_ahead, k)
             || g < ahead_to
-                && (targets.is_empty() || crosses_a_target::<true>(&view, targets, g, k))
+                && (targets.is_empty()
+                    || crosses_a_target::<true>(locals, targets, groups[g]..locals.len(), k))
     };
     let wanted_behind = |g: usize, k: usize| {
         also(also_behind, k)
             || g >= behind_from
-                && (targets.is_empty() || crosses_a_target::<false>(&view, targets, g, k))
+                && (targets.is_empty()
+                    || crosses_a_target::<false>(locals, targets, 0..groups[g + 1], k))
     };
     if !shared && open_ranges.is_empty() {
         // The common line: one surfel per voxel and no open edge (see `LineView::nearest_plain`).
@@ -674,6 +676,7 @@ fn plain_partners(
     locals: &[Local],
     sf: Vec3A,
     main: usize,
+    toward: Option<Toward>,
     run_after: &mut Vec<u32>,
     run_before: &mut Vec<u32>,
     partners: &mut Vec<[(u32, f32); 2]>,
@@ -714,10 +717,42 @@ fn plain_partners(
         run_before,
         main,
     };
+    let none = Some((u32::MAX, 0.0));
+    let Some(toward) = toward else {
+        for k in 0..n {
+            let (Some(ahead), Some(behind)) =
+                (line.nearest::<true>(k, sf), line.nearest::<false>(k, -sf))
+            else {
+                return false;
+            };
+            partners.push([ahead, behind]);
+        }
+        return true;
+    };
+    // The searches `toward` asks for, as `find_partners_toward` picks them (voxel groups are
+    // positions here).
+    let ahead_to = toward.ahead_upto.map_or(0, |last| last + 1);
+    let behind_from = toward.behind_from.unwrap_or(n);
+    let also = |list: &[u32], k: usize| !list.is_empty() && list.binary_search(&(k as u32)).is_ok();
+    let targets = toward.targets;
     for k in 0..n {
-        let (Some(ahead), Some(behind)) =
-            (line.nearest::<true>(k, sf), line.nearest::<false>(k, -sf))
-        else {
+        let wanted_ahead = also(toward.also_ahead, k)
+            || k < ahead_to
+                && (targets.is_empty() || crosses_a_target::<true>(locals, targets, k..n, k));
+        let wanted_behind = also(toward.also_behind, k)
+            || k >= behind_from
+                && (targets.is_empty() || crosses_a_target::<false>(locals, targets, 0..k + 1, k));
+        let ahead = if wanted_ahead {
+            line.nearest::<true>(k, sf)
+        } else {
+            none
+        };
+        let behind = if wanted_behind {
+            line.nearest::<false>(k, -sf)
+        } else {
+            none
+        };
+        let (Some(ahead), Some(behind)) = (ahead, behind) else {
             return false;
         };
         partners.push([ahead, behind]);
@@ -810,8 +845,10 @@ impl PlainLine<'_> {
     }
 }
 
-/// Whether the ray of line position `k` (voxel group `g`), searching ahead (`FORWARD`) or
-/// behind, crosses the plane of some target in the voxels that search walks. Every partner a
+/// Whether the ray of line position `k`, searching ahead (`FORWARD`) or behind, crosses the
+/// plane of some target at the line positions `walked`, those of the voxels that search walks
+/// (from its own voxel's first surfel to the line's end, or from the start to its own voxel's
+/// last). Every partner a
 /// search returns (the piece it accepts, the piece of the same plane where the ray crosses it,
 /// an open sheet's piece before it) lies on a plane one of whose pieces passed the acceptance
 /// test ([`facing`]), whose first condition is that the ray crosses that plane ahead of the
@@ -823,24 +860,19 @@ impl PlainLine<'_> {
 /// downwards): this leaves them out, the same links from emitters being found.
 #[inline]
 fn crosses_a_target<const FORWARD: bool>(
-    view: &LineView,
+    locals: &[Local],
     targets: &[bool],
-    g: usize,
+    walked: std::ops::Range<usize>,
     k: usize,
 ) -> bool {
     const MARGIN: f32 = 1e-3;
-    let x = &view.locals[k];
+    let x = &locals[k];
     if x.ns == 0.0 {
         // No search from a surfel along its own plane finds anything.
         return false;
     }
-    let walked = if FORWARD {
-        view.groups[g]..view.locals.len()
-    } else {
-        0..view.groups[g + 1]
-    };
     walked.into_iter().any(|t| {
-        let c = &view.locals[t];
+        let c = &locals[t];
         if !targets[t] || c.group == x.group || c.ns == 0.0 {
             return false;
         }
