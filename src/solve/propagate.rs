@@ -760,6 +760,46 @@ fn plain_partners(
     true
 }
 
+/// The next candidate that a search on a plain line (one surfel per voxel, no open edge) from
+/// receiver `x` accepts past line position `from`, ahead (`FORWARD`) or behind, with the
+/// acceptance test's distance; runs of the receiver's own plane are jumped over. `None`: the
+/// line ends first.
+#[inline(always)]
+fn next_accepted<const FORWARD: bool>(
+    locals: &[Local],
+    run_after: &[u32],
+    run_before: &[u32],
+    x: &Local,
+    from: usize,
+) -> Option<(usize, f32)> {
+    let mut g2 = from;
+    loop {
+        if FORWARD {
+            g2 += 1;
+            if g2 >= locals.len() {
+                return None;
+            }
+        } else {
+            if g2 == 0 {
+                return None;
+            }
+            g2 -= 1;
+        }
+        let candidate = &locals[g2];
+        if candidate.group == x.group {
+            g2 = if FORWARD {
+                run_after[g2] as usize - 1
+            } else {
+                run_before[g2] as usize
+            };
+            continue;
+        }
+        if let Some(t) = LineView::test::<FORWARD>(x, candidate) {
+            return Some((g2, t));
+        }
+    }
+}
+
 /// A plain line as [`plain_partners`] searches it.
 struct PlainLine<'a> {
     locals: &'a [Local],
@@ -776,43 +816,19 @@ impl PlainLine<'_> {
     fn nearest<const FORWARD: bool>(&self, k: usize, dir: Vec3A) -> Option<(u32, f32)> {
         let locals = self.locals;
         let x = &locals[k];
-        let none = (u32::MAX, 0.0);
+        let none = Some((u32::MAX, 0.0));
         if x.ns == 0.0 || gathers_inside::<FORWARD>(x) {
-            return Some(none);
+            return none;
         }
-        let count = locals.len();
-        let mut g2 = k;
-        loop {
-            if FORWARD {
-                g2 += 1;
-                if g2 >= count {
-                    return Some(none);
-                }
-            } else {
-                if g2 == 0 {
-                    return Some(none);
-                }
-                g2 -= 1;
-            }
-            let candidate = &locals[g2];
-            if candidate.group == x.group {
-                g2 = if FORWARD {
-                    self.run_after[g2] as usize - 1
-                } else {
-                    self.run_before[g2] as usize
-                };
-                continue;
-            }
-            if let Some(t) = LineView::test::<FORWARD>(x, candidate) {
-                let hit = self.where_crossed::<FORWARD>(x, g2, t, dir);
-                let h = &locals[hit];
-                let from_back = if FORWARD { h.ns > 0.0 } else { h.ns < 0.0 };
-                if h.inside_back && from_back {
-                    return None;
-                }
-                return Some((hit as u32, 1.0));
-            }
-        }
+        let Some((g2, t)) = next_accepted::<FORWARD>(locals, self.run_after, self.run_before, x, k)
+        else {
+            return none;
+        };
+        let hit = self.where_crossed::<FORWARD>(x, g2, t, dir);
+        let h = &locals[hit];
+        let from_back = if FORWARD { h.ns > 0.0 } else { h.ns < 0.0 };
+        // Met from behind, a side inside a solid is `entry_face`'s to judge.
+        (!(h.inside_back && from_back)).then_some((hit as u32, 1.0))
     }
 
     /// [`LineView::where_crossed`] on this line, where each voxel holds one piece.
@@ -823,17 +839,11 @@ impl PlainLine<'_> {
             return c;
         }
         let plane = locals[c].group;
-        let count = locals.len();
-        let next = if FORWARD { c + 1 } else { c.wrapping_sub(1) };
-        if next >= count || locals[next].group != plane {
-            return c;
-        }
         let main = self.main;
-        let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
         let at = crossing_group::<FORWARD>(
+            (x, t, dir, main),
             c,
-            count,
-            layer,
+            locals.len(),
             |g| locals[g].group == plane,
             |g| locals[g].voxel[main],
         );
@@ -1017,23 +1027,34 @@ impl Missed {
     }
 }
 
-/// Where along a plane's run [`LineView::where_crossed`] takes the crossing at main-axis layer
-/// `layer`: walking from the candidate's voxel group `g_c` along the search (the search met
-/// nothing of the plane before it), one layer at a time towards the crossing's, while the next
-/// voxel group holds the plane alone (`alone`; a voxel holding another surface too, a wall
-/// standing on the floor, may block the ray before the plane beyond: only the search's own
-/// tests there can tell) and lies in the next layer (`coordinate`: a group's main-axis
-/// coordinate; a gap ends the walk too). The walk is the same whichever way the line is
-/// listed, so the out-of-core solver, which lists some lines the other way, finds the same
-/// partner.
+/// Where along a plane's run [`LineView::where_crossed`] takes the crossing of the ray from
+/// receiver `x` that meets the plane at distance `t` along `dir` (`main` the line's main axis):
+/// walking from the candidate's voxel group `g_c` along the search (the search met nothing of
+/// the plane before it), one layer at a time towards the crossing's, while the next voxel group
+/// holds the plane alone (`alone`; a voxel holding another surface too, a wall standing on the
+/// floor, may block the ray before the plane beyond: only the search's own tests there can
+/// tell) and lies in the next layer (`coordinate`: a group's main-axis coordinate; a gap ends
+/// the walk too). The walk is the same whichever way the line is listed, so the out-of-core
+/// solver, which lists some lines the other way, finds the same partner.
 #[inline(always)]
 fn crossing_group<const FORWARD: bool>(
+    (x, t, dir, main): (&Local, f32, Vec3A, usize),
     g_c: usize,
     group_count: usize,
-    layer: i32,
     alone: impl Fn(usize) -> bool,
     coordinate: impl Fn(usize) -> i32,
 ) -> usize {
+    // Most hits are on a plane whose run ends at the candidate's voxel: the walk would stop
+    // there whatever the crossing's layer, so that layer is not computed.
+    let next = if FORWARD {
+        g_c + 1
+    } else {
+        g_c.wrapping_sub(1)
+    };
+    if next >= group_count || !alone(next) {
+        return g_c;
+    }
+    let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
     let mut at = g_c;
     loop {
         let here = coordinate(at);
@@ -1121,27 +1142,15 @@ impl LineView<'_> {
             return c;
         }
         let plane = self.locals[c].group;
-        let group_count = self.groups.len() - 1;
-        // Most hits are on a plane whose run ends at the candidate's voxel: the walk below would
-        // stop there whatever the crossing's layer, so that layer is not computed.
-        let next = if FORWARD {
-            g_c + 1
-        } else {
-            g_c.wrapping_sub(1)
-        };
-        if next >= group_count || self.single[next] != plane {
-            return c;
-        }
         let main = self.main;
-        let layer = floor_to_i32(x.voxel[main] as f32 + x.point[main] + dir[main] * t);
         let at = crossing_group::<FORWARD>(
+            (x, t, dir, main),
             g_c,
-            group_count,
-            layer,
+            self.groups.len() - 1,
             |g| self.single[g] == plane,
             |g| self.locals[self.groups[g]].voxel[main],
         );
-        if self.locals[self.groups[at]].voxel == self.locals[c].voxel {
+        if at == g_c {
             return c;
         }
         // A plane held twice there (two coincident pieces facing opposite ways): the piece
@@ -1404,17 +1413,13 @@ impl LineView<'_> {
         if !(h.inside_back && from_back) {
             return Entry::Hit(hit);
         }
-        self.entry_face_of::<FORWARD>(x, g, hit, dir)
+        self.entry_face_of::<FORWARD>(x, [g, hit], dir)
     }
 
+    /// [`LineView::entry_face`] past its first test, for `[g, hit]` (kept out of line: rare).
     #[inline(never)]
-    fn entry_face_of<const FORWARD: bool>(
-        &self,
-        x: &Local,
-        g: usize,
-        hit: usize,
-        dir: Vec3A,
-    ) -> Entry {
+    fn entry_face_of<const FORWARD: bool>(&self, x: &Local, at: [usize; 2], dir: Vec3A) -> Entry {
+        let [g, hit] = at;
         let h = &self.locals[hit];
         let Some(t_hit) = Self::test::<FORWARD>(x, h) else {
             return Entry::Hit(hit);
@@ -1560,40 +1565,20 @@ impl LineView<'_> {
         if x.ns == 0.0 || gathers_inside::<FORWARD>(x) {
             return (u32::MAX, 0.0);
         }
-        let count = self.locals.len();
         // Voxel groups are line positions here.
-        let mut g2 = k;
-        loop {
-            if FORWARD {
-                g2 += 1;
-                if g2 >= count {
-                    return (u32::MAX, 0.0);
-                }
-            } else {
-                if g2 == 0 {
-                    return (u32::MAX, 0.0);
-                }
-                g2 -= 1;
-            }
-            let candidate = &self.locals[g2];
-            if candidate.group == x.group {
-                g2 = if FORWARD {
-                    self.run_after[g2] as usize - 1
-                } else {
-                    self.run_before[g2] as usize
-                };
-                continue;
-            }
-            if let Some(t) = Self::test::<FORWARD>(x, candidate) {
-                let hit = self.where_crossed::<FORWARD>(x, g2, g2, t, dir);
-                match self.entry_face::<FORWARD>(x, k, hit, dir) {
-                    Entry::Hit(partner) => return (partner as u32, 1.0),
-                    // The ray passed by the solid: the next voxels of the plane's run are
-                    // judged alike, and the search goes on past them.
-                    Entry::PassedBy => continue,
-                }
+        let mut from = k;
+        while let Some((g2, t)) =
+            next_accepted::<FORWARD>(self.locals, self.run_after, self.run_before, x, from)
+        {
+            let hit = self.where_crossed::<FORWARD>(x, g2, g2, t, dir);
+            match self.entry_face::<FORWARD>(x, k, hit, dir) {
+                Entry::Hit(partner) => return (partner as u32, 1.0),
+                // The ray passed by the solid: the next voxels of the plane's run are judged
+                // alike, and the search goes on past them.
+                Entry::PassedBy => from = g2,
             }
         }
+        (u32::MAX, 0.0)
     }
 
     /// Searches the receiver's own voxel group, then the voxel groups ahead (or behind) in order;
