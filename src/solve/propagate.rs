@@ -496,6 +496,20 @@ pub fn find_partners_toward(
     scratch: &mut LineScratch,
     toward: Option<Toward>,
 ) {
+    search_line(line, surfels, s, scratch, toward, true);
+}
+
+/// [`find_partners_toward`]; without `plain`, every line takes the general search
+/// (`LineView::nearest`), which the tests hold the plain lines' searches to.
+#[inline(always)]
+fn search_line(
+    line: &[u32],
+    surfels: &[PropSurfel],
+    s: DVec3,
+    scratch: &mut LineScratch,
+    toward: Option<Toward>,
+    plain: bool,
+) {
     let sf = Vec3A::from(s.as_vec3());
     // The line's cross-section across the direction, in voxel-size squared: a line is a tube of
     // unit section across its main axis.
@@ -524,7 +538,7 @@ pub fn find_partners_toward(
             2
         }
     };
-    if plain_partners(locals, sf, main, toward, run_after, run_before, partners) {
+    if plain && plain_partners(locals, sf, main, toward, run_after, run_before, partners) {
         extra.clear();
         return;
     }
@@ -606,7 +620,7 @@ pub fn find_partners_toward(
                 && (targets.is_empty()
                     || crosses_a_target::<false>(locals, targets, 0..groups[g + 1], k))
     };
-    if !shared && open_ranges.is_empty() {
+    if plain && !shared && open_ranges.is_empty() {
         // The common line: one surfel per voxel and no open edge (see `LineView::nearest_plain`).
         let none = (u32::MAX, 0.0);
         partners.extend((0..locals.len()).map(|k| {
@@ -2027,6 +2041,71 @@ mod tests {
             kept > 1000 && most > RANKED_MATES && beyond > 0,
             "{kept} pairs kept, {beyond} beyond the kept ranks, {most} surfels at most"
         );
+    }
+
+    /// The searches of plain lines (`plain_partners`, `LineView::nearest_plain`) find what the
+    /// general search finds on them, every search or some (`Toward`, as the direct pass asks),
+    /// on every line of the Cornell box along 73 directions: its two blocks are closed solids,
+    /// so rays also meet sides inside them.
+    #[test]
+    fn plain_lines_find_what_the_general_search_finds() {
+        use crate::geometry::{directions::DirectionSet, lines::LineFrame, order};
+        use crate::solve::dispatch::{dispatch, lexicographic_orders, Lines};
+        use crate::voxel::voxelize::{voxelize, GridSpec};
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/cornell_box.obj");
+        let scene = crate::scene::obj::load_obj(std::path::Path::new(path)).expect("the example");
+        let set = voxelize(&scene, GridSpec::Resolution(40)).expect("voxelized");
+        let props = prop_surfels(&set);
+        let orders = lexicographic_orders(&set);
+        let (mut plain, mut general) = (LineScratch::default(), LineScratch::default());
+        let mut lines = Lines::default();
+        let (mut plain_lines, mut partners_found) = (0, 0);
+        for d in &DirectionSet::with_count(73).directions {
+            let frame = LineFrame::new(d.vector, set.grid.dims);
+            dispatch(&orders[order::order_of(d.vector)], &frame, 1, &mut lines);
+            for l in 0..lines.line_count() {
+                let line = lines.line(l);
+                if line.len() < 2 {
+                    continue;
+                }
+                let is_plain = line
+                    .windows(2)
+                    .all(|w| props[w[0] as usize].voxel != props[w[1] as usize].voxel)
+                    && line.iter().all(|&m| props[m as usize].coverage >= 1.0);
+                plain_lines += is_plain as usize;
+                // Every search, then those of a span and of its targets, as the direct pass.
+                let (first, last) = (line.len() / 3, line.len() / 2);
+                let targets: Vec<bool> = (0..line.len()).map(|k| k % 3 == 1).collect();
+                let towards = [
+                    None,
+                    Some(Toward::span(first, last)),
+                    Some(Toward {
+                        also_ahead: &[0],
+                        targets: &targets,
+                        ..Toward::span(first, last)
+                    }),
+                ];
+                for toward in towards {
+                    search_line(line, &props, d.unit, &mut plain, toward, true);
+                    search_line(line, &props, d.unit, &mut general, toward, false);
+                    assert_eq!(
+                        plain.partners, general.partners,
+                        "direction {:?}, line {l}",
+                        d.vector
+                    );
+                    assert_eq!(plain.extra, general.extra);
+                    partners_found += plain
+                        .partners
+                        .iter()
+                        .flatten()
+                        .filter(|p| p.0 != u32::MAX)
+                        .count();
+                }
+            }
+        }
+        // The comparison saw plain lines, and searches that found partners on them.
+        assert!(plain_lines > 1000, "{plain_lines} plain lines");
+        assert!(partners_found > 10_000, "{partners_found} partners");
     }
 
     #[test]
