@@ -2045,18 +2045,25 @@ mod tests {
 
     /// The searches of plain lines (`plain_partners`, `LineView::nearest_plain`) find what the
     /// general search finds on them, every search or some (`Toward`, as the direct pass asks),
-    /// on every line of the Cornell box along 73 directions: its two blocks are closed solids,
-    /// so rays also meet sides inside them.
+    /// on every line of the Cornell box and of a small generated building along 73 directions:
+    /// the building's walls and slabs are closed solids, so rays also meet sides inside them.
     #[test]
     fn plain_lines_find_what_the_general_search_finds() {
-        use crate::geometry::{directions::DirectionSet, lines::LineFrame, order};
-        use crate::solve::dispatch::{dispatch, lexicographic_orders, Lines};
         use crate::voxel::voxelize::{voxelize, GridSpec};
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/examples/cornell_box.obj");
-        let scene = crate::scene::obj::load_obj(std::path::Path::new(path)).expect("the example");
-        let set = voxelize(&scene, GridSpec::Resolution(40)).expect("voxelized");
-        let props = prop_surfels(&set);
-        let orders = lexicographic_orders(&set);
+        let cornell = crate::scene::obj::load_obj(std::path::Path::new(path)).expect("the example");
+        let building = crate::gen::procedural::building(2, 2, 1, 7);
+        for (scene, resolution) in [(cornell, 40), (building, 60)] {
+            let set = voxelize(&scene, GridSpec::Resolution(resolution)).expect("voxelized");
+            plain_lines_agree(&set);
+        }
+    }
+
+    fn plain_lines_agree(set: &crate::voxel::SurfelSet) {
+        use crate::geometry::{directions::DirectionSet, lines::LineFrame, order};
+        use crate::solve::dispatch::{dispatch, lexicographic_orders, Lines};
+        let props = prop_surfels(set);
+        let orders = lexicographic_orders(set);
         let (mut plain, mut general) = (LineScratch::default(), LineScratch::default());
         let mut lines = Lines::default();
         let (mut plain_lines, mut partners_found) = (0, 0);
@@ -2104,8 +2111,8 @@ mod tests {
             }
         }
         // The comparison saw plain lines, and searches that found partners on them.
-        assert!(plain_lines > 1000, "{plain_lines} plain lines");
-        assert!(partners_found > 10_000, "{partners_found} partners");
+        assert!(plain_lines > 50_000, "{plain_lines} plain lines");
+        assert!(partners_found > 1_000_000, "{partners_found} partners");
     }
 
     #[test]
