@@ -72,8 +72,9 @@
 //! long) are skipped in one step, so finding all partners of a line costs about its length. Most
 //! lines (four in five surfels of the Cornell box) hold one surfel per voxel and meet no open
 //! edge; they are searched without the line's voxel groups and open crossings and with none of
-//! the bookkeeping for voxel-mates and open edges (`plain_partners`; `LineView::nearest_plain`
-//! where only some searches are wanted), which gives the same partners. The surfels, radiosity and
+//! the bookkeeping for voxel-mates and open edges (`plain_partners`, for every search or only
+//! those a caller wants; a line whose search meets a side inside a solid from behind goes to
+//! `LineView::nearest_plain`), which gives the same partners. The surfels, radiosity and
 //! sums of the lines a little ahead are prefetched ([`gather_lines`]): they lie scattered over
 //! arrays far larger than the caches (about a sixth of the kernel's time went to waiting).
 //! Which side of each other's planes two pieces of one voxel lie on depends on them alone: it is
@@ -872,10 +873,9 @@ impl PlainLine<'_> {
 /// Whether the ray of line position `k`, searching ahead (`FORWARD`) or behind, crosses the
 /// plane of some target at the line positions `walked`, those of the voxels that search walks
 /// (from its own voxel's first surfel to the line's end, or from the start to its own voxel's
-/// last). Every partner a
-/// search returns (the piece it accepts, the piece of the same plane where the ray crosses it,
-/// an open sheet's piece before it) lies on a plane one of whose pieces passed the acceptance
-/// test ([`facing`]), whose first condition is that the ray crosses that plane ahead of the
+/// last). Every partner a search returns (the piece it accepts, the piece of the same plane
+/// where the ray crosses it, an open sheet's piece before it) lies on a plane one of whose pieces
+/// passed the acceptance test ([`facing`]), whose first condition is that the ray crosses that plane ahead of the
 /// receiver; the pieces of a plane group share its plane (to rounding, hence the margin). So a
 /// search whose ray crosses no target's plane cannot return a target.
 ///

@@ -24,12 +24,13 @@
 //! each surfel's light, by the surfel's place (`Held`), and the parts are added over the world
 //! once, at the end of the iteration, on the rank that owns the surfel's radiosity (a block of
 //! ids, `Owned`), which updates `B` and sends it back to every rank that has the surfel
-//! (`reduce`; a grey scene's parts and radiosity travel as one channel). So once the first iteration has brought each rank every surfel its lines will
-//! hold, an iteration whose links every rank of a group kept moves no surfel at all: it is the
-//! replay of the links of each direction, then that one exchange. Like the directions mode, a
-//! surfel's light is thus added in another grouping than on one process: the answer agrees with
-//! the one process's to rounding (on one rank, bit for bit), and it is the same for any thread
-//! count and after any resume.
+//! (`reduce`; a grey scene's parts and radiosity travel as one channel). So once the first
+//! iteration has brought each rank every surfel its lines will hold, an iteration whose links
+//! every rank of a group kept moves no surfel at all: it is the replay of the links of each
+//! direction, then that one exchange. Like the directions mode, a surfel's light is thus added
+//! in another grouping than on one process: the answer agrees with the one process's to
+//! rounding (on one rank, bit for bit), and it is the same for any thread count and after any
+//! resume.
 //!
 //! **The direct-light pass** (`solve::direct`) runs once before the iterations, as on one
 //! process: every rank holds the scene, so its dense directions are dealt over the world and its
