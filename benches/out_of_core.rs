@@ -194,7 +194,7 @@ fn main() {
             println!(
                 "         split (s): setup {:.2}, band reads {:.2}, dispatch {:.2}, propagate \
                  {:.2}, band writes {:.2}, updates {:.2}; {} bands, {} columns in blocks, {} \
-                 bands replayed in {} groups",
+                 bands replayed in {} groups; {} passes replayed {} directions with others",
                 o.setup_seconds,
                 o.read_seconds,
                 o.solve.dispatch_seconds,
@@ -204,7 +204,9 @@ fn main() {
                 o.bands,
                 o.tiled_columns,
                 o.replayed_bands,
-                o.replay_groups
+                o.replay_groups,
+                o.joint_passes,
+                o.joint_directions
             );
         }
     }

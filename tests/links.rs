@@ -176,7 +176,8 @@ fn links_kept_in_files_out_of_core_give_the_bits_of_searching_again() {
 
 /// Out of core, a replay reads the light of several bands of a direction at once and replays
 /// each band's links in place (`outcore::band`): at a budget of many bands a direction, the
-/// groups must join bands, and the answer must keep the bits of searching again.
+/// groups must join bands, directions of one slope must be replayed together, and the answer
+/// must keep the bits of searching again.
 #[test]
 fn replays_out_of_core_join_bands_and_keep_the_bits() {
     let scene = voxrad::gen::cornell_box();
@@ -227,6 +228,15 @@ fn replays_out_of_core_join_bands_and_keep_the_bits() {
         "the groups join bands: {} groups for {} bands",
         kept.replay_groups,
         kept.replayed_bands
+    );
+    // Directions of one slope along `v` share their bands (`outcore::solver`'s
+    // `replayed_together`): of the 49, at least a third are replayed with another one.
+    assert!(
+        kept.joint_passes > 0 && kept.joint_directions * 3 >= directions * 3,
+        "directions replayed together: {} passes, {} directions beyond one each, over 3 \
+         iterations of {directions} directions",
+        kept.joint_passes,
+        kept.joint_directions
     );
     assert!(
         replayed == searched,

@@ -96,6 +96,10 @@ pub struct BandTimes {
     /// consecutive bands of a direction at once, see `DirectionPass::replay_group`).
     pub replayed_bands: u64,
     pub replay_groups: u64,
+    /// Passes that replayed several directions together, and the directions they replayed
+    /// beyond one each (`super::solver`).
+    pub joint_passes: u64,
+    pub joint_directions: u64,
 }
 
 /// A block of lines: rows `i0..i0 + rows` of columns `j0..j0 + width`, numbered
@@ -171,24 +175,13 @@ impl DirectionPass<'_> {
             d.unit
         };
         let weight = d.solid_angle / std::f64::consts::PI;
-        // Surfels per line column j.
-        let columns = &mut buffers.columns;
-        columns.clear();
-        columns.resize(frame.nj as usize, 0);
-        for z in 0..copy.layers {
-            let sv = frame.layer_shift(z).1 as usize;
-            let row_counts = &self.histogram[z * copy.rows..(z + 1) * copy.rows];
-            for (v, &h) in row_counts.iter().enumerate() {
-                columns[v + sv] += h as u64;
-            }
-        }
+        self.count_columns(&frame, &mut buffers.columns);
         buffers.cursor.clear();
         buffers
             .cursor
             .extend_from_slice(&copy.layer_start[..copy.layers]);
         buffers.next_row.clear();
         buffers.next_row.resize(copy.layers, 0);
-        let max_width = (self.plan.band_lines / frame.ni.max(1)).max(1);
         let mut j0 = 0u64;
         while j0 < frame.nj {
             // A stop signal abandons the direction (the solver checks again after it and never
@@ -197,17 +190,7 @@ impl DirectionPass<'_> {
             if self.stops_on_signal && crate::interrupt::requested().is_some() {
                 return Ok(());
             }
-            // Widen the band while it fits.
-            let mut width = 0u64;
-            let mut surfels = 0u64;
-            while j0 + width < frame.nj && width < max_width {
-                let c = buffers.columns[(j0 + width) as usize];
-                if width > 0 && surfels + c > self.plan.band_surfels {
-                    break;
-                }
-                surfels += c;
-                width += 1;
-            }
+            let (width, surfels) = self.next_cut(&frame, &buffers.columns, j0);
             let block = Block {
                 i0: 0,
                 rows: frame.ni,
@@ -216,8 +199,7 @@ impl DirectionPass<'_> {
             };
             if surfels == 0 {
                 self.take_rows(&frame, j0 + width, buffers, false);
-            } else if surfels <= self.plan.band_surfels && frame.ni * width <= self.plan.band_lines
-            {
+            } else if self.whole_band(&frame, width, surfels) {
                 self.take_rows(&frame, j0 + width, buffers, true);
                 let band = Band { block, surfels };
                 self.process(&frame, unit, weight, band, links, buffers, io, times)?;
@@ -233,10 +215,68 @@ impl DirectionPass<'_> {
             }
             j0 += width;
         }
-        if let BandLinks::Replay(replaying) = links {
-            self.replay_group(replaying, buffers, io, times)?;
+        if let BandLinks::Replay(readers, scratch) = links {
+            self.replay_group(readers, scratch, buffers, io, times)?;
         }
         Ok(())
+    }
+
+    /// The surfels of each line column `j` of `frame` into `columns`.
+    fn count_columns(&self, frame: &LineFrame, columns: &mut Vec<u64>) {
+        let copy = self.copy;
+        columns.clear();
+        columns.resize(frame.nj as usize, 0);
+        for z in 0..copy.layers {
+            let sv = frame.layer_shift(z).1 as usize;
+            let row_counts = &self.histogram[z * copy.rows..(z + 1) * copy.rows];
+            for (v, &h) in row_counts.iter().enumerate() {
+                columns[v + sv] += h as u64;
+            }
+        }
+    }
+
+    /// The band that begins at column `j0`: its width in columns, widened while it fits, and
+    /// its surfels.
+    fn next_cut(&self, frame: &LineFrame, columns: &[u64], j0: u64) -> (u64, u64) {
+        let max_width = (self.plan.band_lines / frame.ni.max(1)).max(1);
+        let mut width = 0u64;
+        let mut surfels = 0u64;
+        while j0 + width < frame.nj && width < max_width {
+            let c = columns[(j0 + width) as usize];
+            if width > 0 && surfels + c > self.plan.band_surfels {
+                break;
+            }
+            surfels += c;
+            width += 1;
+        }
+        (width, surfels)
+    }
+
+    /// Whether the band of `width` columns holding `surfels` is solved whole (else its one
+    /// column is cut along `i` as well, [`Self::tiled_column`]).
+    fn whole_band(&self, frame: &LineFrame, width: u64, surfels: u64) -> bool {
+        surfels <= self.plan.band_surfels && frame.ni * width <= self.plan.band_lines
+    }
+
+    /// The bands of direction `d` as `(first column, width)`, the empty ones included, or
+    /// `None` where a column is cut along `i` (its tiles follow the direction's slope along
+    /// `u`). Directions whose lines have the same slope along `v` put every surfel in the same
+    /// column, so where their lists are equal their bands hold the same surfels in the same
+    /// order, and their links can be replayed together band by band (`super::solver`).
+    pub fn band_cuts(&self, d: &Direction, columns: &mut Vec<u64>) -> Option<Vec<(u64, u64)>> {
+        let frame = LineFrame::new(d.vector, self.dims);
+        self.count_columns(&frame, columns);
+        let mut cuts = Vec::new();
+        let mut j0 = 0u64;
+        while j0 < frame.nj {
+            let (width, surfels) = self.next_cut(&frame, columns, j0);
+            if surfels > 0 && !self.whole_band(&frame, width, surfels) {
+                return None;
+            }
+            cuts.push((j0, width));
+            j0 += width;
+        }
+        Some(cuts)
     }
 
     /// Advances the per-layer row cursors past the rows of columns below `j1`, and (if
@@ -383,10 +423,10 @@ impl DirectionPass<'_> {
         times: &mut BandTimes,
     ) -> Result<(), OocError> {
         let Band { block, surfels } = band;
-        if let BandLinks::Replay(replaying) = links {
+        if let BandLinks::Replay(readers, scratch) = links {
             let waiting: u64 = buffers.group.iter().map(|&(n, _)| n).sum();
             if waiting > 0 && waiting + surfels > self.plan.replay_surfels {
-                self.replay_group(replaying, buffers, io, times)?;
+                self.replay_group(readers, scratch, buffers, io, times)?;
             }
             buffers.group_ranges.extend_from_slice(&buffers.ranges);
             buffers.group.push((surfels, buffers.group_ranges.len()));
@@ -485,7 +525,8 @@ impl DirectionPass<'_> {
     /// the sections cost as much again: 2 s of the city building's 38 s at 64 MiB).
     fn replay_group(
         &self,
-        replaying: &mut super::links::Replaying,
+        readers: &mut [super::links::Replaying],
+        scratch: &mut super::links::LinkScratch,
         buffers: &mut BandBuffers,
         io: &mut IoCounters,
         times: &mut BandTimes,
@@ -582,14 +623,18 @@ impl DirectionPass<'_> {
         let mut base = 0usize;
         for &(surfels, _) in group.iter() {
             let n = surfels as usize;
-            let read = Instant::now();
-            let kept = replaying.band(n, io)?;
-            link_reads += read.elapsed().as_secs_f64();
-            kept.replay(
-                &radiosity[base..base + n],
-                self.channels,
-                &mut gathered[base..base + n],
-            );
+            // Directions replayed together add to each surfel in walk order, as one after the
+            // other would: the same bits.
+            for replaying in readers.iter_mut() {
+                let read = Instant::now();
+                let kept = replaying.band(n, scratch, io)?;
+                link_reads += read.elapsed().as_secs_f64();
+                kept.replay(
+                    &radiosity[base..base + n],
+                    self.channels,
+                    &mut gathered[base..base + n],
+                );
+            }
             base += n;
         }
         let t2 = Instant::now();
@@ -617,8 +662,9 @@ impl DirectionPass<'_> {
         times.read += (t1 - t0).as_secs_f64() + link_reads;
         times.propagate += (t2 - t1).as_secs_f64() - link_reads;
         times.write += t2.elapsed().as_secs_f64();
-        times.bands += group.len() as u64;
-        times.replayed_bands += group.len() as u64;
+        // A band counts once for each direction replayed on it.
+        times.bands += (group.len() * readers.len()) as u64;
+        times.replayed_bands += (group.len() * readers.len()) as u64;
         times.replay_groups += 1;
         group.clear();
         group_ranges.clear();

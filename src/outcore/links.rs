@@ -29,8 +29,18 @@ pub enum BandLinks<'a> {
     Search,
     /// Searches partners and writes each band's links down.
     Record(&'a mut Recording),
-    /// Replays each band's links, written down by an earlier pass.
-    Replay(&'a mut Replaying),
+    /// Replays each band's links, written down by an earlier pass: of one direction, or of
+    /// several whose bands are the same (one after the other on each band, in walk order; see
+    /// `outcore::solver`'s joint replays), each band's decoded in `scratch` in turn.
+    Replay(&'a mut [Replaying], &'a mut LinkScratch),
+}
+
+/// Where a band's links are read and decoded, one band at a time: shared by the directions
+/// replayed together, so that their memory is one band's links whatever their number.
+#[derive(Default)]
+pub struct LinkScratch {
+    buffer: Vec<u8>,
+    links: DirectionLinks,
 }
 
 /// A direction's links being written.
@@ -89,17 +99,17 @@ impl Recording {
 pub struct Replaying {
     path: PathBuf,
     input: BufReader<File>,
-    buffer: Vec<u8>,
-    links: DirectionLinks,
 }
 
 impl Replaying {
-    /// The links of the next band, which holds `surfels` surfels.
-    pub fn band(
+    /// The links of the next band, which holds `surfels` surfels, read into `scratch`.
+    pub fn band<'s>(
         &mut self,
         surfels: usize,
+        scratch: &'s mut LinkScratch,
         io: &mut IoCounters,
-    ) -> Result<&DirectionLinks, OocError> {
+    ) -> Result<&'s DirectionLinks, OocError> {
+        let LinkScratch { buffer, links } = scratch;
         let mut head = [0u8; 16];
         self.input
             .read_exact(&mut head)
@@ -121,20 +131,20 @@ impl Replaying {
                  the work files changed under the solve"
             )));
         }
-        self.buffer.resize(len as usize, 0);
+        buffer.resize(len as usize, 0);
         self.input
-            .read_exact(&mut self.buffer)
+            .read_exact(buffer)
             .map_err(|e| OocError::io(&self.path, "read", e))?;
         io.read += 16 + len;
-        self.links
-            .decode(&self.buffer)
+        links
+            .decode(buffer)
             .ok_or_else(|| bad("a band's links are damaged".to_string()))?;
-        if self.links.surfels_named() > surfels {
+        if links.surfels_named() > surfels {
             return Err(bad(
                 "a band's links name surfels beyond the band".to_string()
             ));
         }
-        Ok(&self.links)
+        Ok(links)
     }
 }
 
@@ -149,13 +159,15 @@ pub struct LinkStore {
     tried: Vec<bool>,
     buffer_bytes: usize,
     current: Option<Current>,
+    scratch: LinkScratch,
     /// Surfels of the scene (for the bytes per surfel-direction).
     surfels: u64,
 }
 
 enum Current {
     Record(usize, Recording),
-    Replay(Replaying),
+    /// One direction's links, or several replayed together ([`LinkStore::begin_jointly`]).
+    Replay(Vec<Replaying>),
 }
 
 impl LinkStore {
@@ -174,6 +186,7 @@ impl LinkStore {
             tried: vec![false; directions],
             buffer_bytes: buffer_bytes.max(4 << 10),
             current: None,
+            scratch: LinkScratch::default(),
             surfels,
         }
     }
@@ -188,13 +201,8 @@ impl LinkStore {
         self.tried[d] = true;
         let path = self.path(d);
         if self.kept[d].is_some() {
-            let file = File::open(&path).map_err(|e| OocError::io(&path, "open", e))?;
-            self.current = Some(Current::Replay(Replaying {
-                input: BufReader::with_capacity(self.buffer_bytes, file),
-                path,
-                buffer: Vec::new(),
-                links: DirectionLinks::default(),
-            }));
+            let replaying = self.open(d, self.buffer_bytes)?;
+            self.current = Some(Current::Replay(vec![replaying]));
         } else if self.allowance > 0 {
             match File::create(&path) {
                 Ok(file) => {
@@ -220,12 +228,42 @@ impl LinkStore {
         Ok(())
     }
 
+    /// Whether direction `d`'s links are kept (its passes replay them).
+    pub fn is_kept(&self, d: usize) -> bool {
+        self.kept[d].is_some()
+    }
+
+    /// Opens the kept links of directions `ds` (each [`LinkStore::is_kept`]) to be replayed
+    /// together, band by band: their read buffers share the one direction's room.
+    pub fn begin_jointly(&mut self, ds: &[usize]) -> Result<(), OocError> {
+        self.current = None;
+        let capacity = (self.buffer_bytes / ds.len().max(1)).max(4 << 10);
+        let mut readers = Vec::with_capacity(ds.len());
+        for &d in ds {
+            debug_assert!(self.is_kept(d));
+            self.tried[d] = true;
+            readers.push(self.open(d, capacity)?);
+        }
+        self.current = Some(Current::Replay(readers));
+        Ok(())
+    }
+
+    /// Direction `d`'s kept links, read through a buffer of `capacity` bytes.
+    fn open(&self, d: usize, capacity: usize) -> Result<Replaying, OocError> {
+        let path = self.path(d);
+        let file = File::open(&path).map_err(|e| OocError::io(&path, "open", e))?;
+        Ok(Replaying {
+            input: BufReader::with_capacity(capacity, file),
+            path,
+        })
+    }
+
     /// What the pass of the direction begun does with its bands' links.
     pub fn band_links(&mut self) -> BandLinks<'_> {
         match &mut self.current {
             None => BandLinks::Search,
             Some(Current::Record(_, r)) => BandLinks::Record(r),
-            Some(Current::Replay(r)) => BandLinks::Replay(r),
+            Some(Current::Replay(readers)) => BandLinks::Replay(readers, &mut self.scratch),
         }
     }
 

@@ -11,6 +11,14 @@
 //! it); the axis copies then receive `B - E` instead of `B`, written beside the canonical
 //! radiosity after each update, and the bands gather only the reflected light, as in memory.
 //!
+//! **Directions replayed together.** Lines of the same slope along `v` put every surfel in the
+//! same column, so such directions (the walk puts them next to each other; a cube direction
+//! set has about `2 N + 1` of them in a row) have the same bands. Once their links are kept, a
+//! pass replays them together ([`replayed_together`]): each band's light is read and written
+//! once, and the directions' links are replayed on it one after the other in walk order, the
+//! same terms in the same order as direction after direction. The steps of the directions
+//! after the first do nothing, and a checkpoint waits for the pass's end.
+//!
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
 //! copies from the source, their radiosity from the canonical file). Inside an iteration
@@ -23,9 +31,9 @@
 //! resume puts the sum back, scatters the axis's light back into its copy's order and goes on
 //! with the next direction, adding to it; f64 values kept exactly give the same bits.
 //!
-//! That light is whole on disk between any two directions because the two shared gathered files
-//! are used in turn (`WorkSet::gathered`): a direction reads the light of the ones before it from
-//! one and writes it, with its own, to the other. Stop signals are heard between directions (the
+//! That light is whole on disk between any two passes because the two shared gathered files
+//! are used in turn (`WorkSet::gathered`): a pass reads the light of the directions before it
+//! from one and writes it, with its own, to the other. Stop signals are heard between directions (the
 //! loop's agreement) and between bands inside a direction (on a large scene one direction can
 //! take minutes); a direction stopped so is abandoned, and the file it read from still holds the
 //! directions before it.
@@ -76,6 +84,10 @@ pub struct OocStats {
     /// (several bands of a direction at once where the budget holds them).
     pub replayed_bands: u64,
     pub replay_groups: u64,
+    /// Passes that replayed several directions' links together, and the directions they
+    /// replayed beyond one each (see `replayed_together`).
+    pub joint_passes: u64,
+    pub joint_directions: u64,
 }
 
 /// The result: statistics and the work set whose canonical radiosity file holds the answer.
@@ -211,6 +223,57 @@ pub fn walk_by_axis(directions: &DirectionSet) -> Vec<Vec<usize>> {
         .collect()
 }
 
+/// Directions replayed together at most: their links files are read side by side, each
+/// through its share of one direction's read buffer.
+const MOST_TOGETHER: usize = 16;
+
+/// The directions a pass from direction `k` of an axis's walk `axis` gathers: that one alone,
+/// or with the directions after it whose links are replayed together with its own, band by
+/// band, reading and writing each band's light once for all of them instead of once each.
+/// They must be kept, and have the same bands (`DirectionPass::band_cuts`) holding the same
+/// surfels in the same order: lines of the same slope along `v` (the walk puts them next to
+/// each other) put every surfel in the same column. Each band's links are replayed in walk
+/// order, so each surfel adds the same terms in the same order as direction after direction.
+fn replayed_together(
+    pass: &DirectionPass,
+    directions: &DirectionSet,
+    axis: &[usize],
+    k: usize,
+    links: &LinkStore,
+) -> Vec<usize> {
+    let first = axis[k];
+    let mut together = vec![first];
+    if !links.is_kept(first) {
+        return together;
+    }
+    let mut columns = Vec::new();
+    let vector = |d: usize| directions.directions[d].vector;
+    let Some(cuts) = pass.band_cuts(&directions.directions[first], &mut columns) else {
+        return together;
+    };
+    let slope = v_slope(vector(first));
+    for &d in &axis[k + 1..] {
+        let (b, c) = v_slope(vector(d));
+        if together.len() == MOST_TOGETHER || !links.is_kept(d) || b * slope.1 != slope.0 * c {
+            break;
+        }
+        if pass.band_cuts(&directions.directions[d], &mut columns).as_ref() != Some(&cuts) {
+            break;
+        }
+        together.push(d);
+    }
+    together
+}
+
+/// The slope along `v` of the lines of direction `vector`, as `(b, c)` for `b / c` (`c > 0`,
+/// the main axis's component): the column shift of every layer depends on it alone
+/// (`geometry::lines`).
+fn v_slope(vector: [i64; 3]) -> (i64, i64) {
+    let (main, _, v) = crate::geometry::lines::axes(vector);
+    let sign = vector[main].signum();
+    (sign * vector[v], sign * vector[main])
+}
+
 /// Makes glibc's malloc serve every thread from one arena. By default each thread may get its
 /// own arena, which reserves 64 MiB of address space: under an address-space limit below that,
 /// creating it fails, and glibc retries (an `mmap` that fails) on many later allocations. Under
@@ -308,8 +371,9 @@ fn run(
     };
 
     let by_axis = walk_by_axis(directions);
-    // Each copy's files twice: direction `k` of an axis reads the light of the directions
-    // before it from gathered file `(k + 1) % 2` and writes to file `k % 2` (see `WorkSet`).
+    // Each copy's files twice: a pass of an axis reads the light of the directions before it
+    // from one gathered file and writes to the other: `files[m][w]` writes file `w` (see
+    // `WorkSet` and `OutOfCore::light_file`).
     let files: Vec<[CopyFiles; 2]> = work
         .copies
         .iter()
@@ -369,6 +433,8 @@ fn run(
         previous,
         direct: direct.as_ref().map(|d| d.path.clone()),
         at: resume_at,
+        light_file: resume_at.directions.saturating_sub(1) % 2,
+        gathered_until: 0,
         summed: false,
         histogram: None,
         buffers: BandBuffers::default(),
@@ -425,6 +491,8 @@ fn run(
     stats.tiled_columns = times.tiled_columns;
     stats.replayed_bands = times.replayed_bands;
     stats.replay_groups = times.replay_groups;
+    stats.joint_passes = times.joint_passes;
+    stats.joint_directions = times.joint_directions;
     stats.bytes_read = io.read;
     stats.bytes_written = io.written;
     Ok(OocSolution {
@@ -454,6 +522,13 @@ struct OutOfCore<'a> {
     direct: Option<std::path::PathBuf>,
     /// The light gathered so far in this iteration.
     at: Position,
+    /// The gathered file that holds the light of the axis's directions done (`at.directions >
+    /// 0`): each pass writes the other one. Resuming inside an axis, the light is put back
+    /// into file `(directions - 1) % 2`.
+    light_file: usize,
+    /// The steps of this iteration gathered: beyond the step in progress where directions
+    /// were replayed together ([`OutOfCore::joint_end`]).
+    gathered_until: usize,
     /// Whether the canonical sum holds any axis's light of this iteration.
     summed: bool,
     /// The row histogram of the axis in progress.
@@ -538,6 +613,7 @@ impl Sweep for OutOfCore<'_> {
         if from == 0 {
             self.at = Position::default();
         }
+        self.gathered_until = from;
         debug_assert_eq!(self.axes.done(self.at), from as u64);
         // Whether the canonical sum holds any axis's light yet (else the next fold starts it).
         self.summed = self.by_axis[..self.at.axes].iter().any(|a| !a.is_empty());
@@ -545,16 +621,22 @@ impl Sweep for OutOfCore<'_> {
     }
 
     fn step(&mut self, step: usize) -> Result<bool, OocError> {
+        if step < self.gathered_until {
+            // Replayed together with an earlier direction of this pass.
+            return Ok(true);
+        }
         let (m, k) = self.place(step);
         let copy = &self.work.copies[m];
         if self.histogram.as_ref().is_none_or(|(axis, _)| *axis != m) {
             self.histogram = Some((m, copy.load_histogram(self.plan)?));
         }
         let (_, histogram) = self.histogram.as_ref().expect("just loaded");
-        let d = self.by_axis[m][k];
+        // The axis's first direction writes file 0 and reads nothing; each pass after it reads
+        // the light from the file that holds it and writes the other.
+        let write = if k == 0 { 0 } else { 1 - self.light_file };
         let pass = DirectionPass {
             copy,
-            files: &self.files[m][k % 2],
+            files: &self.files[m][write],
             histogram,
             dims: self.source.info().grid.dims,
             plan: self.plan,
@@ -563,7 +645,13 @@ impl Sweep for OutOfCore<'_> {
             first: k == 0,
             stops_on_signal: true,
         };
-        self.links.begin(d)?;
+        let together = replayed_together(&pass, self.directions, &self.by_axis[m], k, &self.links);
+        let d = together[0];
+        if together.len() > 1 {
+            self.links.begin_jointly(&together)?;
+        } else {
+            self.links.begin(d)?;
+        }
         pass.run(
             &self.directions.directions[d],
             &mut self.links.band_links(),
@@ -578,18 +666,23 @@ impl Sweep for OutOfCore<'_> {
         if stopped {
             return Ok(false);
         }
+        let done = k + together.len();
+        self.times.joint_passes += (together.len() > 1) as u64;
+        self.times.joint_directions += (together.len() - 1) as u64;
+        self.light_file = write;
+        self.gathered_until = step + together.len();
         self.at = Position {
             axes: m,
-            directions: k + 1,
+            directions: done,
         };
-        if k + 1 == self.by_axis[m].len() {
+        if done == self.by_axis[m].len() {
             // What comes next (the fold, a checkpoint, the update) takes the memory a band
             // holds.
             self.histogram = None;
             drop(std::mem::take(&mut self.buffers));
             // This axis's light joins the canonical sum before the next axis reuses the files.
             let t = Instant::now();
-            let last_file = &self.work.gathered[k % 2];
+            let last_file = &self.work.gathered[self.light_file];
             fold_gathered(
                 copy,
                 last_file,
@@ -609,8 +702,9 @@ impl Sweep for OutOfCore<'_> {
     }
 
     fn can_save_within(&self, done: usize) -> bool {
-        // After the last direction the iteration's boundary is next.
-        done < self.directions.len()
+        // After the last direction the iteration's boundary is next; inside directions replayed
+        // together, the light holds the later ones already.
+        done < self.directions.len() && done >= self.gathered_until
     }
 
     fn save_within(
@@ -628,7 +722,7 @@ impl Sweep for OutOfCore<'_> {
             save_in_axis(
                 saver,
                 state,
-                (&self.axes, self.at),
+                (&self.axes, self.at, self.light_file),
                 &self.work.copies[self.at.axes],
                 (self.summed, older.as_deref()),
                 (self.work, self.plan),
@@ -811,7 +905,7 @@ fn save_between_axes(
 fn save_in_axis(
     saver: &mut Saver,
     mut state: crate::checkpoint::State,
-    (axes, at): (&AxisSpans, Position),
+    (axes, at, light_file): (&AxisSpans, Position, usize),
     copy: &AxisCopy,
     (summed, older): (bool, Option<&Path>),
     (work, plan): (&WorkSet, &MemoryPlan),
@@ -819,7 +913,7 @@ fn save_in_axis(
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     state.within = Some(axes.done(at));
     state.axis_in_progress = true;
-    let gathered = &work.gathered[(at.directions - 1) % 2];
+    let gathered = &work.gathered[light_file];
     saver.save(state, plan.io_bytes, |w| {
         copy_radiosity(older, work, plan, w)?;
         if summed {

@@ -63,9 +63,10 @@ pub struct WorkSet {
     /// Radiosity in canonical order.
     pub canonical_radiosity: PathBuf,
     /// Light gathered by the directions of the axis being solved, in that copy's order (the
-    /// files serve the three copies in turn): direction `k` of an axis reads the light of the
-    /// directions before it from file `(k - 1) % 2` and writes it with its own to file `k % 2`,
-    /// so the light of the directions done is whole on disk between any two of them.
+    /// files serve the three copies in turn): a pass over an axis's copy (one direction, or
+    /// several replayed together) reads the light of the directions before it from one file
+    /// and writes it with its own to the other (the axis's first pass writes file 0), so the
+    /// light of the directions done is whole on disk between any two passes.
     pub gathered: [PathBuf; 2],
     /// Light gathered this iteration by the axes done so far, in canonical order.
     pub canonical_gathered: PathBuf,
