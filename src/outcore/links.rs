@@ -367,11 +367,14 @@ mod tests {
             (1, "files")
         );
         store.begin(0).unwrap();
-        let BandLinks::Replay(r) = store.band_links() else {
+        let BandLinks::Replay(readers, scratch) = store.band_links() else {
             panic!("a kept direction replays")
         };
-        r.band(5, &mut io).unwrap();
-        let e = r.band(6, &mut io).unwrap_err();
+        let [r] = readers else {
+            panic!("one direction begun, one reader")
+        };
+        r.band(5, scratch, &mut io).unwrap();
+        let e = r.band(6, scratch, &mut io).unwrap_err();
         assert!(e.to_string().contains("7 surfels"), "{e}");
     }
 

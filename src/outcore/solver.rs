@@ -257,7 +257,11 @@ fn replayed_together(
         if together.len() == MOST_TOGETHER || !links.is_kept(d) || b * slope.1 != slope.0 * c {
             break;
         }
-        if pass.band_cuts(&directions.directions[d], &mut columns).as_ref() != Some(&cuts) {
+        if pass
+            .band_cuts(&directions.directions[d], &mut columns)
+            .as_ref()
+            != Some(&cuts)
+        {
             break;
         }
         together.push(d);
