@@ -1,10 +1,10 @@
 //! The out-of-core solver, a sweep of the one iteration loop (`solve::iterate`): directions
 //! grouped by main axis, each solved band by band ([`super::band`]); then the light gathered in
 //! the three copies is brought to canonical order, `B = E + rho H / S(n)` is computed there,
-//! and the new radiosity is sent back to the copies ([`super::scatter`]). As in memory, a grey scene
-//! gathers one channel, and the tail extrapolation (`solve::accelerate`) runs on the canonical
-//! file chunk by chunk, from the radiosity the update replaced (kept in one more work file).
-//! Every surfel is updated by `solve::update`, as in every other loop.
+//! and the new radiosity is sent back to the copies ([`super::scatter`]). As in memory, a grey
+//! scene gathers one channel, and the tail extrapolation (`solve::accelerate`) runs on the
+//! canonical file chunk by chunk, from the radiosity the update replaced (kept in one more work
+//! file). Every surfel is updated by `solve::update`, as in every other loop.
 //!
 //! **The direct-light pass** ([`super::direct`]) runs once after the first update (`B = E`),
 //! into a direct-light file in canonical order that every update reads (`B` gains `rho` times
@@ -22,7 +22,7 @@
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
 //! copies from the source, their radiosity from the canonical file). Inside an iteration
-//! (`Saver::within`) a checkpoint can be written between any two directions, when one is due
+//! (`Saver::within`) a checkpoint can be written between any two passes, when one is due
 //! or on a stop signal ([`Position`]: the axes folded and the directions done of the next).
 //! Between two main axes it adds the canonical sum of the light gathered by the axes done (the
 //! same bytes the sum file holds). Inside an axis it also holds that axis's light so far,
@@ -33,10 +33,10 @@
 //!
 //! That light is whole on disk between any two passes because the two shared gathered files
 //! are used in turn (`WorkSet::gathered`): a pass reads the light of the directions before it
-//! from one and writes it, with its own, to the other. Stop signals are heard between directions (the
-//! loop's agreement) and between bands inside a direction (on a large scene one direction can
-//! take minutes); a direction stopped so is abandoned, and the file it read from still holds the
-//! directions before it.
+//! from one and writes it, with its own, to the other. Stop signals are heard between
+//! directions (the loop's agreement) and between bands inside a pass (on a large scene one
+//! direction can take minutes); a pass stopped so is abandoned, and the file it read from still
+//! holds the directions before it.
 
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
@@ -531,7 +531,7 @@ struct OutOfCore<'a> {
     /// into file `(directions - 1) % 2`.
     light_file: usize,
     /// The steps of this iteration gathered: beyond the step in progress where directions
-    /// were replayed together ([`OutOfCore::joint_end`]).
+    /// were replayed together ([`replayed_together`]).
     gathered_until: usize,
     /// Whether the canonical sum holds any axis's light of this iteration.
     summed: bool,
