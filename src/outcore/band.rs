@@ -2,7 +2,9 @@
 //! columns into bands that fit the budget, reading a band's ranges of its axis copy, running the
 //! in-memory dispatch and propagation on it (or, once its partner links are kept, replaying
 //! them: `super::links`), and adding the gathered light to the copy's file (in place, or read
-//! from one file and written to another, see [`CopyFiles::previous`]).
+//! from one file and written to another, see [`CopyFiles::previous`]). Directions with the
+//! same bands can share a pass ([`DirectionPass::run_together`]): each band is read once and
+//! each direction's lines are gathered on it in turn.
 
 use super::budget::MemoryPlan;
 use super::files::{
@@ -162,20 +164,28 @@ impl DirectionPass<'_> {
         io: &mut IoCounters,
         times: &mut BandTimes,
     ) -> Result<(), OocError> {
+        self.run_together(&[d], links, buffers, io, times)
+    }
+
+    /// Solves directions `ds` over the whole copy in one pass: each band is read once, and
+    /// each direction's lines are gathered on it in turn, in the order of `ds`. Several
+    /// directions must have the same bands ([`Self::band_cuts`]); `links` names one recording
+    /// or reader per direction (or searches for all).
+    pub fn run_together(
+        &self,
+        ds: &[&Direction],
+        links: &mut BandLinks,
+        buffers: &mut BandBuffers,
+        io: &mut IoCounters,
+        times: &mut BandTimes,
+    ) -> Result<(), OocError> {
         let copy = self.copy;
-        let frame = LineFrame::new(d.vector, self.dims);
-        debug_assert_eq!((frame.main, frame.u, frame.v), (copy.main, copy.u, copy.v));
+        let alongs: Vec<Along> = ds.iter().map(|d| Along::new(d, copy, self.dims)).collect();
+        let Along { frame, .. } = &alongs[0];
         // What an earlier direction stopped by a signal left waiting.
         buffers.group.clear();
         buffers.group_ranges.clear();
-        // Lines run through the layers in increasing order: point the search that way.
-        let unit = if d.vector[copy.main] < 0 {
-            -d.unit
-        } else {
-            d.unit
-        };
-        let weight = d.solid_angle / std::f64::consts::PI;
-        self.count_columns(&frame, &mut buffers.columns);
+        self.count_columns(frame, &mut buffers.columns);
         buffers.cursor.clear();
         buffers
             .cursor
@@ -190,7 +200,7 @@ impl DirectionPass<'_> {
             if self.stops_on_signal && crate::interrupt::requested().is_some() {
                 return Ok(());
             }
-            let (width, surfels) = self.next_cut(&frame, &buffers.columns, j0);
+            let (width, surfels) = self.next_cut(frame, &buffers.columns, j0);
             let block = Block {
                 i0: 0,
                 rows: frame.ni,
@@ -198,20 +208,25 @@ impl DirectionPass<'_> {
                 width,
             };
             if surfels == 0 {
-                self.take_rows(&frame, j0 + width, buffers, false);
-            } else if self.whole_band(&frame, width, surfels) {
-                self.take_rows(&frame, j0 + width, buffers, true);
+                self.take_rows(frame, j0 + width, buffers, false);
+            } else if self.whole_band(frame, width, surfels) {
+                self.take_rows(frame, j0 + width, buffers, true);
                 let band = Band { block, surfels };
-                self.process(&frame, unit, weight, band, links, buffers, io, times)?;
+                self.process(&alongs, band, links, buffers, io, times)?;
             } else {
                 // One column too big for a band (a floor seen along its own plane): cut it
-                // along i as well.
+                // along i as well. Its tiles follow the slope along `u`: one direction only.
+                assert_eq!(
+                    alongs.len(),
+                    1,
+                    "directions passed together have whole bands"
+                );
                 let column = Column {
-                    vector: d.vector,
+                    vector: ds[0].vector,
                     j0,
                     surfels,
                 };
-                self.tiled_column(&frame, unit, weight, column, links, buffers, io, times)?;
+                self.tiled_column(&alongs[0], column, links, buffers, io, times)?;
             }
             j0 += width;
         }
@@ -314,12 +329,9 @@ impl DirectionPass<'_> {
     /// Solves a column `j0` holding `surfels`, in blocks of rows `i` that fit the budget. In each
     /// layer the column is one row of the copy, sorted by `u`, so a block's part of it is a
     /// contiguous range found by binary search.
-    #[allow(clippy::too_many_arguments)]
     fn tiled_column(
         &self,
-        frame: &LineFrame,
-        unit: glam::DVec3,
-        weight: f64,
+        along: &Along,
         column: Column,
         links: &mut BandLinks,
         buffers: &mut BandBuffers,
@@ -331,6 +343,7 @@ impl DirectionPass<'_> {
             j0,
             surfels,
         } = column;
+        let frame = &along.frame;
         // This column's range of the copy in each layer: [from, to).
         let mut spans: Vec<(usize, u64, u64)> = Vec::new();
         let cursor_before: Vec<u64> = buffers.cursor.clone();
@@ -398,7 +411,8 @@ impl DirectionPass<'_> {
                     block,
                     surfels: count,
                 };
-                self.process(frame, unit, weight, band, links, buffers, io, times)?;
+                let one = std::slice::from_ref(along);
+                self.process(one, band, links, buffers, io, times)?;
             }
             remaining -= count;
             i0 += rows;
@@ -409,13 +423,12 @@ impl DirectionPass<'_> {
     /// Reads the records of `buffers.ranges` (`band.surfels` of them), solves their lines,
     /// which all lie in `band.block`, and adds the light gathered to the copy's file. A replay
     /// of links only sets the band aside: its light is read, and its links replayed, with the
-    /// bands after it ([`Self::replay_group`]).
-    #[allow(clippy::too_many_arguments)]
+    /// bands after it ([`Self::replay_group`]). With several directions (`alongs`, whose bands
+    /// are the same), the band is read once and each direction's lines are gathered on it in
+    /// turn; `band.block` is the first one's.
     fn process(
         &self,
-        frame: &LineFrame,
-        unit: glam::DVec3,
-        weight: f64,
+        alongs: &[Along],
         band: Band,
         links: &mut BandLinks,
         buffers: &mut BandBuffers,
@@ -475,36 +488,50 @@ impl DirectionPass<'_> {
             ..
         } = buffers;
         self.read_light(ranges.iter().copied(), n, radiosity, gathered, io)?;
-        let t1 = Instant::now();
-        let numbering = BandNumbering { frame, block };
-        dispatch(
-            &buffers.entries,
-            &numbering,
-            self.threads,
-            &mut buffers.lines,
-        );
-        let t2 = Instant::now();
-        let input = DirectionInput {
-            unit,
-            weight,
-            surfels: &buffers.props,
-            radiosity: &buffers.radiosity,
-            channels: self.channels,
-        };
-        let (lines, acc) = (&buffers.lines, &mut buffers.gathered);
-        if let BandLinks::Record(recording) = links {
-            let kept = gather_and_record(lines, &input, acc, self.threads);
-            recording.band(n, &kept, io)?;
-        } else {
-            gather_all_lines(lines, &input, acc, self.threads);
+        times.read += t0.elapsed().as_secs_f64();
+        for (k, along) in alongs.iter().enumerate() {
+            let t1 = Instant::now();
+            // A band of several directions holds whole columns: every row `i` of each.
+            let block = if k == 0 {
+                block
+            } else {
+                Block {
+                    rows: along.frame.ni,
+                    ..block
+                }
+            };
+            let numbering = BandNumbering {
+                frame: &along.frame,
+                block,
+            };
+            dispatch(
+                &buffers.entries,
+                &numbering,
+                self.threads,
+                &mut buffers.lines,
+            );
+            let t2 = Instant::now();
+            let input = DirectionInput {
+                unit: along.unit,
+                weight: along.weight,
+                surfels: &buffers.props,
+                radiosity: &buffers.radiosity,
+                channels: self.channels,
+            };
+            let (lines, acc) = (&buffers.lines, &mut buffers.gathered);
+            if let BandLinks::Record(recordings) = links {
+                let kept = gather_and_record(lines, &input, acc, self.threads);
+                recordings[k].band(n, &kept, io)?;
+            } else {
+                gather_all_lines(lines, &input, acc, self.threads);
+            }
+            times.dispatch += (t2 - t1).as_secs_f64();
+            times.propagate += t2.elapsed().as_secs_f64();
+            times.bands += 1;
         }
         let t3 = Instant::now();
         self.write_light(buffers.ranges.iter().copied(), &buffers.gathered, io)?;
-        times.read += (t1 - t0).as_secs_f64();
-        times.dispatch += (t2 - t1).as_secs_f64();
-        times.propagate += (t3 - t2).as_secs_f64();
         times.write += t3.elapsed().as_secs_f64();
-        times.bands += 1;
         Ok(())
     }
 
@@ -780,6 +807,31 @@ fn for_each_run(
         k = end;
     }
     Ok(())
+}
+
+/// One direction of a pass: its lines, the unit vector its searches point along (the way the
+/// lines run through the layers, in increasing order), and its weight.
+struct Along {
+    frame: LineFrame,
+    unit: glam::DVec3,
+    weight: f64,
+}
+
+impl Along {
+    fn new(d: &Direction, copy: &AxisCopy, dims: [u32; 3]) -> Self {
+        let frame = LineFrame::new(d.vector, dims);
+        debug_assert_eq!((frame.main, frame.u, frame.v), (copy.main, copy.u, copy.v));
+        let unit = if d.vector[copy.main] < 0 {
+            -d.unit
+        } else {
+            d.unit
+        };
+        Along {
+            frame,
+            unit,
+            weight: d.solid_angle / std::f64::consts::PI,
+        }
+    }
 }
 
 /// The lines of one band and the surfels they hold.

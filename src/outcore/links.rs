@@ -12,8 +12,10 @@
 //! The files take disk, not memory: at most an allowance (`--links-disk`; by default half of
 //! what is free once the work files are made). The directions are recorded in walk order while
 //! the allowance lasts; a direction that does not fit, or whose file could not be written (a full
-//! disk), is searched again in every iteration, as before. A band holds its links in memory while
-//! it is gathered (counted in `budget::BAND_BYTES_PER_SURFEL`).
+//! disk), is searched again in every iteration, as before. Directions gathered in one pass
+//! (`DirectionPass::run_together`) record side by side, each within an equal share of what is
+//! left of the allowance. A band holds its links in memory while it is gathered (counted in
+//! `budget::BAND_BYTES_PER_SURFEL`).
 
 use super::files::IoCounters;
 use super::OocError;
@@ -27,8 +29,9 @@ use std::path::{Path, PathBuf};
 pub enum BandLinks<'a> {
     /// Searches partners, as without links.
     Search,
-    /// Searches partners and writes each band's links down.
-    Record(&'a mut Recording),
+    /// Searches partners and writes each band's links down (one recording per direction of
+    /// the pass).
+    Record(&'a mut [Recording]),
     /// Replays each band's links, written down by an earlier pass: of one direction, or of
     /// several whose bands are the same (one after the other on each band, in walk order; see
     /// `outcore::solver`'s joint replays), each band's decoded in `scratch` in turn.
@@ -165,8 +168,9 @@ pub struct LinkStore {
 }
 
 enum Current {
-    Record(usize, Recording),
-    /// One direction's links, or several replayed together ([`LinkStore::begin_jointly`]).
+    /// The directions recorded, and their recordings.
+    Record(Vec<usize>, Vec<Recording>),
+    /// One direction's links, or several replayed together ([`LinkStore::begin_together`]).
     Replay(Vec<Replaying>),
 }
 
@@ -197,35 +201,7 @@ impl LinkStore {
 
     /// Opens direction `d`'s links: replayed when kept, recorded while the allowance lasts.
     pub fn begin(&mut self, d: usize) -> Result<(), OocError> {
-        self.current = None;
-        self.tried[d] = true;
-        let path = self.path(d);
-        if self.kept[d].is_some() {
-            let replaying = self.open(d, self.buffer_bytes)?;
-            self.current = Some(Current::Replay(vec![replaying]));
-        } else if self.allowance > 0 {
-            match File::create(&path) {
-                Ok(file) => {
-                    self.current = Some(Current::Record(
-                        d,
-                        Recording {
-                            out: BufWriter::with_capacity(self.buffer_bytes, file),
-                            path,
-                            written: 0,
-                            allowance: self.allowance,
-                            abandoned: false,
-                            buffer: Vec::new(),
-                        },
-                    ))
-                }
-                Err(e) => {
-                    tracing::warn!(file = %path.display(), error = %e,
-                        "could not create a partner links file; directions search them again");
-                    self.allowance = 0;
-                }
-            }
-        }
-        Ok(())
+        self.begin_together(&[d])
     }
 
     /// Whether direction `d`'s links are kept (its passes replay them).
@@ -233,18 +209,54 @@ impl LinkStore {
         self.kept[d].is_some()
     }
 
-    /// Opens the kept links of directions `ds` (each [`LinkStore::is_kept`]) to be replayed
-    /// together, band by band: their read buffers share the one direction's room.
-    pub fn begin_jointly(&mut self, ds: &[usize]) -> Result<(), OocError> {
+    /// Opens the links of directions `ds`, gathered in one pass band by band (see
+    /// `DirectionPass::run_together`): all kept and replayed, or none kept and recorded while
+    /// the allowance lasts, each then allowed its share of it. Their files' buffers share the
+    /// one direction's room.
+    pub fn begin_together(&mut self, ds: &[usize]) -> Result<(), OocError> {
         self.current = None;
-        let capacity = (self.buffer_bytes / ds.len().max(1)).max(4 << 10);
-        let mut readers = Vec::with_capacity(ds.len());
+        let share = ds.len().max(1);
+        let capacity = (self.buffer_bytes / share).max(4 << 10);
         for &d in ds {
-            debug_assert!(self.is_kept(d));
             self.tried[d] = true;
-            readers.push(self.open(d, capacity)?);
         }
-        self.current = Some(Current::Replay(readers));
+        let kept = ds.iter().filter(|&&d| self.is_kept(d)).count();
+        assert!(
+            kept == 0 || kept == ds.len(),
+            "directions gathered together are all kept or none"
+        );
+        if kept > 0 {
+            let readers = ds
+                .iter()
+                .map(|&d| self.open(d, capacity))
+                .collect::<Result<_, _>>()?;
+            self.current = Some(Current::Replay(readers));
+        } else if self.allowance > 0 {
+            let mut recordings = Vec::with_capacity(ds.len());
+            for &d in ds {
+                let path = self.path(d);
+                match File::create(&path) {
+                    Ok(file) => recordings.push(Recording {
+                        out: BufWriter::with_capacity(capacity, file),
+                        path,
+                        written: 0,
+                        allowance: self.allowance / share as u64,
+                        abandoned: false,
+                        buffer: Vec::new(),
+                    }),
+                    Err(e) => {
+                        tracing::warn!(file = %path.display(), error = %e,
+                            "could not create a partner links file; directions search them again");
+                        self.allowance = 0;
+                        for r in recordings {
+                            let _ = std::fs::remove_file(&r.path);
+                        }
+                        return Ok(());
+                    }
+                }
+            }
+            self.current = Some(Current::Record(ds.to_vec(), recordings));
+        }
         Ok(())
     }
 
@@ -262,7 +274,7 @@ impl LinkStore {
     pub fn band_links(&mut self) -> BandLinks<'_> {
         match &mut self.current {
             None => BandLinks::Search,
-            Some(Current::Record(_, r)) => BandLinks::Record(r),
+            Some(Current::Record(_, recordings)) => BandLinks::Record(recordings),
             Some(Current::Replay(readers)) => BandLinks::Replay(readers, &mut self.scratch),
         }
     }
@@ -270,7 +282,10 @@ impl LinkStore {
     /// Ends the direction begun; `whole`: its pass ran over every band (not stopped by a
     /// signal), so that a recorded file can be kept.
     pub fn end(&mut self, whole: bool) {
-        if let Some(Current::Record(d, recording)) = self.current.take() {
+        let Some(Current::Record(ds, recordings)) = self.current.take() else {
+            return;
+        };
+        for (d, recording) in ds.into_iter().zip(recordings) {
             let Recording {
                 path,
                 out,
@@ -336,7 +351,7 @@ mod tests {
         store.begin(0).unwrap();
         let links = DirectionLinks::default();
         match store.band_links() {
-            BandLinks::Record(r) => {
+            BandLinks::Record([r]) => {
                 // 16 bytes of head and 32 of empty links: fits; a second band does not.
                 r.band(5, &links, &mut io).unwrap();
                 r.band(5, &links, &mut io).unwrap();
@@ -356,7 +371,7 @@ mod tests {
         let mut store = LinkStore::new(dir.path(), 1, 1 << 20, 10, 4096);
         let mut io = IoCounters::default();
         store.begin(0).unwrap();
-        if let BandLinks::Record(r) = store.band_links() {
+        if let BandLinks::Record([r]) = store.band_links() {
             r.band(5, &DirectionLinks::default(), &mut io).unwrap();
             r.band(7, &DirectionLinks::default(), &mut io).unwrap();
         }
@@ -376,6 +391,45 @@ mod tests {
         r.band(5, scratch, &mut io).unwrap();
         let e = r.band(6, scratch, &mut io).unwrap_err();
         assert!(e.to_string().contains("7 surfels"), "{e}");
+    }
+
+    /// Directions gathered in one pass record side by side, each within its share of the
+    /// allowance, and are read back side by side, band by band.
+    #[test]
+    fn directions_recorded_together_are_kept_and_read_back_together() {
+        let empty = DirectionLinks::default();
+        let mut io = IoCounters::default();
+        // 48 bytes a band (see above); an allowance of 200 bytes, 100 for each of two.
+        let record = |bands: &[usize], io: &mut IoCounters| {
+            let dir = tempfile::tempdir().unwrap();
+            let mut store = LinkStore::new(dir.path(), 2, 200, 10, 4096);
+            store.begin_together(&[0, 1]).unwrap();
+            let BandLinks::Record(recordings) = store.band_links() else {
+                panic!("directions not kept record")
+            };
+            assert_eq!(recordings.len(), 2);
+            for r in recordings.iter_mut() {
+                for &n in bands {
+                    r.band(n, &empty, io).unwrap();
+                }
+            }
+            store.end(true);
+            (dir, store)
+        };
+        // Three bands (144 bytes) would fit the allowance alone, not a share of it.
+        let (_dir, store) = record(&[5, 6, 7], &mut io);
+        assert!(!store.is_kept(0) && !store.is_kept(1));
+        let (_dir, mut store) = record(&[5, 6], &mut io);
+        assert!(store.is_kept(0) && store.is_kept(1));
+        store.begin_together(&[0, 1]).unwrap();
+        let BandLinks::Replay(readers, scratch) = store.band_links() else {
+            panic!("kept directions replay")
+        };
+        for n in [5, 6] {
+            for r in readers.iter_mut() {
+                r.band(n, scratch, &mut io).unwrap();
+            }
+        }
     }
 
     #[test]

@@ -27,8 +27,8 @@
 //! file of its own, within a disk allowance; later iterations replay them band by band instead
 //! of reading the static records, dispatching and searching (the same bits), reading the light
 //! of several consecutive bands at once ([`band`]). Directions whose lines have the same slope
-//! along `v` have the same bands: where their links are kept, one pass replays them together,
-//! reading and writing each band's light once for all of them ([`solver`]).
+//! along `v` have the same bands: one pass gathers them together (searching or replaying),
+//! reading and writing each band once for all of them ([`solver`]).
 //!
 //! **The direct-light pass** ([`direct`]) for small emitters runs before the iterations, on
 //! parts of the scene that hold its emitters' lines, within the same budget.

@@ -11,13 +11,14 @@
 //! it); the axis copies then receive `B - E` instead of `B`, written beside the canonical
 //! radiosity after each update, and the bands gather only the reflected light, as in memory.
 //!
-//! **Directions replayed together.** Lines of the same slope along `v` put every surfel in the
+//! **Directions gathered together.** Lines of the same slope along `v` put every surfel in the
 //! same column, so such directions (the walk puts them next to each other; a cube direction
-//! set has about `2 N + 1` of them in a row) have the same bands. Once their links are kept, a
-//! pass replays them together ([`replayed_together`]): each band's light is read and written
-//! once, and the directions' links are replayed on it one after the other in walk order, the
-//! same terms in the same order as direction after direction. The steps of the directions
-//! after the first do nothing, and a checkpoint waits for the pass's end.
+//! set has about `2 N + 1` of them in a row) have the same bands. One pass gathers them
+//! together ([`gathered_together`]): each band's records and light are read, and its light
+//! written, once, and the directions' lines are searched (their links recorded), or their
+//! links replayed, on it one after the other in walk order, the same terms in the same order
+//! as direction after direction. The steps of the directions after the first do nothing, and a
+//! checkpoint waits for the pass's end.
 //!
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
@@ -50,7 +51,7 @@ use super::source::SurfelSource;
 use super::workset::{self, AxisCopy, WorkSet};
 use super::OocError;
 use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
-use crate::geometry::directions::DirectionSet;
+use crate::geometry::directions::{Direction, DirectionSet};
 use crate::solve::closed::{ClosureSums, Scales};
 use crate::solve::iterate::{iterate, Start, Sweep};
 use crate::solve::normalize::cosine_sums;
@@ -85,7 +86,7 @@ pub struct OocStats {
     pub replayed_bands: u64,
     pub replay_groups: u64,
     /// Passes that replayed several directions' links together, and the directions they
-    /// replayed beyond one each (see `replayed_together`).
+    /// replayed beyond one each (see `gathered_together`).
     pub joint_passes: u64,
     pub joint_directions: u64,
 }
@@ -228,13 +229,14 @@ pub fn walk_by_axis(directions: &DirectionSet) -> Vec<Vec<usize>> {
 const MOST_TOGETHER: usize = 16;
 
 /// The directions a pass from direction `k` of an axis's walk `axis` gathers: that one alone,
-/// or with the directions after it whose links are replayed together with its own, band by
-/// band, reading and writing each band's light once for all of them instead of once each.
-/// They must be kept, and have the same bands (`DirectionPass::band_cuts`) holding the same
-/// surfels in the same order: lines of the same slope along `v` (the walk puts them next to
-/// each other) put every surfel in the same column. Each band's links are replayed in walk
-/// order, so each surfel adds the same terms in the same order as direction after direction.
-fn replayed_together(
+/// or with the directions after it that can share its pass, band by band, each band's records
+/// and light read and written once for all of them instead of once each. They must have the
+/// same bands (`DirectionPass::band_cuts`) holding the same surfels in the same order: lines
+/// of the same slope along `v` (the walk puts them next to each other) put every surfel in the
+/// same column. And their links must be all kept (replayed) or none (searched, and recorded).
+/// Each band's lines are gathered direction after direction in walk order, so each surfel adds
+/// the same terms in the same order as in passes of one direction.
+fn gathered_together(
     pass: &DirectionPass,
     directions: &DirectionSet,
     axis: &[usize],
@@ -243,18 +245,17 @@ fn replayed_together(
 ) -> Vec<usize> {
     let first = axis[k];
     let mut together = vec![first];
-    if !links.is_kept(first) {
-        return together;
-    }
     let mut columns = Vec::new();
     let vector = |d: usize| directions.directions[d].vector;
     let Some(cuts) = pass.band_cuts(&directions.directions[first], &mut columns) else {
         return together;
     };
     let slope = v_slope(vector(first));
+    let kept = links.is_kept(first);
     for &d in &axis[k + 1..] {
         let (b, c) = v_slope(vector(d));
-        if together.len() == MOST_TOGETHER || !links.is_kept(d) || b * slope.1 != slope.0 * c {
+        if together.len() == MOST_TOGETHER || links.is_kept(d) != kept || b * slope.1 != slope.0 * c
+        {
             break;
         }
         if pass
@@ -531,7 +532,7 @@ struct OutOfCore<'a> {
     /// into file `(directions - 1) % 2`.
     light_file: usize,
     /// The steps of this iteration gathered: beyond the step in progress where directions
-    /// were replayed together ([`replayed_together`]).
+    /// were replayed together ([`gathered_together`]).
     gathered_until: usize,
     /// Whether the canonical sum holds any axis's light of this iteration.
     summed: bool,
@@ -649,15 +650,14 @@ impl Sweep for OutOfCore<'_> {
             first: k == 0,
             stops_on_signal: true,
         };
-        let together = replayed_together(&pass, self.directions, &self.by_axis[m], k, &self.links);
-        let d = together[0];
-        if together.len() > 1 {
-            self.links.begin_jointly(&together)?;
-        } else {
-            self.links.begin(d)?;
-        }
-        pass.run(
-            &self.directions.directions[d],
+        let together = gathered_together(&pass, self.directions, &self.by_axis[m], k, &self.links);
+        self.links.begin_together(&together)?;
+        let ds: Vec<&Direction> = together
+            .iter()
+            .map(|&d| &self.directions.directions[d])
+            .collect();
+        pass.run_together(
+            &ds,
             &mut self.links.band_links(),
             &mut self.buffers,
             &mut self.io,
