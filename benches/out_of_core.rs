@@ -194,7 +194,7 @@ fn main() {
             println!(
                 "         split (s): setup {:.2}, band reads {:.2}, dispatch {:.2}, propagate \
                  {:.2}, band writes {:.2}, updates {:.2}; {} bands, {} columns in blocks, {} \
-                 bands replayed in {} groups; {} passes replayed {} directions with others",
+                 bands replayed in {} groups; {} passes gathered {} directions with others",
                 o.setup_seconds,
                 o.read_seconds,
                 o.solve.dispatch_seconds,

@@ -98,7 +98,7 @@ pub struct BandTimes {
     /// consecutive bands of a direction at once, see `DirectionPass::replay_group`).
     pub replayed_bands: u64,
     pub replay_groups: u64,
-    /// Passes that replayed several directions together, and the directions they replayed
+    /// Passes that gathered several directions together, and the directions they gathered
     /// beyond one each (`super::solver`).
     pub joint_passes: u64,
     pub joint_directions: u64,
@@ -277,7 +277,7 @@ impl DirectionPass<'_> {
     /// `None` where a column is cut along `i` (its tiles follow the direction's slope along
     /// `u`). Directions whose lines have the same slope along `v` put every surfel in the same
     /// column, so where their lists are equal their bands hold the same surfels in the same
-    /// order, and their links can be replayed together band by band (`super::solver`).
+    /// order, and they can be gathered in one pass ([`Self::run_together`]).
     pub fn band_cuts(&self, d: &Direction, columns: &mut Vec<u64>) -> Option<Vec<(u64, u64)>> {
         let frame = LineFrame::new(d.vector, self.dims);
         self.count_columns(&frame, columns);

@@ -85,8 +85,8 @@ pub struct OocStats {
     /// (several bands of a direction at once where the budget holds them).
     pub replayed_bands: u64,
     pub replay_groups: u64,
-    /// Passes that replayed several directions' links together, and the directions they
-    /// replayed beyond one each (see `gathered_together`).
+    /// Passes that gathered several directions together (searching or replaying), and the
+    /// directions they gathered beyond one each (see `gathered_together`).
     pub joint_passes: u64,
     pub joint_directions: u64,
 }
@@ -224,8 +224,8 @@ pub fn walk_by_axis(directions: &DirectionSet) -> Vec<Vec<usize>> {
         .collect()
 }
 
-/// Directions replayed together at most: their links files are read side by side, each
-/// through its share of one direction's read buffer.
+/// Directions gathered together at most: their links files are read or written side by side,
+/// each through its share of one direction's buffer.
 const MOST_TOGETHER: usize = 16;
 
 /// The directions a pass from direction `k` of an axis's walk `axis` gathers: that one alone,
@@ -532,7 +532,7 @@ struct OutOfCore<'a> {
     /// into file `(directions - 1) % 2`.
     light_file: usize,
     /// The steps of this iteration gathered: beyond the step in progress where directions
-    /// were replayed together ([`gathered_together`]).
+    /// were gathered together ([`gathered_together`]).
     gathered_until: usize,
     /// Whether the canonical sum holds any axis's light of this iteration.
     summed: bool,

@@ -64,7 +64,7 @@ pub struct WorkSet {
     pub canonical_radiosity: PathBuf,
     /// Light gathered by the directions of the axis being solved, in that copy's order (the
     /// files serve the three copies in turn): a pass over an axis's copy (one direction, or
-    /// several replayed together) reads the light of the directions before it from one file
+    /// several gathered together) reads the light of the directions before it from one file
     /// and writes it with its own to the other (the axis's first pass writes file 0), so the
     /// light of the directions done is whole on disk between any two passes.
     pub gathered: [PathBuf; 2],
