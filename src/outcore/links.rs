@@ -34,7 +34,7 @@ pub enum BandLinks<'a> {
     Record(&'a mut [Recording]),
     /// Replays each band's links, written down by an earlier pass: of one direction, or of
     /// several whose bands are the same (one after the other on each band, in walk order; see
-    /// `outcore::solver`'s joint replays), each band's decoded in `scratch` in turn.
+    /// `outcore::solver`'s `gathered_together`), each band's decoded in `scratch` in turn.
     Replay(&'a mut [Replaying], &'a mut LinkScratch),
 }
 

@@ -627,7 +627,7 @@ impl Sweep for OutOfCore<'_> {
 
     fn step(&mut self, step: usize) -> Result<bool, OocError> {
         if step < self.gathered_until {
-            // Replayed together with an earlier direction of this pass.
+            // Gathered together with an earlier direction, in its pass.
             return Ok(true);
         }
         let (m, k) = self.place(step);
@@ -706,7 +706,7 @@ impl Sweep for OutOfCore<'_> {
     }
 
     fn can_save_within(&self, done: usize) -> bool {
-        // After the last direction the iteration's boundary is next; inside directions replayed
+        // After the last direction the iteration's boundary is next; inside directions gathered
         // together, the light holds the later ones already.
         done < self.directions.len() && done >= self.gathered_until
     }
