@@ -226,7 +226,7 @@ pub fn walk_by_axis(directions: &DirectionSet) -> Vec<Vec<usize>> {
 
 /// Directions gathered together at most: their links files are read or written side by side,
 /// each through its share of one direction's buffer.
-const MOST_TOGETHER: usize = 16;
+pub(crate) const MOST_TOGETHER: usize = 16;
 
 /// The directions a pass from direction `k` of an axis's walk `axis` gathers: that one alone,
 /// or with the directions after it that can share its pass, band by band, each band's records
@@ -236,7 +236,7 @@ const MOST_TOGETHER: usize = 16;
 /// same column. And their links must be all kept (replayed) or none (searched, and recorded).
 /// Each band's lines are gathered direction after direction in walk order, so each surfel adds
 /// the same terms in the same order as in passes of one direction.
-fn gathered_together(
+pub(crate) fn gathered_together(
     pass: &DirectionPass,
     directions: &DirectionSet,
     axis: &[usize],
@@ -273,7 +273,7 @@ fn gathered_together(
 /// The slope along `v` of the lines of direction `vector`, as `(b, c)` for `b / c` (`c > 0`,
 /// the main axis's component): the column shift of every layer depends on it alone
 /// (`geometry::lines`).
-fn v_slope(vector: [i64; 3]) -> (i64, i64) {
+pub(crate) fn v_slope(vector: [i64; 3]) -> (i64, i64) {
     let (main, _, v) = crate::geometry::lines::axes(vector);
     let sign = vector[main].signum();
     (sign * vector[v], sign * vector[main])

@@ -148,6 +148,12 @@ pub struct RankOutOfCore {
     /// The same before the scene was read: the program and its MPI library, which the budget
     /// does not cover.
     pub start_rss_bytes: u64,
+    /// Passes over the rank's held files that gathered several directions of one slope
+    /// together, and the directions they gathered beyond one each (over all iterations).
+    #[serde(default)]
+    pub joint_passes: u64,
+    #[serde(default)]
+    pub joint_directions: u64,
 }
 
 /// One rank's seconds in each phase of the data mode.

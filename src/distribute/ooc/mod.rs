@@ -64,7 +64,7 @@ mod within;
 use super::data::PhaseSeconds;
 use super::Comm;
 use crate::checkpoint::{CheckpointFile, Saver, State};
-use crate::geometry::directions::DirectionSet;
+use crate::geometry::directions::{Direction, DirectionSet};
 use crate::geometry::lines::LineFrame;
 use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use crate::outcore::budget::MemoryPlan;
@@ -72,7 +72,8 @@ use crate::outcore::files::{
     decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, IoCounters, SeqReader,
     GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
-use crate::outcore::links::{BandLinks, LinkStore};
+use crate::outcore::links::LinkStore;
+use crate::outcore::solver::{gathered_together, v_slope, MOST_TOGETHER};
 use crate::outcore::source::SurfelSource;
 use crate::outcore::workset::AxisCopy;
 use crate::outcore::OocError;
@@ -354,16 +355,20 @@ impl Solver<'_> {
             .enumerate()
             .flat_map(|(m, axis)| axis.into_iter().map(move |d| (m, d)))
             .collect();
-        let block = &walk[d_count * self.group_index / self.groups
-            ..d_count * (self.group_index + 1) / self.groups];
-        let walk = block
-            .iter()
-            .enumerate()
-            .map(|(k, &(main, direction))| WalkStep {
-                main,
-                first: k == 0 || block[k - 1].0 != main,
-                last: block.get(k + 1).is_none_or(|next| next.0 != main),
-                direction,
+        // Every group's, for where the light of any can be saved (`DataOocSweep::inside`).
+        let walks: Vec<Vec<WalkStep>> = (0..self.groups)
+            .map(|g| {
+                let block = &walk[d_count * g / self.groups..d_count * (g + 1) / self.groups];
+                block
+                    .iter()
+                    .enumerate()
+                    .map(|(k, &(main, direction))| WalkStep {
+                        main,
+                        first: k == 0 || block[k - 1].0 != main,
+                        last: block.get(k + 1).is_none_or(|next| next.0 != main),
+                        direction,
+                    })
+                    .collect()
             })
             .collect();
         let starts = self.slice_starts(slice.first);
@@ -385,7 +390,10 @@ impl Solver<'_> {
             largest_share: held.count,
             held: Some(held),
             generation,
-            walk,
+            walk: walks[self.group_index].clone(),
+            runs: Vec::new(),
+            inside: Vec::new(),
+            walks,
             steps,
             starts,
             remembered: vec![None; d_count],
@@ -468,6 +476,7 @@ impl Solver<'_> {
             io,
             largest_share,
             bands: times.bands,
+            joint: (times.joint_passes, times.joint_directions),
             quiet_steps_skipped,
         };
         let totals = self.summarize(&tally, surfels, stats.iterations);
@@ -533,16 +542,19 @@ impl Solver<'_> {
         Ok(load)
     }
 
-    /// Direction `d` over the held files, band by band (`outcore::band`), doing with its
-    /// partner links what `links` says.
+    /// Directions `run` (of one slope along `v`, in walk order) over the held files, band by
+    /// band (`outcore::band`), with their partner links in `links`: in as few passes as their
+    /// bands and links allow (`outcore::solver::gathered_together`), each band read and written
+    /// once for all the directions of a pass. `first`: the run starts the axis (its first pass
+    /// reads no earlier light).
     #[allow(clippy::too_many_arguments)]
-    fn solve_direction(
+    fn solve_run(
         &self,
         held: &Held,
         histogram: &[u32],
         key: AxisKey,
-        d: usize,
-        links: &mut BandLinks,
+        run: &[usize],
+        links: &mut LinkStore,
         first: bool,
         plan: &MemoryPlan,
         io: &mut IoCounters,
@@ -570,7 +582,7 @@ impl Solver<'_> {
             layer_start,
         };
         let files = CopyFiles::open(&copy, held.gathered())?;
-        let pass = DirectionPass {
+        let mut pass = DirectionPass {
             copy: &copy,
             files: &files,
             histogram,
@@ -584,9 +596,25 @@ impl Solver<'_> {
         };
         // Fresh band arrays: they must not hold their memory through the next merge.
         let mut buffers = BandBuffers::default();
-        let direction = &self.directions.directions[d];
-        self.pool
-            .install(|| pass.run(direction, links, &mut buffers, io, times))
+        let mut k = 0;
+        while k < run.len() {
+            let together = gathered_together(&pass, self.directions, run, k, links);
+            links.begin_together(&together)?;
+            let ds: Vec<&Direction> = together
+                .iter()
+                .map(|&d| &self.directions.directions[d])
+                .collect();
+            self.pool.install(|| {
+                pass.run_together(&ds, &mut links.band_links(), &mut buffers, io, times)
+            })?;
+            // The ranks stop between steps only: a direction is always gathered whole.
+            links.end(true);
+            times.joint_passes += (together.len() > 1) as u64;
+            times.joint_directions += (together.len() - 1) as u64;
+            pass.first = false;
+            k += together.len();
+        }
+        Ok(())
     }
 
     /// `B = E + rho H / S(n)` on the held surfels, after adding the last axis's light to the
@@ -792,6 +820,7 @@ impl Solver<'_> {
 }
 
 /// One step of the walk: a direction, its main axis, and whether it starts or ends the axis.
+#[derive(Clone, Copy)]
 struct WalkStep {
     main: usize,
     first: bool,
@@ -813,6 +842,14 @@ struct DataOocSweep<'s, 'a> {
     generation: u64,
     /// This group's directions.
     walk: Vec<WalkStep>,
+    /// Every group's directions.
+    walks: Vec<Vec<WalkStep>>,
+    /// By step of this iteration, the steps of this group's run of directions that start
+    /// there (0: inside a run, gathered at its start; see [`runs_of`]).
+    runs: Vec<usize>,
+    /// By steps done, whether some group is inside a run then: its light holds later
+    /// directions, and cannot be saved there (the same on every rank).
+    inside: Vec<bool>,
     /// Steps of an iteration: one direction of every group each (a group with one direction
     /// fewer idles in the last).
     steps: usize,
@@ -883,6 +920,31 @@ impl Sweep for DataOocSweep<'_, '_> {
         if from > 0 {
             self.in_copy_order = false;
         }
+        // Runs from where this iteration starts, on every rank for every group alike. A run
+        // is cut where another group's starts, so that the groups' light can be saved
+        // together there (a checkpoint, or a stop, inside the iteration).
+        let directions = self.solver.directions;
+        let runs: Vec<Vec<usize>> = self
+            .walks
+            .iter()
+            .map(|walk| runs_of(walk, from, directions))
+            .collect();
+        let mut starts = vec![false; self.steps + 1];
+        for (k, start) in starts.iter_mut().enumerate() {
+            *start = runs.iter().any(|r| r.get(k).is_some_and(|&len| len > 0));
+        }
+        self.inside = vec![false; self.steps + 1];
+        for (g, mut group_runs) in runs.into_iter().enumerate() {
+            cut_at(&mut group_runs, &starts);
+            for (k, &len) in group_runs.iter().enumerate() {
+                for done in k + 1..k + len {
+                    self.inside[done] = true;
+                }
+            }
+            if g == self.solver.group_index {
+                self.runs = group_runs;
+            }
+        }
         Ok(())
     }
 
@@ -893,12 +955,22 @@ impl Sweep for DataOocSweep<'_, '_> {
         let Some(&WalkStep {
             main,
             first,
-            last,
             direction: d,
+            ..
         }) = self.walk.get(step)
         else {
             return Ok(true);
         };
+        let run_len = self.runs[step];
+        if run_len == 0 {
+            // Gathered with the directions before it, at the start of their run.
+            return Ok(true);
+        }
+        let run: Vec<usize> = self.walk[step..step + run_len]
+            .iter()
+            .map(|s| s.direction)
+            .collect();
+        let last = self.walk[step + run_len - 1].last;
         let key = AxisKey::new(main, dims);
         let direction = &solver.directions.directions[d];
         let frame = LineFrame::new(direction.vector, dims);
@@ -909,6 +981,15 @@ impl Sweep for DataOocSweep<'_, '_> {
             let cuts = cut_columns(&load, ranks);
             self.imbalance[d] = imbalance_of(&load, &cuts);
             self.remembered[d] = Some(cuts);
+        }
+        // The run's later directions have the same columns, so the same cuts: each rank holds
+        // their lines whole once it holds the first one's, and nothing moves between them.
+        for &later in &run[1..] {
+            if self.remembered[later].is_none() {
+                self.remembered[later] = self.remembered[d].clone();
+                self.imbalance[later] = self.imbalance[d];
+            }
+            debug_assert!(self.remembered[later] == self.remembered[d]);
         }
         self.seconds.balance += t.elapsed().as_secs_f64();
         let cuts = self.remembered[d].as_deref().expect("just cut");
@@ -978,20 +1059,17 @@ impl Sweep for DataOocSweep<'_, '_> {
         self.held = Some(next);
         self.histogram = rows;
         self.moved[d] += sent as f64;
-        self.links.begin(d)?;
-        solver.solve_direction(
+        solver.solve_run(
             self.held.as_ref().expect("held files between steps"),
             &self.histogram,
             key,
-            d,
-            &mut self.links.band_links(),
+            &run,
+            &mut self.links,
             first,
             self.plan,
             &mut self.io,
             &mut self.times,
         )?;
-        // The ranks stop between steps only: a direction is always gathered whole.
-        self.links.end(true);
         if last {
             self.pending = true;
         }
@@ -999,8 +1077,9 @@ impl Sweep for DataOocSweep<'_, '_> {
     }
 
     fn can_save_within(&self, done: usize) -> bool {
-        // After the last step the iteration's boundary is next.
-        done < self.steps
+        // After the last step the iteration's boundary is next; inside a run, the light holds
+        // its later directions already.
+        done < self.steps && !self.inside[done]
     }
 
     fn save_within(
@@ -1143,6 +1222,47 @@ impl Sweep for DataOocSweep<'_, '_> {
 
 /// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
 /// were none; the sum starts with this axis), as `outcore::solver` folds its axes.
+/// The runs of `walk` from step `from` on: by step, how many steps from there have lines of
+/// one slope along `v` on one main axis (at most `MOST_TOGETHER`), gathered together at the
+/// run's first step; 0 inside a run, and before `from`. Such directions put every surfel in
+/// the same line column, so the same column cuts serve them all, and a rank that holds the
+/// first one's lines holds theirs.
+fn runs_of(walk: &[WalkStep], from: usize, directions: &DirectionSet) -> Vec<usize> {
+    let slope = |s: &WalkStep| v_slope(directions.directions[s.direction].vector);
+    let mut runs = vec![0; walk.len()];
+    let mut k = from;
+    while k < walk.len() {
+        let (b, c) = slope(&walk[k]);
+        let mut end = k + 1;
+        while end < walk.len() && end - k < MOST_TOGETHER && walk[end].main == walk[k].main && {
+            let (b2, c2) = slope(&walk[end]);
+            b2 * c == b * c2
+        } {
+            end += 1;
+        }
+        runs[k] = end - k;
+        k = end;
+    }
+    runs
+}
+
+/// Cuts the runs `runs` (as [`runs_of`] gives them) at every step `k` where `starts[k]`.
+fn cut_at(runs: &mut [usize], starts: &[bool]) {
+    let mut k = 0;
+    while k < runs.len() {
+        let len = runs[k];
+        if len == 0 {
+            k += 1;
+            continue;
+        }
+        if let Some(cut) = (k + 1..k + len).find(|&s| starts[s]) {
+            runs[k] = cut - k;
+            runs[cut] = k + len - cut;
+        }
+        k += runs[k];
+    }
+}
+
 fn fold_axis(w: &mut Wire, first: bool) {
     let mut sum = decode_gathered(&w[GATHERED_AT..]);
     if !first {
@@ -1203,6 +1323,62 @@ mod tests {
         assert!(imbalance_of(&load, &cuts) <= 1.25, "{cuts:?}");
         assert_eq!(cut_columns(&load, 1), vec![0, 8]);
         assert_eq!(imbalance_of(&[0.0; 4], &[0, 2, 4]), 1.0);
+    }
+
+    #[test]
+    fn runs_hold_directions_of_one_slope_on_one_axis_and_are_cut_where_others_start() {
+        let directions = DirectionSet::cube(2);
+        let walk: Vec<WalkStep> = crate::outcore::solver::walk_by_axis(&directions)
+            .into_iter()
+            .enumerate()
+            .flat_map(|(main, axis)| {
+                let n = axis.len();
+                axis.into_iter()
+                    .enumerate()
+                    .map(move |(k, direction)| WalkStep {
+                        main,
+                        first: k == 0,
+                        last: k + 1 == n,
+                        direction,
+                    })
+            })
+            .collect();
+        let runs = runs_of(&walk, 0, &directions);
+        let slope = |k: usize| {
+            let (b, c) = v_slope(directions.directions[walk[k].direction].vector);
+            (walk[k].main, b as f64 / c as f64)
+        };
+        // Every step in exactly one run; a run's steps share an axis and a slope, and the
+        // next run's first step does not continue it.
+        let mut k = 0;
+        let mut count = 0;
+        while k < walk.len() {
+            let len = runs[k];
+            assert!((1..=MOST_TOGETHER).contains(&len), "{runs:?}");
+            assert!((k + 1..k + len).all(|s| runs[s] == 0 && slope(s) == slope(k)));
+            let end = k + len;
+            assert!(end == walk.len() || slope(end) != slope(k) || len == MOST_TOGETHER);
+            count += 1;
+            k = end;
+        }
+        assert!(count < walk.len(), "some run holds several directions");
+        // From a resumed step on, runs start there; before it, none.
+        let from = 5;
+        let resumed = runs_of(&walk, from, &directions);
+        assert!(resumed[..from].iter().all(|&len| len == 0) && resumed[from] > 0);
+        // Cut where another group's runs start: no run then holds such a step after its first.
+        let mut starts = vec![false; walk.len() + 1];
+        for s in (0..walk.len()).step_by(3) {
+            starts[s] = true;
+        }
+        let mut cut = runs.clone();
+        cut_at(&mut cut, &starts);
+        let mut k = 0;
+        while k < walk.len() {
+            assert!(cut[k] > 0 && (k + 1..k + cut[k]).all(|s| !starts[s] && cut[s] == 0));
+            k += cut[k];
+        }
+        assert_eq!(cut.iter().sum::<usize>(), walk.len());
     }
 
     #[test]

@@ -17,6 +17,8 @@ pub(super) struct Tally {
     /// The most records held for one direction.
     pub largest_share: u64,
     pub bands: u64,
+    /// Passes that gathered several directions, and the directions beyond one each.
+    pub joint: (u64, u64),
     /// Steps skipped as quiet (the same on every rank).
     pub quiet_steps_skipped: u64,
 }
@@ -34,8 +36,9 @@ impl Solver<'_> {
     pub(super) fn summarize(&self, tally: &Tally, surfels: u64, iterations: usize) -> Totals {
         let (ranks, me) = (self.comm.size(), self.comm.rank());
         let d_count = tally.moved.len();
-        // Per rank: the phases, bytes read, bytes written, largest share in bytes.
-        const ROW: usize = PhaseSeconds::FIELDS + 3;
+        // Per rank: the phases, bytes read, bytes written, largest share in bytes, joint
+        // passes and directions.
+        const ROW: usize = PhaseSeconds::FIELDS + 5;
         let mut table = vec![0.0f64; d_count + ROW * ranks + 1];
         table[..d_count].copy_from_slice(&tally.moved);
         let at = d_count + me * ROW;
@@ -43,6 +46,8 @@ impl Solver<'_> {
         table[at + PhaseSeconds::FIELDS] = tally.io.read as f64;
         table[at + PhaseSeconds::FIELDS + 1] = tally.io.written as f64;
         table[at + PhaseSeconds::FIELDS + 2] = (tally.largest_share * WIRE_LEN as u64) as f64;
+        table[at + PhaseSeconds::FIELDS + 3] = tally.joint.0 as f64;
+        table[at + PhaseSeconds::FIELDS + 4] = tally.joint.1 as f64;
         table[d_count + ROW * ranks] = tally.bands as f64;
         self.comm.sum_in_place(&mut table);
         let updates = (surfels * d_count as u64 * iterations.max(1) as u64).max(1) as f64;
@@ -64,6 +69,8 @@ impl Solver<'_> {
                 bytes_read_per_voxel_direction: read / updates,
                 bytes_written_per_voxel_direction: written / updates,
                 largest_share_bytes: row[PhaseSeconds::FIELDS + 2] as u64,
+                joint_passes: row[PhaseSeconds::FIELDS + 3] as u64,
+                joint_directions: row[PhaseSeconds::FIELDS + 4] as u64,
                 // Measured by the caller at the very end.
                 peak_rss_bytes: 0,
                 start_rss_bytes: 0,
