@@ -19,6 +19,15 @@
 //! of main axis they are sorted instead. The direction is then solved band by band on the held
 //! files (`outcore::band`); every line lies whole on one rank.
 //!
+//! **Runs of one slope** ([`runs_of`]): the directions after it in the walk with the same main
+//! axis and slope along `v` put every surfel in the same column, so they have the same cuts and
+//! nothing moves between them. One step gathers such a run: one routing, then passes over the
+//! held files that read and write each band once for all the directions whose bands agree
+//! (`outcore::solver::gathered_together`); the run's other steps do nothing. Every surfel adds
+//! the same terms in the same order. The light between a run's steps cannot be saved, so every
+//! group's runs are cut where another group's start, and checkpoints and stops inside an
+//! iteration fall at those steps (`DataOocSweep::inside`).
+//!
 //! Every line is gathered from the same surfels in the same order as in the single-process
 //! out-of-core solve, and every surfel adds its directions, and then its axes, in the same
 //! order: the radiosity is that of `voxrad solve SET --memory SIZE` bit for bit (the stopping
