@@ -174,10 +174,24 @@ pub struct IoCounters {
     pub written: u64,
 }
 
-/// A work file opened for positioned reads and writes.
+/// A work file opened for positioned reads and writes: one file's bytes, or bytes laid
+/// end to end from pieces of several files ([`RecordFile::pieced`]).
 pub struct RecordFile {
     path: PathBuf,
     file: File,
+    /// Where the bytes are when pieced (empty: `file`'s own).
+    pieces: Vec<Piece>,
+    others: Vec<(PathBuf, File)>,
+}
+
+/// Bytes `start..start + len` of a pieced [`RecordFile`] are bytes `at..at + len` of file
+/// `file` (0: the first one, else `others[file - 1]`).
+#[derive(Clone, Copy, Debug)]
+struct Piece {
+    start: u64,
+    len: u64,
+    file: usize,
+    at: u64,
 }
 
 impl RecordFile {
@@ -192,6 +206,8 @@ impl RecordFile {
         Ok(RecordFile {
             path: path.to_path_buf(),
             file,
+            pieces: Vec::new(),
+            others: Vec::new(),
         })
     }
 
@@ -204,7 +220,59 @@ impl RecordFile {
         Ok(RecordFile {
             path: path.to_path_buf(),
             file,
+            pieces: Vec::new(),
+            others: Vec::new(),
         })
+    }
+
+    /// The bytes of `pieces`, `(file, first byte, bytes)` of `paths`, end to end: a file whose
+    /// parts lie in several files, read and written in place.
+    pub fn pieced(paths: &[&Path], pieces: &[(usize, u64, u64)]) -> Result<Self, OocError> {
+        let mut files = paths.iter().map(|&p| RecordFile::open(p));
+        let Some(first) = files.next() else {
+            return Err(OocError::io(
+                Path::new(""),
+                "open",
+                std::io::Error::other("no file"),
+            ));
+        };
+        let mut file = first?;
+        file.others = files
+            .map(|f| f.map(|f| (f.path, f.file)))
+            .collect::<Result<_, _>>()?;
+        let mut start = 0;
+        for &(index, at, len) in pieces.iter().filter(|p| p.2 > 0) {
+            file.pieces.push(Piece {
+                start,
+                len,
+                file: index,
+                at,
+            });
+            start += len;
+        }
+        Ok(file)
+    }
+
+    /// The file and the offset in it of byte `offset`, and the bytes from there on in that
+    /// file that belong to this one (all, when not pieced).
+    fn locate(&self, offset: u64) -> Result<(&Path, &File, u64, u64), OocError> {
+        if self.pieces.is_empty() && self.others.is_empty() {
+            return Ok((&self.path, &self.file, offset, u64::MAX));
+        }
+        let k = self.pieces.partition_point(|p| p.start + p.len <= offset);
+        let Some(p) = self.pieces.get(k) else {
+            return Err(OocError::io(
+                &self.path,
+                "read",
+                std::io::Error::from(std::io::ErrorKind::UnexpectedEof),
+            ));
+        };
+        let (path, file) = match p.file {
+            0 => (self.path.as_path(), &self.file),
+            i => (self.others[i - 1].0.as_path(), &self.others[i - 1].1),
+        };
+        let inside = offset - p.start;
+        Ok((path, file, p.at + inside, p.len - inside))
     }
 
     pub fn read_at(
@@ -213,17 +281,27 @@ impl RecordFile {
         buf: &mut [u8],
         io: &mut IoCounters,
     ) -> Result<(), OocError> {
-        self.file
-            .read_exact_at(buf, offset)
-            .map_err(|e| OocError::io(&self.path, "read", e))?;
+        let mut done = 0;
+        while done < buf.len() {
+            let (path, file, at, left) = self.locate(offset + done as u64)?;
+            let n = (buf.len() - done).min(left.min(usize::MAX as u64) as usize);
+            file.read_exact_at(&mut buf[done..done + n], at)
+                .map_err(|e| OocError::io(path, "read", e))?;
+            done += n;
+        }
         io.read += buf.len() as u64;
         Ok(())
     }
 
     pub fn write_at(&self, offset: u64, buf: &[u8], io: &mut IoCounters) -> Result<(), OocError> {
-        self.file
-            .write_all_at(buf, offset)
-            .map_err(|e| OocError::io(&self.path, "write", e))?;
+        let mut done = 0;
+        while done < buf.len() {
+            let (path, file, at, left) = self.locate(offset + done as u64)?;
+            let n = (buf.len() - done).min(left.min(usize::MAX as u64) as usize);
+            file.write_all_at(&buf[done..done + n], at)
+                .map_err(|e| OocError::io(path, "write", e))?;
+            done += n;
+        }
         io.written += buf.len() as u64;
         Ok(())
     }

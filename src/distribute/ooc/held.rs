@@ -143,37 +143,135 @@ impl AxisKey {
     }
 }
 
-/// A rank's held surfels: four files of `count` records each, in one order.
+/// A rank's held surfels: `count` records in one order, in four files (one per part of the
+/// record), or laid end to end from runs of records of several such sets of four files.
+///
+/// A step inside an axis moves a few rows of every layer; rewriting the held files whole for
+/// them cost each rank a read and a write of all its records at every change of slope. Instead
+/// the received records are written to new files and the kept ones stay where they are
+/// ([`HeldWriter::keep`]), up to [`MOST_SETS`] sets, after which the records are copied into
+/// one set again.
 pub struct Held {
-    pub paths: [PathBuf; 4],
+    /// Each set's four files, as [`HeldWriter`] names them.
+    pub sets: Vec<[PathBuf; 4]>,
+    /// The records in order: runs of `count` records of set `set` from record `first`.
+    pub runs: Vec<HeldRun>,
     pub count: u64,
 }
 
+/// Records `first..first + count` of one set of held files.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HeldRun {
+    pub set: usize,
+    pub first: u64,
+    pub count: u64,
+}
+
+/// Sets of files a rank's held records may lie in before they are copied into one again (also
+/// when the sets hold more than twice the records in use, so that the disk holds at most about
+/// twice the rank's share).
+pub const MOST_SETS: usize = 4;
+
 impl Held {
-    /// The four files opened for positioned reads.
+    /// The records of one set of four files, in their order.
+    pub fn whole(paths: [PathBuf; 4], count: u64) -> Self {
+        Held {
+            sets: vec![paths],
+            runs: vec![HeldRun {
+                set: 0,
+                first: 0,
+                count,
+            }],
+            count,
+        }
+    }
+
+    /// The four files opened for positioned reads and writes, each as one file of records in
+    /// the held order.
     pub fn open_files(&self) -> Result<[RecordFile; 4], OocError> {
-        let open = |k: usize| RecordFile::open(&self.paths[k]);
+        let open = |k: usize| -> Result<RecordFile, OocError> {
+            if self.sets.len() == 1 && self.runs.len() <= 1 && self.runs_from_start() {
+                return RecordFile::open(&self.sets[0][k]);
+            }
+            let paths: Vec<&Path> = self.sets.iter().map(|set| set[k].as_path()).collect();
+            let len = LENGTHS[k] as u64;
+            let pieces: Vec<(usize, u64, u64)> = self
+                .runs
+                .iter()
+                .map(|r| (r.set, r.first * len, r.count * len))
+                .collect();
+            RecordFile::pieced(&paths, &pieces)
+        };
         Ok([open(0)?, open(1)?, open(2)?, open(3)?])
     }
 
-    pub fn statics(&self) -> &Path {
-        &self.paths[0]
+    /// Records the files of every set hold, those no run reads (they left the rank) included.
+    pub fn stored_records(&self) -> Result<u64, OocError> {
+        let mut records = 0;
+        for set in &self.sets {
+            let meta = std::fs::metadata(&set[0]).map_err(|e| OocError::io(&set[0], "read", e))?;
+            records += meta.len() / STATIC_LEN as u64;
+        }
+        Ok(records)
     }
 
-    /// What the lines carry (`B`, or `B - E` with the direct pass).
-    pub fn carried(&self) -> &Path {
-        &self.paths[1]
+    fn runs_from_start(&self) -> bool {
+        self.runs.first().is_none_or(|r| r.first == 0)
     }
 
-    pub fn gathered(&self) -> &Path {
-        &self.paths[2]
+    /// The runs that hold records `first..first + count` of the held order.
+    pub fn runs_of(&self, first: u64, count: u64) -> Vec<HeldRun> {
+        let mut out = Vec::new();
+        let (mut at, end) = (0u64, first + count);
+        for r in &self.runs {
+            let (lo, hi) = (at.max(first), (at + r.count).min(end));
+            if lo < hi {
+                out.push(HeldRun {
+                    set: r.set,
+                    first: r.first + (lo - at),
+                    count: hi - lo,
+                });
+            }
+            at += r.count;
+            if at >= end {
+                break;
+            }
+        }
+        out
     }
 
     pub fn remove(self) -> Result<(), OocError> {
-        for p in &self.paths {
+        for p in self.sets.iter().flatten() {
             std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
         }
         Ok(())
+    }
+
+    /// Removes the files of the sets no run reads any more, and numbers the others again.
+    fn prune(mut self) -> Result<Self, OocError> {
+        // Set 0 stays (a writer's own files, which an empty share still needs).
+        let mut used = vec![false; self.sets.len()];
+        used[0] = true;
+        for r in &self.runs {
+            used[r.set] = true;
+        }
+        let mut renumber = vec![usize::MAX; self.sets.len()];
+        let mut sets = Vec::with_capacity(self.sets.len());
+        for (k, set) in std::mem::take(&mut self.sets).into_iter().enumerate() {
+            if used[k] {
+                renumber[k] = sets.len();
+                sets.push(set);
+            } else {
+                for p in &set {
+                    std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+                }
+            }
+        }
+        for r in &mut self.runs {
+            r.set = renumber[r.set];
+        }
+        self.sets = sets;
+        Ok(self)
     }
 }
 
@@ -181,12 +279,24 @@ impl Held {
 type RecordReader = Box<dyn FnMut(&mut [u8]) -> Result<bool, OocError>>;
 
 /// Reads held files record by record, in wire form.
-pub struct HeldReader {
-    readers: [RecordReader; 4],
+pub enum HeldReader {
+    /// One set of files, each read sequentially.
+    Whole([RecordReader; 4]),
+    /// Records in runs of several sets.
+    Runs(HeldRangeReader),
 }
 
 impl HeldReader {
     pub fn open(held: &Held, buffer_bytes: usize) -> Result<Self, OocError> {
+        if held.sets.len() != 1 || held.runs.len() > 1 || !held.runs_from_start() {
+            let all = vec![(0, held.count)];
+            return Ok(HeldReader::Runs(HeldRangeReader::open(
+                held,
+                all,
+                buffer_bytes,
+            )?));
+        }
+        let paths = &held.sets[0];
         fn reader<const L: usize>(path: &Path, buffer: usize) -> Result<RecordReader, OocError> {
             let mut r = SeqReader::<L>::open(path, buffer)?;
             Ok(Box::new(move |out: &mut [u8]| match r.next_record()? {
@@ -198,20 +308,22 @@ impl HeldReader {
             }))
         }
         let b = buffer_bytes;
-        Ok(HeldReader {
-            readers: [
-                reader::<STATIC_LEN>(&held.paths[0], b)?,
-                reader::<RADIOSITY_LEN>(&held.paths[1], b)?,
-                reader::<GATHER_LEN>(&held.paths[2], b)?,
-                reader::<REST_LEN>(&held.paths[3], b)?,
-            ],
-        })
+        Ok(HeldReader::Whole([
+            reader::<STATIC_LEN>(&paths[0], b)?,
+            reader::<RADIOSITY_LEN>(&paths[1], b)?,
+            reader::<GATHER_LEN>(&paths[2], b)?,
+            reader::<REST_LEN>(&paths[3], b)?,
+        ]))
     }
 
     /// The next record, or `None` at the end.
     pub fn next(&mut self, io: &mut IoCounters) -> Result<Option<Wire>, OocError> {
+        let readers = match self {
+            HeldReader::Whole(readers) => readers,
+            HeldReader::Runs(reader) => return reader.next(io),
+        };
         let mut w = [0u8; WIRE_LEN];
-        for (k, r) in self.readers.iter_mut().enumerate() {
+        for (k, r) in readers.iter_mut().enumerate() {
             if !r(&mut w[OFFSETS[k]..OFFSETS[k] + LENGTHS[k]])? {
                 return Ok(None);
             }
@@ -290,6 +402,13 @@ pub struct HeldWriter {
     paths: [PathBuf; 4],
     count: u64,
     histogram: Option<(AxisKey, Vec<u32>)>,
+    /// Records written to this writer's own files (set 0 of the result).
+    written: u64,
+    /// The sets of files taken over from earlier held files ([`HeldWriter::adopt`]): sets 1..
+    /// of the result.
+    adopted: Vec<[PathBuf; 4]>,
+    /// The result's records in order.
+    runs: Vec<HeldRun>,
 }
 
 impl HeldWriter {
@@ -317,6 +436,9 @@ impl HeldWriter {
             paths,
             count: 0,
             histogram,
+            written: 0,
+            adopted: Vec::new(),
+            runs: Vec::new(),
         })
     }
 
@@ -327,8 +449,44 @@ impl HeldWriter {
         if let Some((key, h)) = self.histogram.as_mut() {
             h[key.row(voxel(w))] += 1;
         }
+        self.push_run(HeldRun {
+            set: 0,
+            first: self.written,
+            count: 1,
+        });
+        self.written += 1;
         self.count += 1;
         Ok(())
+    }
+
+    fn push_run(&mut self, run: HeldRun) {
+        match self.runs.last_mut() {
+            Some(last) if last.set == run.set && last.first + last.count == run.first => {
+                last.count += run.count;
+            }
+            _ => self.runs.push(run),
+        }
+    }
+
+    /// Takes over the files of `from`, whose records [`HeldWriter::keep`] can then put in
+    /// place without copying them; the result removes them when it is removed. Returns the
+    /// number `keep` is given for `from`.
+    pub fn adopt(&mut self, from: &Held) -> usize {
+        let base = 1 + self.adopted.len();
+        self.adopted.extend(from.sets.iter().cloned());
+        base
+    }
+
+    /// Appends records `first..first + count` of `from` (adopted as `base`) where they lie,
+    /// unchanged; they are not counted in the row histogram (the caller keeps it).
+    pub fn keep(&mut self, from: &Held, base: usize, (first, count): (u64, u64)) {
+        for run in from.runs_of(first, count) {
+            self.push_run(HeldRun {
+                set: base + run.set,
+                ..run
+            });
+        }
+        self.count += count;
     }
 
     /// Appends records `first..first + count` of the held files `from` unchanged, as bytes, in
@@ -352,6 +510,13 @@ impl HeldWriter {
             }
             at += records;
         }
+        let first = self.written;
+        self.push_run(HeldRun {
+            set: 0,
+            first,
+            count,
+        });
+        self.written += count;
         self.count += count;
         Ok(())
     }
@@ -361,13 +526,14 @@ impl HeldWriter {
         for w in self.writers {
             io.written += w.finish()?;
         }
-        Ok((
-            Held {
-                paths: self.paths,
-                count: self.count,
-            },
-            self.histogram.map(|(_, h)| h),
-        ))
+        let mut sets = vec![self.paths];
+        sets.extend(self.adopted);
+        let held = Held {
+            sets,
+            runs: self.runs,
+            count: self.count,
+        };
+        Ok((held.prune()?, self.histogram.map(|(_, h)| h)))
     }
 }
 
@@ -624,5 +790,78 @@ mod tests {
             assert_eq!(scene_data(w).1, 0.5);
         }
         assert!(reader.next(&mut io).unwrap().is_none());
+    }
+
+    /// Held files that keep records of earlier ones where they are: read back in order,
+    /// written in place through the pieced files, and the files no run reads removed.
+    #[test]
+    fn kept_records_stay_in_their_files_and_read_back_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let files = || std::fs::read_dir(dir.path()).unwrap().count();
+        let mut io = IoCounters::default();
+        let records: Vec<Wire> = (0..20u32).map(|id| record([id as i32, 0, 0], id)).collect();
+        let mut a = HeldWriter::create(dir.path(), 0, 64, None).unwrap();
+        for w in &records[..10] {
+            a.write(w).unwrap();
+        }
+        let (a, _) = a.finish(&mut io).unwrap();
+        // New files: two records, records 3..7 of `a` kept in place, one more record.
+        let mut b = HeldWriter::create(dir.path(), 1, 64, None).unwrap();
+        let base = b.adopt(&a);
+        b.write(&records[10]).unwrap();
+        b.write(&records[11]).unwrap();
+        b.keep(&a, base, (3, 4));
+        b.write(&records[12]).unwrap();
+        let (b, _) = b.finish(&mut io).unwrap();
+        let expected: Vec<Wire> = [10, 11, 3, 4, 5, 6, 12].map(|k| records[k]).to_vec();
+        assert_eq!((b.count, b.sets.len(), b.runs.len()), (7, 2, 3));
+        assert_eq!(files(), 8);
+        let read_all = |held: &Held| {
+            let mut reader = HeldReader::open(held, 64).unwrap();
+            let mut got = Vec::new();
+            while let Some(w) = reader.next(&mut IoCounters::default()).unwrap() {
+                got.push(w);
+            }
+            got
+        };
+        assert!(read_all(&b) == expected);
+        // Positioned reads across the pieces, and a write in place: records 1..4 of `b` are
+        // 11 (its own files) and 3, 4 (in `a`'s).
+        let opened = b.open_files().unwrap();
+        let mut gathered = vec![0u8; 3 * GATHER_LEN];
+        opened[2]
+            .read_at(GATHER_LEN as u64, &mut gathered, &mut io)
+            .unwrap();
+        let expected_gathered: Vec<u8> = [11, 3, 4]
+            .iter()
+            .flat_map(|&k| records[k][GATHERED_AT..GATHERED_AT + GATHER_LEN].to_vec())
+            .collect();
+        assert_eq!(gathered, expected_gathered);
+        let light = vec![7u8; 3 * GATHER_LEN];
+        opened[2]
+            .write_at(GATHER_LEN as u64, &light, &mut io)
+            .unwrap();
+        drop(opened);
+        let after = read_all(&b);
+        for (k, w) in after.iter().enumerate() {
+            let slot = &w[GATHERED_AT..GATHERED_AT + GATHER_LEN];
+            assert_eq!(
+                slot == &light[..GATHER_LEN],
+                (1..4).contains(&k),
+                "record {k}"
+            );
+        }
+        // New files that keep nothing of `a`: its files go.
+        let mut c = HeldWriter::create(dir.path(), 2, 64, None).unwrap();
+        let base = c.adopt(&b);
+        c.keep(&b, base, (0, 2));
+        let (c, _) = c.finish(&mut io).unwrap();
+        assert_eq!((c.count, c.sets.len()), (2, 2));
+        assert!(read_all(&c) == after[..2]);
+        assert!(a.sets[0].iter().all(|p| !p.exists()));
+        assert!(c.sets[1] == b.sets[0] && b.sets[0].iter().all(|p| p.exists()));
+        assert_eq!(files(), 8);
+        c.remove().unwrap();
+        assert_eq!(files(), 0);
     }
 }

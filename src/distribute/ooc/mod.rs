@@ -540,13 +540,21 @@ impl Solver<'_> {
         io: &mut IoCounters,
     ) -> Result<Vec<f64>, OocError> {
         let mut load = vec![0.0f64; frame.nj as usize];
-        let mut reader = SeqReader::<STATIC_LEN>::open(held.statics(), plan.io_bytes)?;
-        while let Some(r) = reader.next_record()? {
-            let v = held::voxel(&r);
-            let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
-            load[j as usize] += 1.0;
+        let [statics, ..] = held.open_files()?;
+        let chunk = (plan.io_bytes / STATIC_LEN).max(1) as u64;
+        let mut bytes = Vec::new();
+        let mut at = 0u64;
+        while at < held.count {
+            let records = chunk.min(held.count - at);
+            bytes.resize(records as usize * STATIC_LEN, 0);
+            statics.read_at(at * STATIC_LEN as u64, &mut bytes, io)?;
+            for r in bytes.chunks_exact(STATIC_LEN) {
+                let v = held::voxel(r);
+                let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
+                load[j as usize] += 1.0;
+            }
+            at += records;
         }
-        io.read += held.count * STATIC_LEN as u64;
         self.group.sum_in_place(&mut load);
         Ok(load)
     }
@@ -583,14 +591,21 @@ impl Solver<'_> {
             v: key.v,
             layers: key.layers(),
             rows,
-            statics: held.statics().to_path_buf(),
-            radiosity: held.carried().to_path_buf(),
+            // Opened below from the held files, which may lie in several sets.
+            statics: PathBuf::new(),
+            radiosity: PathBuf::new(),
             ids: PathBuf::new(),
             positions: PathBuf::new(),
             histogram: PathBuf::new(),
             layer_start,
         };
-        let files = CopyFiles::open(&copy, held.gathered())?;
+        let [statics, radiosity, gathered, _] = held.open_files()?;
+        let files = CopyFiles {
+            statics,
+            radiosity,
+            gathered,
+            previous: None,
+        };
         let mut pass = DirectionPass {
             copy: &copy,
             files: &files,

@@ -11,7 +11,7 @@
 
 use super::held::{
     merge_runs, sort_runs, voxel, AxisKey, Held, HeldRangeReader, HeldReader, HeldWriter,
-    RunWriter, Source, Wire, WIRE_LEN,
+    RunWriter, Source, Wire, MOST_SETS, WIRE_LEN,
 };
 use crate::distribute::data::PhaseSeconds;
 use crate::distribute::Comm;
@@ -270,8 +270,21 @@ impl Router<'_> {
             spans.push(((first + below, kept), (first_row, last_row)));
             first += total;
         }
-        let from = held.open_files()?;
+        // The kept ranges stay where they are, in the files of `held`, unless its records lie
+        // in too many sets already, or its sets hold as many records that left as records in
+        // use: then they are copied, and the result is one set again.
+        let keep_in_place = held.sets.len() < MOST_SETS && held.stored_records()? <= 2 * held.count;
+        let from = if keep_in_place {
+            None
+        } else {
+            Some(held.open_files()?)
+        };
         let mut writer = HeldWriter::create(self.dir, generation, self.plan.io_bytes, None)?;
+        let base = if keep_in_place {
+            writer.adopt(&held)
+        } else {
+            0
+        };
         let chunk = (self.plan.io_bytes / WIRE_LEN).max(1) as u64;
         let mut buffer = Vec::new();
         let mut copied = IoCounters::default();
@@ -310,7 +323,12 @@ impl Router<'_> {
                     return Ok(());
                 }
                 if !*copied_layer {
-                    writer.copy_records(&from, range, chunk, &mut buffer, &mut copied)?;
+                    match &from {
+                        Some(from) => {
+                            writer.copy_records(from, range, chunk, &mut buffer, &mut copied)?
+                        }
+                        None => writer.keep(&held, base, range),
+                    }
                 }
                 if *next_layer < layer {
                     *next_layer += 1;
@@ -347,7 +365,13 @@ impl Router<'_> {
             &mut writer,
         )?;
         io.read += copied.read;
-        held.remove()?;
+        if keep_in_place {
+            // The new held files own the old ones' files now (the sets no run reads are
+            // removed as it finishes).
+            drop(held);
+        } else {
+            held.remove()?;
+        }
         let (held, _) = writer.finish(io)?;
         Ok((held, histogram))
     }

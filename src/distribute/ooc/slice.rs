@@ -64,10 +64,7 @@ impl Solver<'_> {
         let mut inside = false;
         let mut slice = Slice {
             first: 0,
-            held: Held {
-                paths: Default::default(),
-                count: 0,
-            },
+            held: Held::whole(Default::default(), 0),
             voxels: 0,
             any_light: false,
             emitting: 0,
