@@ -1,6 +1,6 @@
-//! The surfels one rank holds in the data mode out of core: four work files in one order, the
-//! record layout they travel in between ranks, and the sorted merge and external sort that put
-//! them back in order.
+//! The surfels one rank holds in the data mode out of core: four work files in one order (or
+//! runs of records of a few such sets of files, [`Held`]), the record layout they travel in
+//! between ranks, and the sorted merge and external sort that put them back in order.
 //!
 //! The four files are what the band machinery of `outcore::band` reads and writes (static
 //! records, the radiosity the lines carry, the light gathered by the directions of the current

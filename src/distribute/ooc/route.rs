@@ -5,9 +5,9 @@
 //! into the new held files; an external sort instead when the held order was another axis's).
 //!
 //! Inside an axis a rank's rows of each layer are one interval before a step and after it, so
-//! the fill reads only the rows that leave, and the merge writes the new held files layer by
-//! layer, the kept rows copied as bytes between the received rows below and above them
-//! ([`Router::merge_by_layers`]).
+//! the fill reads only the rows that leave, and the merge lays the new held files out layer by
+//! layer, the kept rows left where they are between the received rows below and above them,
+//! which alone are written ([`Router::merge_by_layers`]).
 
 use super::held::{
     merge_runs, sort_runs, voxel, AxisKey, Held, HeldRangeReader, HeldReader, HeldWriter,
@@ -228,9 +228,11 @@ impl Router<'_> {
     /// (`kept_rows`), one range of the held files, and each received row lies below or above
     /// them (a row is one rank's whole, and a rank's rows of a layer are one interval before
     /// the step and after it). So the new held files are, layer by layer, the received records
-    /// below the kept range, the kept range copied as bytes, and the received records above
-    /// it: no kept record is decoded or compared, and the received runs are merged among
-    /// themselves only. Returns the new held files and their histogram (`histogram` reused).
+    /// below the kept range, the kept range, and the received records above it: the received
+    /// records are written to new files (merged among themselves only), and the kept ranges
+    /// stay in the old files, which the new held files take over (`HeldWriter::keep`; copied
+    /// as bytes instead when the old ones lie in too many files, `held::MOST_SETS`). Returns
+    /// the new held files and their histogram (`histogram` reused).
     #[allow(clippy::too_many_arguments)]
     fn merge_by_layers(
         &self,
