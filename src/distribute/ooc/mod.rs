@@ -531,15 +531,29 @@ impl Solver<'_> {
         ours.then_some(done)
     }
 
-    /// Surfels per line column of `frame`, added over ranks.
+    /// Surfels per line column of `frame`, added over ranks: from `rows`, the held files' row
+    /// histogram, where they are in the copy order of `frame`'s main axis (a column holds
+    /// whole rows of each layer), else from their static records.
     fn column_load(
         &self,
         held: &Held,
         frame: &LineFrame,
+        rows: Option<&[u32]>,
         plan: &MemoryPlan,
         io: &mut IoCounters,
     ) -> Result<Vec<f64>, OocError> {
         let mut load = vec![0.0f64; frame.nj as usize];
+        if let Some(histogram) = rows {
+            let per_layer = self.source.info().grid.dims[frame.v] as usize;
+            for (layer, counts) in histogram.chunks(per_layer.max(1)).enumerate() {
+                let shift = frame.layer_shift(layer).1 as usize;
+                for (row, &count) in counts.iter().enumerate() {
+                    load[row + shift] += count as f64;
+                }
+            }
+            self.group.sum_in_place(&mut load);
+            return Ok(load);
+        }
         let [statics, ..] = held.open_files()?;
         let chunk = (plan.io_bytes / STATIC_LEN).max(1) as u64;
         let mut bytes = Vec::new();
@@ -1001,7 +1015,10 @@ impl Sweep for DataOocSweep<'_, '_> {
         let t = Instant::now();
         if self.remembered[d].is_none() {
             let held = self.held.as_ref().expect("held files between steps");
-            let load = solver.column_load(held, &frame, self.plan, &mut self.io)?;
+            // Inside an axis the held files are in its copy order: their row histogram holds
+            // the load (the same counts as their records, without reading them).
+            let rows = (!first && self.in_copy_order).then_some(self.histogram.as_slice());
+            let load = solver.column_load(held, &frame, rows, self.plan, &mut self.io)?;
             let cuts = cut_columns(&load, ranks);
             self.imbalance[d] = imbalance_of(&load, &cuts);
             self.remembered[d] = Some(cuts);
