@@ -283,18 +283,18 @@ pub enum HeldReader {
     /// One set of files, each read sequentially.
     Whole([RecordReader; 4]),
     /// Records in runs of several sets.
-    Runs(HeldRangeReader),
+    Runs(Box<HeldRangeReader>),
 }
 
 impl HeldReader {
     pub fn open(held: &Held, buffer_bytes: usize) -> Result<Self, OocError> {
         if held.sets.len() != 1 || held.runs.len() > 1 || !held.runs_from_start() {
             let all = vec![(0, held.count)];
-            return Ok(HeldReader::Runs(HeldRangeReader::open(
+            return Ok(HeldReader::Runs(Box::new(HeldRangeReader::open(
                 held,
                 all,
                 buffer_bytes,
-            )?));
+            )?)));
         }
         let paths = &held.sets[0];
         fn reader<const L: usize>(path: &Path, buffer: usize) -> Result<RecordReader, OocError> {
