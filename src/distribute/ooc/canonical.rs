@@ -20,8 +20,9 @@ impl Solver<'_> {
     /// Puts the radiosity of a checkpoint (`file`, on rank 0) into the held files of every rank,
     /// which hold their slices in canonical order (from `first`): rank 0 reads it, checks it, and
     /// sends each rank its slice in bounded rounds. The lines then carry it (less `E` with the
-    /// direct pass, which ran before). With `older` (the state's Chebyshev semi-iteration runs, which every rank knows), its
-    /// radiosity before last goes into the older field the same way.
+    /// direct pass, which ran before). With `older` (the state's Chebyshev semi-iteration
+    /// runs, which every rank knows), its radiosity before last goes into the older field the
+    /// same way.
     pub(super) fn restore(
         &self,
         mut held: Held,

@@ -14,9 +14,10 @@
 //! (`outcore::solver::walk_by_axis`): grouped by main axis, then by the slope of the lines along
 //! `v`, on which the columns depend, so that few records move. For each direction, rank `r`
 //! owns a contiguous range of line columns `j` (cut for equal surfels from the column histogram
-//! added over ranks, in the first iteration, and remembered). The held records whose column is now another rank's
-//! move there ([`route`]): in copy order, so the kept and received runs are merged; at a change
-//! of main axis they are sorted instead. The direction is then solved band by band on the held
+//! added over ranks, in the first iteration, and remembered). The held records whose column is
+//! now another rank's move there ([`route`]): in copy order, so the received runs are merged
+//! and laid out around the kept records, which stay where they are; at a change of main axis
+//! they are sorted instead. The direction is then solved band by band on the held
 //! files (`outcore::band`); every line lies whole on one rank.
 //!
 //! **Runs of one slope** ([`runs_of`]): the directions after it in the walk with the same main
