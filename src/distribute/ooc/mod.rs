@@ -1262,8 +1262,6 @@ impl Sweep for DataOocSweep<'_, '_> {
     }
 }
 
-/// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
-/// were none; the sum starts with this axis), as `outcore::solver` folds its axes.
 /// The runs of `walk` from step `from` on: by step, how many steps from there have lines of
 /// one slope along `v` on one main axis (at most `MOST_TOGETHER`), gathered together at the
 /// run's first step; 0 inside a run, and before `from`. Such directions put every surfel in
@@ -1305,6 +1303,8 @@ fn cut_at(runs: &mut [usize], starts: &[bool]) {
     }
 }
 
+/// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
+/// were none; the sum starts with this axis), as `outcore::solver` folds its axes.
 fn fold_axis(w: &mut Wire, first: bool) {
     let mut sum = decode_gathered(&w[GATHERED_AT..]);
     if !first {
