@@ -45,19 +45,29 @@ const PREFETCH_AHEAD: usize = 16;
 /// Entries of one piece of a block's replay (pieces are dealt to the threads).
 const PIECE_ENTRIES: u64 = 1 << 15;
 
-/// Surfels a block can name: its entries hold a side number in 28 bits.
+/// Sides a block can name: its entries hold a side number in 28 bits.
 const BLOCK_SIDES: u64 = 1 << 28;
+
+/// Where an entry's factor index begins.
+const FACTOR_SHIFT: u32 = 28;
 
 /// Distinct factors a block can hold (23 bits of an entry while it is placed, [`place`]).
 const PLACING_FACTORS: u64 = 1 << 23;
 
-/// The links of a run of steps, by receiving surfel.
+/// The links of a run of steps, by receiving surfel side (side `t` is surfel `t / 2`'s side
+/// `t % 2`).
+///
+/// Keyed by side rather than by surfel so that a replay adds each side's terms in a register:
+/// with both sides' links of a surfel mixed, each link chose its side's sums by an index, and
+/// the sums went through memory from one link to the next (a store then a load of the same
+/// place, in a chain: a third of the replay's time in `perf`). A side's links are in the same
+/// order either way, so its sum is the same.
 #[derive(Debug, Default)]
 pub struct LinkBlock {
-    /// Surfel `s`'s links are `entries[starts[s]..starts[s + 1]]`.
+    /// Side `t`'s links are `entries[starts[t]..starts[t + 1]]`.
     starts: Vec<u32>,
-    /// A link: its sending side in bits 0 to 27, its receiving side (of the surfel's two) in bit
-    /// 28, the index of its factor in `factors` in bits 29 to 63.
+    /// A link: its sending side in bits 0 to 27, the index of its factor in `factors` in bits
+    /// 28 to 63.
     entries: Vec<u64>,
     /// The steps' distinct factors, one table after the other.
     factors: Vec<f64>,
@@ -74,7 +84,7 @@ impl LinkBlock {
         let fits = 2 * surfels as u64 <= BLOCK_SIDES
             && (total as u64) < u32::MAX as u64
             && (factors as u64) < PLACING_FACTORS;
-        fits.then(|| (surfels as u64 + 1) * 4 + total as u64 * 8 + factors as u64 * 8)
+        fits.then(|| (2 * surfels as u64 + 1) * 4 + total as u64 * 8 + factors as u64 * 8)
     }
 
     /// The links of `steps` (in step order) moved into one block over the `surfels` first
@@ -85,24 +95,25 @@ impl LinkBlock {
     pub fn fuse(steps: Vec<DirectionLinks>, surfels: usize) -> LinkBlock {
         let total: usize = steps.iter().map(|d| d.len()).sum();
         debug_assert!(Self::bytes_for(&steps.iter().collect::<Vec<_>>(), surfels).is_some());
-        // Links per receiving surfel, then where each surfel's links begin.
+        // Links per receiving side, then where each side's links begin.
+        let sides = 2 * surfels;
         let counts = steps
             .par_iter()
             .fold(
-                || vec![0u32; surfels],
+                || vec![0u32; sides],
                 |mut counts, d| {
-                    d.for_each_link(|to, _, _| counts[(to >> 1) as usize] += 1);
+                    d.for_each_link(|to, _, _| counts[to as usize] += 1);
                     counts
                 },
             )
             .reduce(
-                || vec![0u32; surfels],
+                || vec![0u32; sides],
                 |mut a, b| {
                     a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
                     a
                 },
             );
-        let mut starts = Vec::with_capacity(surfels + 1);
+        let mut starts = Vec::with_capacity(sides + 1);
         let mut at = 0u32;
         starts.push(0);
         for c in &counts {
@@ -134,7 +145,7 @@ impl LinkBlock {
     /// Adds to `acc` what the block's links bring from `radiosity` (the first `channels`
     /// channels).
     pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
-        let surfels = self.starts.len() - 1;
+        let surfels = (self.starts.len() - 1) / 2;
         assert!(
             acc.len() >= surfels && radiosity.len() >= surfels,
             "the light holds every surfel the block names"
@@ -164,56 +175,54 @@ impl LinkBlock {
         radiosity: &[Radiosity],
     ) {
         const SIDE: u64 = BLOCK_SIDES - 1;
-        let (begin, end) = (
-            self.starts[first] as usize,
-            self.starts[first + acc.len()] as usize,
-        );
-        let entries = &self.entries[..end];
-        let mut k = begin;
+        let starts = &self.starts[2 * first..=2 * (first + acc.len())];
+        let entries = &self.entries[..starts[starts.len() - 1] as usize];
+        let mut k = starts[0] as usize;
         for (s, sums) in acc.iter_mut().enumerate() {
-            let last = self.starts[first + s + 1] as usize;
-            let mut light = *sums;
-            while k < last {
-                if let Some(&ahead) = entries.get(k + PREFETCH_AHEAD) {
-                    prefetch(radiosity.as_ptr(), ((ahead & SIDE) >> 1) as usize);
+            for (side, to) in sums.iter_mut().enumerate() {
+                let last = starts[2 * s + side + 1] as usize;
+                let mut light = *to;
+                while k < last {
+                    if let Some(&ahead) = entries.get(k + PREFETCH_AHEAD) {
+                        prefetch(radiosity.as_ptr(), ((ahead & SIDE) >> 1) as usize);
+                    }
+                    let entry = entries[k];
+                    let from = entry & SIDE;
+                    let sent = &radiosity[(from >> 1) as usize][(from & 1) as usize];
+                    let factor = self.factors[(entry >> FACTOR_SHIFT) as usize];
+                    for c in 0..CHANNELS {
+                        light[c] += sent[c] as f64 * factor;
+                    }
+                    k += 1;
                 }
-                let entry = entries[k];
-                let from = entry & SIDE;
-                let sent = &radiosity[(from >> 1) as usize][(from & 1) as usize];
-                let factor = self.factors[(entry >> 29) as usize];
-                let to = &mut light[(entry >> 28 & 1) as usize];
-                for c in 0..CHANNELS {
-                    to[c] += sent[c] as f64 * factor;
-                }
-                k += 1;
+                *to = light;
             }
-            *sums = light;
         }
     }
 }
 
-/// Surfels of one bucket of [`place`]: their entries (about 32 a surfel in a block of 32
+/// Receiving sides of one bucket of [`place`]: their entries (about 16 a side in a block of 32
 /// steps) fit the caches of one core.
-const BUCKET_SURFELS: usize = 1 << 12;
+const BUCKET_SIDES: usize = 1 << 12;
 
 /// The entries of the links of `steps` (their factor indices moved by `offsets`), by receiving
-/// surfel as `starts` cuts them; each surfel's in step order, and in each step in link order.
+/// side as `starts` cuts them; each side's in step order, and in each step in link order.
 ///
-/// Placing each link straight at its surfel's place writes all over the block's entries (far
+/// Placing each link straight at its side's place writes all over the block's entries (far
 /// larger than the caches, every write a miss): instead the links are first appended, step
-/// after step, to buckets of [`BUCKET_SURFELS`] receivers, each at its own final range, with
+/// after step, to buckets of [`BUCKET_SIDES`] receivers, each at its own final range, with
 /// the receiver's place in its bucket in the entry's top bits; then each bucket is put in order
 /// inside its own range, which the caches hold. Both passes run on the threads, by ranges of
 /// buckets. A step's links are dropped once appended.
 fn place(steps: Vec<DirectionLinks>, offsets: &[u64], starts: &[u32]) -> Vec<u64> {
     /// Where the receiver's place in its bucket rides while the links are appended.
     const PLACE_SHIFT: u32 = 52;
-    const _: () = assert!(PLACING_FACTORS << 29 <= 1 << PLACE_SHIFT);
-    const _: () = assert!(BUCKET_SURFELS as u64 <= 1 << (64 - PLACE_SHIFT));
-    let surfels = starts.len() - 1;
-    let total = starts[surfels] as usize;
-    let buckets = surfels.div_ceil(BUCKET_SURFELS);
-    let bucket_start = |b: usize| starts[(b * BUCKET_SURFELS).min(surfels)] as usize;
+    const _: () = assert!(PLACING_FACTORS << FACTOR_SHIFT <= 1 << PLACE_SHIFT);
+    const _: () = assert!(BUCKET_SIDES as u64 <= 1 << (64 - PLACE_SHIFT));
+    let sides = starts.len() - 1;
+    let total = starts[sides] as usize;
+    let buckets = sides.div_ceil(BUCKET_SIDES);
+    let bucket_start = |b: usize| starts[(b * BUCKET_SIDES).min(sides)] as usize;
     let mut entries = vec![0u64; total];
     // Ranges of buckets of about equal entries, one a thread.
     let threads = rayon::current_num_threads().max(1);
@@ -244,32 +253,31 @@ fn place(steps: Vec<DirectionLinks>, offsets: &[u64], starts: &[u32]) -> Vec<u64
     for (d, &offset) in steps.into_iter().zip(offsets) {
         parts.par_iter_mut().for_each(|(range, part, cursors)| {
             let (first, last) = (
-                range.start * BUCKET_SURFELS,
-                (range.end * BUCKET_SURFELS).min(surfels),
+                range.start * BUCKET_SIDES,
+                (range.end * BUCKET_SIDES).min(sides),
             );
             d.for_each_link(|to, from, factor| {
-                let s = (to >> 1) as usize;
+                let s = to as usize;
                 if (first..last).contains(&s) {
-                    let c = &mut cursors[s / BUCKET_SURFELS - range.start];
+                    let c = &mut cursors[s / BUCKET_SIDES - range.start];
                     part[*c] = from as u64
-                        | ((to & 1) as u64) << 28
-                        | (factor as u64 + offset) << 29
-                        | ((s % BUCKET_SURFELS) as u64) << PLACE_SHIFT;
+                        | (factor as u64 + offset) << FACTOR_SHIFT
+                        | ((s % BUCKET_SIDES) as u64) << PLACE_SHIFT;
                     *c += 1;
                 }
             });
         });
     }
-    // Pass 2: each bucket in surfel order, inside its range.
+    // Pass 2: each bucket in side order, inside its range.
     parts.into_par_iter().for_each(|(range, part, _)| {
         let base = bucket_start(range.start);
         let mut buffer = Vec::new();
-        let mut place = vec![0u32; BUCKET_SURFELS];
+        let mut place = vec![0u32; BUCKET_SIDES];
         for b in range {
             let (from, to) = (bucket_start(b) - base, bucket_start(b + 1) - base);
-            let s0 = b * BUCKET_SURFELS;
-            let bucket_surfels = BUCKET_SURFELS.min(surfels - s0);
-            for (k, p) in place.iter_mut().take(bucket_surfels).enumerate() {
+            let s0 = b * BUCKET_SIDES;
+            let bucket_len = BUCKET_SIDES.min(sides - s0);
+            for (k, p) in place.iter_mut().take(bucket_len).enumerate() {
                 *p = starts[s0 + k] - starts[s0];
             }
             buffer.clear();
@@ -297,15 +305,26 @@ fn give_back_freed_memory() {
     }
 }
 
-/// Surfel bounds cutting `starts` (a prefix sum of entries) into about `pieces` runs of equal
-/// entries, first 0 and last the surfel count.
+/// Surfel bounds cutting `starts` (a prefix sum of entries by side, two sides a surfel) into
+/// about `pieces` runs of equal entries, first 0 and last the surfel count: a surfel's two
+/// sides stay in one run, so that each run's sums are its own.
 fn split_by_entries(starts: &[u32], pieces: u64) -> Vec<usize> {
-    let surfels = starts.len() - 1;
-    let total = starts[surfels] as u64;
+    let surfels = (starts.len() - 1) / 2;
+    let total = starts[2 * surfels] as u64;
     let mut bounds = vec![0usize];
     for p in 1..pieces {
         let target = (total * p / pieces) as u32;
-        let at = starts.partition_point(|&s| s < target).min(surfels);
+        // The first surfel whose links begin at or after `target`.
+        let (mut lo, mut hi) = (0, surfels);
+        while lo < hi {
+            let mid = (lo + hi) / 2;
+            if starts[2 * mid] < target {
+                lo = mid + 1;
+            } else {
+                hi = mid;
+            }
+        }
+        let at = lo;
         if at > *bounds.last().expect("a first bound") {
             bounds.push(at);
         }
@@ -663,13 +682,15 @@ mod tests {
 
     #[test]
     fn pieces_cut_by_entries_cover_every_surfel_once() {
-        let starts = [0u32, 5, 5, 9, 20, 21, 40];
+        // Six surfels, by side.
+        let starts = [0u32, 2, 5, 5, 5, 7, 9, 15, 20, 21, 21, 30, 40];
         for pieces in [1, 2, 3, 7, 50] {
             let b = split_by_entries(&starts, pieces);
             assert_eq!(b[0], 0);
             assert_eq!(*b.last().unwrap(), 6);
             assert!(b.windows(2).all(|w| w[0] < w[1]), "{b:?}");
         }
+        assert_eq!(split_by_entries(&starts, 2), vec![0, 4, 6]);
         assert_eq!(split_by_entries(&[0], 4), vec![0]);
     }
 
