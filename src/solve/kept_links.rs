@@ -66,13 +66,53 @@ const PLACING_FACTORS: u64 = 1 << 23;
 pub struct LinkBlock {
     /// Side `t`'s links are `entries[starts[t]..starts[t + 1]]`.
     starts: Vec<u32>,
-    /// A link: its sending side in bits 0 to 27, the index of its factor in `factors` in bits
-    /// 28 to 63.
-    entries: Vec<u64>,
+    entries: Entries,
+    /// Where an entry's factor index begins: the bits below name the sending side.
+    factor_shift: u32,
     /// The steps' distinct factors, one table after the other.
     factors: Vec<f64>,
     /// Replay pieces, as surfel bounds: piece `p` is surfels `pieces[p]..pieces[p + 1]`.
     pieces: Vec<usize>,
+}
+
+/// A block's links: each its sending side in the bits below [`LinkBlock::factor_shift`], the
+/// index of its factor in [`LinkBlock::factors`] above.
+///
+/// **Narrow** where the sides and factors fit 32 bits (a scene of 2^20 surfels leaves 11 bits,
+/// 2,048 factors for a block's 32 steps, which have a few dozen each): a replay streams the
+/// entries (2.1 GB an iteration for the Cornell box at resolution 256 with 589 directions, in
+/// 8-byte entries) and they are most of a solve's memory. Else **wide**, 64 bits (the factor
+/// index from bit [`FACTOR_SHIFT`]).
+#[derive(Debug)]
+enum Entries {
+    Narrow(Vec<u32>),
+    Wide(Vec<u64>),
+}
+
+impl Default for Entries {
+    fn default() -> Self {
+        Entries::Narrow(Vec::new())
+    }
+}
+
+impl Entries {
+    fn bytes(&self) -> usize {
+        match self {
+            Entries::Narrow(v) => v.len() * 4,
+            Entries::Wide(v) => v.len() * 8,
+        }
+    }
+}
+
+/// The bits that name a sending side of a block over `surfels` surfels.
+fn side_bits(surfels: usize) -> u32 {
+    (2 * surfels as u64).next_power_of_two().trailing_zeros()
+}
+
+/// Whether a block over `surfels` surfels with `factors` distinct factors has narrow entries.
+fn narrow(surfels: usize, factors: usize) -> bool {
+    let bits = side_bits(surfels);
+    bits < 32 && factors as u64 <= 1 << (32 - bits)
 }
 
 impl LinkBlock {
@@ -84,7 +124,8 @@ impl LinkBlock {
         let fits = 2 * surfels as u64 <= BLOCK_SIDES
             && (total as u64) < u32::MAX as u64
             && (factors as u64) < PLACING_FACTORS;
-        fits.then(|| (2 * surfels as u64 + 1) * 4 + total as u64 * 8 + factors as u64 * 8)
+        let entry = if narrow(surfels, factors) { 4 } else { 8 };
+        fits.then(|| (2 * surfels as u64 + 1) * 4 + total as u64 * entry + factors as u64 * 8)
     }
 
     /// The links of `steps` (in step order) moved into one block over the `surfels` first
@@ -93,6 +134,12 @@ impl LinkBlock {
     /// the links' own (the block's pages are written, and taken from the system, as the steps'
     /// are given back).
     pub fn fuse(steps: Vec<DirectionLinks>, surfels: usize) -> LinkBlock {
+        let factors = steps.iter().map(|d| d.factors().len()).sum();
+        Self::fuse_as(steps, surfels, narrow(surfels, factors))
+    }
+
+    /// [`Self::fuse`], with narrow entries or not as `narrow` says (where they fit).
+    fn fuse_as(steps: Vec<DirectionLinks>, surfels: usize, narrow: bool) -> LinkBlock {
         let total: usize = steps.iter().map(|d| d.len()).sum();
         debug_assert!(Self::bytes_for(&steps.iter().collect::<Vec<_>>(), surfels).is_some());
         // Links per receiving side, then where each side's links begin.
@@ -127,11 +174,26 @@ impl LinkBlock {
             offsets.push(factors.len() as u64);
             factors.extend_from_slice(d.factors());
         }
-        let entries = place(steps, &offsets, &starts);
+        let wide = place(steps, &offsets, &starts);
+        debug_assert!(!narrow || self::narrow(surfels, factors.len()));
+        let (entries, factor_shift) = if narrow {
+            // Made wide, then narrowed: the steps' links are gone by now, so this holds less
+            // than placing did (12 bytes a link against 16).
+            let bits = side_bits(surfels);
+            let side = (1u64 << FACTOR_SHIFT) - 1;
+            let narrowed = wide
+                .par_iter()
+                .map(|&e| ((e & side) | (e >> FACTOR_SHIFT) << bits) as u32)
+                .collect();
+            (Entries::Narrow(narrowed), bits)
+        } else {
+            (Entries::Wide(wide), FACTOR_SHIFT)
+        };
         let pieces = split_by_entries(&starts, (total as u64).div_ceil(PIECE_ENTRIES).max(1));
         LinkBlock {
             starts,
             entries,
+            factor_shift,
             factors,
             pieces,
         }
@@ -139,7 +201,7 @@ impl LinkBlock {
 
     /// Bytes held (the replay's piece bounds, a few per 32,768 links, left out).
     pub fn bytes(&self) -> u64 {
-        (self.starts.len() * 4 + self.entries.len() * 8 + self.factors.len() * 8) as u64
+        (self.starts.len() * 4 + self.entries.bytes() + self.factors.len() * 8) as u64
     }
 
     /// Adds to `acc` what the block's links bring from `radiosity` (the first `channels`
@@ -157,26 +219,30 @@ impl LinkBlock {
             parts.push((w[0], part));
             rest = tail;
         }
-        parts.into_par_iter().for_each(|(first, part)| {
-            if channels == 1 {
-                self.replay_piece::<1>(first, part, radiosity);
-            } else {
-                self.replay_piece::<3>(first, part, radiosity);
-            }
-        });
+        parts
+            .into_par_iter()
+            .for_each(|(first, part)| match (&self.entries, channels) {
+                (Entries::Narrow(e), 1) => self.replay_piece::<1, u32>(e, first, part, radiosity),
+                (Entries::Narrow(e), _) => self.replay_piece::<3, u32>(e, first, part, radiosity),
+                (Entries::Wide(e), 1) => self.replay_piece::<1, u64>(e, first, part, radiosity),
+                (Entries::Wide(e), _) => self.replay_piece::<3, u64>(e, first, part, radiosity),
+            });
     }
 
-    /// Replays the links received by surfels `first..first + acc.len()` into `acc`.
+    /// Replays the links received by surfels `first..first + acc.len()` into `acc`, from the
+    /// block's `entries`.
     #[inline(never)]
-    fn replay_piece<const CHANNELS: usize>(
+    fn replay_piece<const CHANNELS: usize, E: Copy + Into<u64>>(
         &self,
+        entries: &[E],
         first: usize,
         acc: &mut [Gathered],
         radiosity: &[Radiosity],
     ) {
-        const SIDE: u64 = BLOCK_SIDES - 1;
+        let shift = self.factor_shift;
+        let side_mask = (1u64 << shift) - 1;
         let starts = &self.starts[2 * first..=2 * (first + acc.len())];
-        let entries = &self.entries[..starts[starts.len() - 1] as usize];
+        let entries = &entries[..starts[starts.len() - 1] as usize];
         let mut k = starts[0] as usize;
         for (s, sums) in acc.iter_mut().enumerate() {
             for (side, to) in sums.iter_mut().enumerate() {
@@ -184,12 +250,15 @@ impl LinkBlock {
                 let mut light = *to;
                 while k < last {
                     if let Some(&ahead) = entries.get(k + PREFETCH_AHEAD) {
-                        prefetch(radiosity.as_ptr(), ((ahead & SIDE) >> 1) as usize);
+                        prefetch(
+                            radiosity.as_ptr(),
+                            ((ahead.into() & side_mask) >> 1) as usize,
+                        );
                     }
-                    let entry = entries[k];
-                    let from = entry & SIDE;
+                    let entry: u64 = entries[k].into();
+                    let from = entry & side_mask;
                     let sent = &radiosity[(from >> 1) as usize][(from & 1) as usize];
-                    let factor = self.factors[(entry >> FACTOR_SHIFT) as usize];
+                    let factor = self.factors[(entry >> shift) as usize];
                     for c in 0..CHANNELS {
                         light[c] += sent[c] as f64 * factor;
                     }
@@ -765,6 +834,40 @@ mod tests {
                 assert_eq!(kept.held().0, steps);
             }
         }
+    }
+
+    #[test]
+    fn narrow_and_wide_blocks_replay_alike() {
+        let surfels = 3_000u32;
+        let directions = some_links(BLOCK_STEPS, surfels);
+        let radiosity: Vec<Radiosity> = (0..surfels)
+            .map(|s| {
+                [
+                    [s as f32 / 7.0, 1.0 / (s + 1) as f32, 0.5],
+                    [0.25, s as f32, 3.0],
+                ]
+            })
+            .collect();
+        let mut expected = vec![[[0.125f64; 3]; 2]; surfels as usize];
+        for d in &directions {
+            d.replay(&radiosity, 3, &mut expected);
+        }
+        for narrow in [true, false] {
+            let block = LinkBlock::fuse_as(directions.clone(), surfels as usize, narrow);
+            assert_eq!(matches!(block.entries, Entries::Narrow(_)), narrow);
+            let links: usize = directions.iter().map(DirectionLinks::len).sum();
+            let entry = if narrow { 4 } else { 8 };
+            assert_eq!(
+                block.bytes() as usize,
+                (2 * surfels as usize + 1) * 4 + links * entry + block.factors.len() * 8
+            );
+            let mut acc = vec![[[0.125f64; 3]; 2]; surfels as usize];
+            block.replay(&radiosity, 3, &mut acc);
+            assert_eq!(acc, expected, "narrow {narrow}");
+        }
+        // 2^20 surfels leave 11 bits of a narrow entry to the factors.
+        assert!(narrow(1 << 20, 2048) && !narrow(1 << 20, 2049));
+        assert!(!narrow(1 << 31, 1));
     }
 
     #[test]
