@@ -51,8 +51,9 @@ const BLOCK_SIDES: u64 = 1 << 28;
 /// Where an entry's factor index begins.
 const FACTOR_SHIFT: u32 = 28;
 
-/// Distinct factors a block can hold (23 bits of an entry while it is placed, [`place`]).
-const PLACING_FACTORS: u64 = 1 << 23;
+/// Distinct factors a block can hold: far more than its steps have (a few dozen each), and
+/// its table of them stays small beside its links.
+const BLOCK_FACTORS: u64 = 1 << 23;
 
 /// The links of a run of steps, by receiving surfel side (side `t` is surfel `t / 2`'s side
 /// `t % 2`).
@@ -123,7 +124,7 @@ impl LinkBlock {
         let factors: usize = steps.iter().map(|d| d.factors().len()).sum();
         let fits = 2 * surfels as u64 <= BLOCK_SIDES
             && (total as u64) < u32::MAX as u64
-            && (factors as u64) < PLACING_FACTORS;
+            && (factors as u64) < BLOCK_FACTORS;
         let entry = if narrow(surfels, factors) { 4 } else { 8 };
         fits.then(|| (2 * surfels as u64 + 1) * 4 + total as u64 * entry + factors as u64 * 8)
     }
@@ -144,8 +145,12 @@ impl LinkBlock {
         debug_assert!(Self::bytes_for(&steps.iter().collect::<Vec<_>>(), surfels).is_some());
         // Links per receiving side, then where each side's links begin.
         let sides = 2 * surfels;
+        // One count array a thread: more splits of the steps would each zero an array of every
+        // side (a few MiB, fresh pages each).
+        let threads = rayon::current_num_threads().max(1);
         let counts = steps
             .par_iter()
+            .with_min_len(steps.len().div_ceil(threads))
             .fold(
                 || vec![0u32; sides],
                 |mut counts, d| {
@@ -174,20 +179,18 @@ impl LinkBlock {
             offsets.push(factors.len() as u64);
             factors.extend_from_slice(d.factors());
         }
-        let wide = place(steps, &offsets, &starts);
         debug_assert!(!narrow || self::narrow(surfels, factors.len()));
         let (entries, factor_shift) = if narrow {
-            // Made wide, then narrowed: the steps' links are gone by now, so this holds less
-            // than placing did (12 bytes a link against 16).
             let bits = side_bits(surfels);
-            let side = (1u64 << FACTOR_SHIFT) - 1;
-            let narrowed = wide
-                .par_iter()
-                .map(|&e| ((e & side) | (e >> FACTOR_SHIFT) << bits) as u32)
-                .collect();
-            (Entries::Narrow(narrowed), bits)
+            let entries = place(steps, &starts, |from, factor, step| {
+                (from as u64 | (factor as u64 + offsets[step]) << bits) as u32
+            });
+            (Entries::Narrow(entries), bits)
         } else {
-            (Entries::Wide(wide), FACTOR_SHIFT)
+            let entries = place(steps, &starts, |from, factor, step| {
+                from as u64 | (factor as u64 + offsets[step]) << FACTOR_SHIFT
+            });
+            (Entries::Wide(entries), FACTOR_SHIFT)
         };
         let pieces = split_by_entries(&starts, (total as u64).div_ceil(PIECE_ENTRIES).max(1));
         LinkBlock {
@@ -274,25 +277,29 @@ impl LinkBlock {
 /// steps) fit the caches of one core.
 const BUCKET_SIDES: usize = 1 << 12;
 
-/// The entries of the links of `steps` (their factor indices moved by `offsets`), by receiving
+/// The entries of the links of `steps`, each made by `entry(from, factor, step)`, by receiving
 /// side as `starts` cuts them; each side's in step order, and in each step in link order.
 ///
 /// Placing each link straight at its side's place writes all over the block's entries (far
 /// larger than the caches, every write a miss): instead the links are first appended, step
 /// after step, to buckets of [`BUCKET_SIDES`] receivers, each at its own final range, with
-/// the receiver's place in its bucket in the entry's top bits; then each bucket is put in order
-/// inside its own range, which the caches hold. Both passes run on the threads, by ranges of
-/// buckets. A step's links are dropped once appended.
-fn place(steps: Vec<DirectionLinks>, offsets: &[u64], starts: &[u32]) -> Vec<u64> {
-    /// Where the receiver's place in its bucket rides while the links are appended.
-    const PLACE_SHIFT: u32 = 52;
-    const _: () = assert!(PLACING_FACTORS << FACTOR_SHIFT <= 1 << PLACE_SHIFT);
-    const _: () = assert!(BUCKET_SIDES as u64 <= 1 << (64 - PLACE_SHIFT));
+/// the receiver's place in its bucket beside (two bytes a link); then each bucket is put in
+/// order inside its own range, which the caches hold. Both passes run on the threads, by ranges
+/// of buckets. A step's links are dropped once appended. The entries are made at their final
+/// width at once: an array of wide entries narrowed afterwards was 12 more bytes a link of
+/// fresh pages, which the first iteration of the Cornell setting faulted in for every block.
+fn place<E, F>(steps: Vec<DirectionLinks>, starts: &[u32], entry: F) -> Vec<E>
+where
+    E: Copy + Default + Send + Sync,
+    F: Fn(u32, u32, usize) -> E + Sync,
+{
+    const _: () = assert!(BUCKET_SIDES <= 1 << 16);
     let sides = starts.len() - 1;
     let total = starts[sides] as usize;
     let buckets = sides.div_ceil(BUCKET_SIDES);
     let bucket_start = |b: usize| starts[(b * BUCKET_SIDES).min(sides)] as usize;
-    let mut entries = vec![0u64; total];
+    let mut entries = vec![E::default(); total];
+    let mut places = vec![0u16; total];
     // Ranges of buckets of about equal entries, one a thread.
     let threads = rayon::current_num_threads().max(1);
     let mut cuts = vec![0usize];
@@ -310,55 +317,61 @@ fn place(steps: Vec<DirectionLinks>, offsets: &[u64], starts: &[u32]) -> Vec<u64
     }
     cuts.dedup();
     let mut parts = Vec::with_capacity(cuts.len());
-    let mut rest = entries.as_mut_slice();
+    let (mut rest, mut rest_places) = (entries.as_mut_slice(), places.as_mut_slice());
     for w in cuts.windows(2) {
-        let (part, tail) = rest.split_at_mut(bucket_start(w[1]) - bucket_start(w[0]));
+        let len = bucket_start(w[1]) - bucket_start(w[0]);
+        let (part, tail) = rest.split_at_mut(len);
+        let (part_places, tail_places) = rest_places.split_at_mut(len);
         let base = bucket_start(w[0]);
         let cursors: Vec<usize> = (w[0]..w[1]).map(|b| bucket_start(b) - base).collect();
-        parts.push((w[0]..w[1], part, cursors));
+        parts.push((w[0]..w[1], part, part_places, cursors));
         rest = tail;
+        rest_places = tail_places;
     }
     // Pass 1: each step's links appended to their buckets, then the step dropped.
-    for (d, &offset) in steps.into_iter().zip(offsets) {
-        parts.par_iter_mut().for_each(|(range, part, cursors)| {
-            let (first, last) = (
-                range.start * BUCKET_SIDES,
-                (range.end * BUCKET_SIDES).min(sides),
-            );
-            d.for_each_link(|to, from, factor| {
-                let s = to as usize;
-                if (first..last).contains(&s) {
-                    let c = &mut cursors[s / BUCKET_SIDES - range.start];
-                    part[*c] = from as u64
-                        | (factor as u64 + offset) << FACTOR_SHIFT
-                        | ((s % BUCKET_SIDES) as u64) << PLACE_SHIFT;
-                    *c += 1;
-                }
+    for (step, d) in steps.into_iter().enumerate() {
+        parts
+            .par_iter_mut()
+            .for_each(|(range, part, part_places, cursors)| {
+                let (first, last) = (
+                    range.start * BUCKET_SIDES,
+                    (range.end * BUCKET_SIDES).min(sides),
+                );
+                d.for_each_link(|to, from, factor| {
+                    let s = to as usize;
+                    if (first..last).contains(&s) {
+                        let c = &mut cursors[s / BUCKET_SIDES - range.start];
+                        part[*c] = entry(from, factor, step);
+                        part_places[*c] = (s % BUCKET_SIDES) as u16;
+                        *c += 1;
+                    }
+                });
             });
-        });
     }
     // Pass 2: each bucket in side order, inside its range.
-    parts.into_par_iter().for_each(|(range, part, _)| {
-        let base = bucket_start(range.start);
-        let mut buffer = Vec::new();
-        let mut place = vec![0u32; BUCKET_SIDES];
-        for b in range {
-            let (from, to) = (bucket_start(b) - base, bucket_start(b + 1) - base);
-            let s0 = b * BUCKET_SIDES;
-            let bucket_len = BUCKET_SIDES.min(sides - s0);
-            for (k, p) in place.iter_mut().take(bucket_len).enumerate() {
-                *p = starts[s0 + k] - starts[s0];
+    parts
+        .into_par_iter()
+        .for_each(|(range, part, part_places, _)| {
+            let base = bucket_start(range.start);
+            let mut buffer = Vec::new();
+            let mut place = vec![0u32; BUCKET_SIDES];
+            for b in range {
+                let (from, to) = (bucket_start(b) - base, bucket_start(b + 1) - base);
+                let s0 = b * BUCKET_SIDES;
+                let bucket_len = BUCKET_SIDES.min(sides - s0);
+                for (k, p) in place.iter_mut().take(bucket_len).enumerate() {
+                    *p = starts[s0 + k] - starts[s0];
+                }
+                buffer.clear();
+                buffer.extend_from_slice(&part[from..to]);
+                let out = &mut part[from..to];
+                for (&e, &at) in buffer.iter().zip(&part_places[from..to]) {
+                    let p = &mut place[at as usize];
+                    out[*p as usize] = e;
+                    *p += 1;
+                }
             }
-            buffer.clear();
-            buffer.extend_from_slice(&part[from..to]);
-            let out = &mut part[from..to];
-            for &entry in &buffer {
-                let p = &mut place[(entry >> PLACE_SHIFT) as usize];
-                out[*p as usize] = entry & ((1 << PLACE_SHIFT) - 1);
-                *p += 1;
-            }
-        }
-    });
+        });
     entries
 }
 
