@@ -7,10 +7,12 @@
 //! over their arrays: for each link a receiver's sums (48 bytes) and a partner's radiosity (24
 //! bytes), both at random. Once every direction of a run of [`BLOCK_STEPS`] consecutive steps
 //! has its links kept, they are moved into one [`LinkBlock`] that lists them by receiving
-//! surfel: a replay of the block then walks the sums once, in order, and only the partners'
-//! radiosity is read at random. Each surfel's links stay in step order, and within a step in
-//! the order the first gather applied them, so every side adds the same terms in the same order
-//! as step after step: the same bits (see `a_block_replays_to_the_bits_of_its_directions`).
+//! surfel side: a replay of the block then walks the sums once, in order, each side's in a
+//! register, and only the partners' radiosity is read at random. Each side's links stay in step
+//! order, and within a step in the order the first gather applied them, so every side adds the
+//! same terms in the same order as step after step: the same bits (see
+//! `a_block_replays_to_the_bits_of_its_directions`). A block's links take 4 bytes each where
+//! its sides and factors fit 32 bits, else 8 (`Entries`).
 //! A block is replayed whole at its first step and the steps after it inside the block do
 //! nothing, so the light can be saved inside a block only at its bounds
 //! ([`KeptLinks::can_save_within`]). Where the ranks must agree on that, blocks are used only in
