@@ -501,11 +501,12 @@ fn packed(pieces: Vec<PieceRecorder>) -> DirectionLinks {
     if fits_narrow(largest_side, factors.len()) {
         // Each piece packs its own links into its part of the direction's array, on the worker
         // threads (done in one thread after the gather, this was about a seventh of the first
-        // pass on two threads). Zeroed memory comes from the system untouched, so its pages
-        // are first written, and faulted in, by those threads too.
-        let mut packed = vec![0u64; bounds[bounds.len() - 1]];
+        // pass on two threads). The array is not zeroed first: its memory, often reused from
+        // the heap, was zeroed by one thread for every direction, 8 bytes a link.
+        let total = bounds[bounds.len() - 1];
+        let mut packed: Vec<u64> = Vec::with_capacity(total);
         let mut parts = Vec::with_capacity(pieces.len());
-        let mut rest = packed.as_mut_slice();
+        let mut rest = &mut packed.spare_capacity_mut()[..total];
         for piece in &pieces {
             let (part, tail) = rest.split_at_mut(piece.links.len());
             parts.push(part);
@@ -516,9 +517,12 @@ fn packed(pieces: Vec<PieceRecorder>) -> DirectionLinks {
             .zip(pieces.par_iter().zip(&tables))
             .for_each(|(part, (piece, table))| {
                 for (word, link) in part.iter_mut().zip(&piece.links) {
-                    *word = narrow(&renumbered(link, table));
+                    word.write(narrow(&renumbered(link, table)));
                 }
             });
+        // SAFETY: the pieces' parts cover the first `total` words, and each part holds as many
+        // words as its piece has links, every one written above.
+        unsafe { packed.set_len(total) };
         return DirectionLinks {
             packed: Packed::Narrow(packed),
             factors,
