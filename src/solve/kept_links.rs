@@ -145,36 +145,35 @@ impl LinkBlock {
     fn fuse_as(steps: Vec<DirectionLinks>, surfels: usize, narrow: bool) -> LinkBlock {
         let total: usize = steps.iter().map(|d| d.len()).sum();
         debug_assert!(Self::bytes_for(&steps.iter().collect::<Vec<_>>(), surfels).is_some());
-        // Links per receiving side, then where each side's links begin.
+        // Links per bucket of receiving sides, then where each bucket's links begin (those of
+        // each side are counted inside its bucket, by `place`). Counted by side here, each
+        // thread held an array of every side: 8 bytes a surfel a thread, 32 GB for 2^27
+        // surfels on a node of 32 threads (on the 2 cores here, no difference in time).
         let sides = 2 * surfels;
-        // One count array a thread: more splits of the steps would each zero an array of every
-        // side (a few MiB, fresh pages each).
-        let threads = rayon::current_num_threads().max(1);
+        let buckets = sides.div_ceil(BUCKET_SIDES);
         let counts = steps
             .par_iter()
-            .with_min_len(steps.len().div_ceil(threads))
             .fold(
-                || vec![0u32; sides],
+                || vec![0u32; buckets],
                 |mut counts, d| {
-                    d.for_each_link(|to, _, _| counts[to as usize] += 1);
+                    d.for_each_link(|to, _, _| counts[to as usize / BUCKET_SIDES] += 1);
                     counts
                 },
             )
             .reduce(
-                || vec![0u32; sides],
+                || vec![0u32; buckets],
                 |mut a, b| {
                     a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
                     a
                 },
             );
-        let mut starts = Vec::with_capacity(sides + 1);
+        let mut bucket_starts = Vec::with_capacity(buckets + 1);
         let mut at = 0u32;
-        starts.push(0);
+        bucket_starts.push(0);
         for c in &counts {
             at += c;
-            starts.push(at);
+            bucket_starts.push(at);
         }
-        drop(counts);
         let mut offsets = Vec::with_capacity(steps.len());
         let mut factors = Vec::new();
         for d in &steps {
@@ -182,16 +181,25 @@ impl LinkBlock {
             factors.extend_from_slice(d.factors());
         }
         debug_assert!(!narrow || self::narrow(surfels, factors.len()));
+        let mut starts = vec![0u32; sides + 1];
         let (entries, factor_shift) = if narrow {
             let bits = side_bits(surfels);
-            let entries = place(steps, &starts, |from, factor, step| {
-                (from as u64 | (factor as u64 + offsets[step]) << bits) as u32
-            });
+            let entries = place(
+                steps,
+                sides,
+                &bucket_starts,
+                &mut starts,
+                |from, factor, step| (from as u64 | (factor as u64 + offsets[step]) << bits) as u32,
+            );
             (Entries::Narrow(entries), bits)
         } else {
-            let entries = place(steps, &starts, |from, factor, step| {
-                from as u64 | (factor as u64 + offsets[step]) << FACTOR_SHIFT
-            });
+            let entries = place(
+                steps,
+                sides,
+                &bucket_starts,
+                &mut starts,
+                |from, factor, step| from as u64 | (factor as u64 + offsets[step]) << FACTOR_SHIFT,
+            );
             (Entries::Wide(entries), FACTOR_SHIFT)
         };
         let pieces = split_by_entries(&starts, (total as u64).div_ceil(PIECE_ENTRIES).max(1));
@@ -280,26 +288,35 @@ impl LinkBlock {
 const BUCKET_SIDES: usize = 1 << 12;
 
 /// The entries of the links of `steps`, each made by `entry(from, factor, step)`, by receiving
-/// side as `starts` cuts them; each side's in step order, and in each step in link order.
+/// side (of `sides`); each side's in step order, and in each step in link order. Bucket `b` of
+/// [`BUCKET_SIDES`] sides holds the links `bucket_starts[b]..bucket_starts[b + 1]`; where each
+/// side's links begin is written to `starts` (`sides + 1` of them).
 ///
 /// Placing each link straight at its side's place writes all over the block's entries (far
 /// larger than the caches, every write a miss): instead the links are first appended, step
-/// after step, to buckets of [`BUCKET_SIDES`] receivers, each at its own final range, with
-/// the receiver's place in its bucket beside (two bytes a link); then each bucket is put in
-/// order inside its own range, which the caches hold. Both passes run on the threads, by ranges
-/// of buckets. A step's links are dropped once appended. The entries are made at their final
+/// after step, to their buckets, each at its own final range, with the receiver's place in its
+/// bucket beside (two bytes a link); then each bucket's sides are counted and its links put in
+/// order inside its range, which the caches hold. Both passes run on the threads, by ranges of
+/// buckets. A step's links are dropped once appended. The entries are made at their final
 /// width at once: an array of wide entries narrowed afterwards was 12 more bytes a link of
 /// fresh pages, which the first iteration of the Cornell setting faulted in for every block.
-fn place<E, F>(steps: Vec<DirectionLinks>, starts: &[u32], entry: F) -> Vec<E>
+fn place<E, F>(
+    steps: Vec<DirectionLinks>,
+    sides: usize,
+    bucket_starts: &[u32],
+    starts: &mut [u32],
+    entry: F,
+) -> Vec<E>
 where
     E: Copy + Default + Send + Sync,
     F: Fn(u32, u32, usize) -> E + Sync,
 {
     const _: () = assert!(BUCKET_SIDES <= 1 << 16);
-    let sides = starts.len() - 1;
-    let total = starts[sides] as usize;
-    let buckets = sides.div_ceil(BUCKET_SIDES);
-    let bucket_start = |b: usize| starts[(b * BUCKET_SIDES).min(sides)] as usize;
+    let buckets = bucket_starts.len() - 1;
+    debug_assert_eq!(buckets, sides.div_ceil(BUCKET_SIDES));
+    debug_assert_eq!(starts.len(), sides + 1);
+    let total = bucket_starts[buckets] as usize;
+    let bucket_start = |b: usize| bucket_starts[b] as usize;
     let mut entries = vec![E::default(); total];
     let mut places = vec![0u16; total];
     // Ranges of buckets of about equal entries, one a thread.
@@ -307,9 +324,9 @@ where
     let mut cuts = vec![0usize];
     for t in 1..threads {
         let target = total * t / threads;
-        let b = (0..buckets)
-            .find(|&b| bucket_start(b) >= target)
-            .unwrap_or(buckets);
+        let b = bucket_starts
+            .partition_point(|&s| (s as usize) < target)
+            .min(buckets);
         if b > *cuts.last().expect("a first cut") {
             cuts.push(b);
         }
@@ -318,23 +335,28 @@ where
         cuts.push(buckets);
     }
     cuts.dedup();
+    starts[sides] = total as u32;
     let mut parts = Vec::with_capacity(cuts.len());
     let (mut rest, mut rest_places) = (entries.as_mut_slice(), places.as_mut_slice());
+    let mut rest_starts = &mut starts[..sides];
     for w in cuts.windows(2) {
         let len = bucket_start(w[1]) - bucket_start(w[0]);
         let (part, tail) = rest.split_at_mut(len);
         let (part_places, tail_places) = rest_places.split_at_mut(len);
+        let side_len = (w[1] * BUCKET_SIDES).min(sides) - w[0] * BUCKET_SIDES;
+        let (part_starts, tail_starts) = rest_starts.split_at_mut(side_len);
         let base = bucket_start(w[0]);
         let cursors: Vec<usize> = (w[0]..w[1]).map(|b| bucket_start(b) - base).collect();
-        parts.push((w[0]..w[1], part, part_places, cursors));
+        parts.push((w[0]..w[1], part, part_places, part_starts, cursors));
         rest = tail;
         rest_places = tail_places;
+        rest_starts = tail_starts;
     }
     // Pass 1: each step's links appended to their buckets, then the step dropped.
     for (step, d) in steps.into_iter().enumerate() {
         parts
             .par_iter_mut()
-            .for_each(|(range, part, part_places, cursors)| {
+            .for_each(|(range, part, part_places, _, cursors)| {
                 let (first, last) = (
                     range.start * BUCKET_SIDES,
                     (range.end * BUCKET_SIDES).min(sides),
@@ -350,19 +372,30 @@ where
                 });
             });
     }
-    // Pass 2: each bucket in side order, inside its range.
+    // Pass 2: each bucket's sides counted, then its links in side order, inside its range.
     parts
         .into_par_iter()
-        .for_each(|(range, part, part_places, _)| {
+        .for_each(|(range, part, part_places, part_starts, _)| {
             let base = bucket_start(range.start);
+            let first_side = range.start * BUCKET_SIDES;
             let mut buffer = Vec::new();
             let mut place = vec![0u32; BUCKET_SIDES];
             for b in range {
                 let (from, to) = (bucket_start(b) - base, bucket_start(b + 1) - base);
                 let s0 = b * BUCKET_SIDES;
                 let bucket_len = BUCKET_SIDES.min(sides - s0);
-                for (k, p) in place.iter_mut().take(bucket_len).enumerate() {
-                    *p = starts[s0 + k] - starts[s0];
+                let place = &mut place[..bucket_len];
+                place.fill(0);
+                for &at in &part_places[from..to] {
+                    place[at as usize] += 1;
+                }
+                // Counts to where each side's links begin, in the bucket and in the block.
+                let mut at = 0u32;
+                for (k, p) in place.iter_mut().enumerate() {
+                    let count = *p;
+                    *p = at;
+                    part_starts[s0 - first_side + k] = bucket_starts[b] + at;
+                    at += count;
                 }
                 buffer.clear();
                 buffer.extend_from_slice(&part[from..to]);
