@@ -156,7 +156,14 @@ impl LinkBlock {
             .fold(
                 || vec![0u32; buckets],
                 |mut counts, d| {
-                    d.for_each_link(|to, _, _| counts[to as usize / BUCKET_SIDES] += 1);
+                    d.for_each_link(|to, from, _| {
+                        // A narrow entry holds the sending side in `side_bits(surfels)` bits.
+                        assert!(
+                            (from as usize) < sides,
+                            "a link names a surfel of the block"
+                        );
+                        counts[to as usize / BUCKET_SIDES] += 1
+                    });
                     counts
                 },
             )
