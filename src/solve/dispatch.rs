@@ -47,6 +47,10 @@ pub struct Lines {
     pub members: Vec<u32>,
     /// Per thread: slot counters, then next free slot, per line.
     counters: Vec<Vec<u32>>,
+    /// Per thread: the line of each surfel of its part, found by the counting pass and read
+    /// again by the filling pass (about a sixth of a dispatch's instructions went to finding
+    /// it twice).
+    line_of: Vec<Vec<u32>>,
 }
 
 impl Lines {
@@ -88,21 +92,32 @@ pub fn dispatch<F: LineNumbering>(
     lines: &mut Lines,
 ) {
     let line_count = frame.line_count();
+    // Line indices are kept as `u32`, as the slots are: a grid with more lines than that would
+    // need counters of 16 GiB a thread.
+    assert!(
+        u32::try_from(line_count).is_ok(),
+        "{line_count} lines in one direction: more than a dispatch can count"
+    );
     let parts = threads.max(1);
     let part_len = ordered.len().div_ceil(parts).max(1);
     lines.counters.resize_with(parts, Vec::new);
+    lines.line_of.resize_with(parts, Vec::new);
     // 1. Each thread counts its part's surfels per line.
     lines
         .counters
         .par_iter_mut()
+        .zip(lines.line_of.par_iter_mut())
         .enumerate()
-        .for_each(|(t, counts)| {
+        .for_each(|(t, (counts, line_of))| {
             counts.clear();
             counts.resize(line_count, 0);
             let part = ordered.chunks(part_len).nth(t).unwrap_or(&[]);
-            for e in part {
-                counts[frame.line_index(e.voxel) as usize] += 1;
-            }
+            line_of.clear();
+            line_of.extend(part.iter().map(|e| {
+                let line = frame.line_index(e.voxel) as u32;
+                counts[line as usize] += 1;
+                line
+            }));
         });
     // 2. Slot ranges: line by line, thread by thread (partial lists laid end to end). A prefix
     // sum over the lines, in blocks of lines on the threads: each block's total, then the
@@ -168,11 +183,12 @@ pub fn dispatch<F: LineNumbering>(
     lines
         .counters
         .par_iter_mut()
+        .zip(lines.line_of.par_iter())
         .enumerate()
-        .for_each(|(t, slots)| {
+        .for_each(|(t, (slots, line_of))| {
             let part = ordered.chunks(part_len).nth(t).unwrap_or(&[]);
-            for e in part {
-                let slot = &mut slots[frame.line_index(e.voxel) as usize];
+            for (e, &line) in part.iter().zip(line_of) {
+                let slot = &mut slots[line as usize];
                 // SAFETY: the slot ranges of different (line, thread) pairs are disjoint and lie in
                 // `0..ordered.len()` (step 2 hands out exactly `ordered.len()` slots), so every write
                 // goes to a distinct element of `members`, which outlives this loop.
