@@ -529,8 +529,8 @@ impl Context<'_> {
             for k in 0..bundle {
                 // The next line's surfels lie scattered over the whole set (most lines hold a
                 // lamp's surfel and one or two far away): asked for while this line is searched,
-                // their cache misses overlap its work. The Cornell setting's pass took about a
-                // sixth less time.
+                // their cache misses overlap its work. The Cornell setting's pass took 3 to 17 %
+                // less time, depending on how busy the host was (docs/throughput.md).
                 if let Some(next) = b.bundle[..bundle].get(k + 1) {
                     for &m in next {
                         prefetch(self.surfels.as_ptr(), m as usize);
