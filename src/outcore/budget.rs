@@ -64,14 +64,16 @@ pub fn format_bytes(bytes: u64) -> String {
 }
 
 /// Bytes a band holds per surfel: its propagation record, radiosity, gathered light, ordered
-/// entry, list slot and canonical index, plus the per-line scratch of propagation (about one
-/// more record per surfel of the longest line being processed, bounded by this margin), plus
-/// its partner links while they are recorded (the threads' pieces, the direction's copy and
-/// their bytes for the file: three times about 13.5 bytes, `super::links`).
+/// entry, list slot, line (`dispatch` finds it once) and canonical index, plus the per-line
+/// scratch of propagation (about one more record per surfel of the longest line being
+/// processed, bounded by this margin), plus its partner links while they are recorded (the
+/// threads' pieces, the direction's copy and their bytes for the file: three times about 13.5
+/// bytes, `super::links`).
 pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
     + std::mem::size_of::<Radiosity>()
     + std::mem::size_of::<Gathered>()
     + std::mem::size_of::<OrderedEntry>()
+    + 4
     + 4
     + 4
     + 48
