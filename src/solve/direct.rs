@@ -397,17 +397,30 @@ struct DirectionLight {
     contributions: Vec<(u32, u8, u32, [f64; 3], f64)>,
 }
 
+/// Lines of a direction up to which [`emitter_lines`] lists them through a bit per line (4 MiB a
+/// thread at most, which the memory budgets leave out); beyond, it sorts their numbers.
+const MAX_LINE_BITS: u64 = 1 << 25;
+
 /// The lines of `frame` through `voxels`, each once, in ascending order, into `lines`. `bits` is
-/// scratch, a bit per line, all clear before and after. Setting the lines' bits and reading
-/// back the few hundred words between the first and the last replaced sorting the emitters'
-/// line numbers, which was most of the 6 % of a direct pass that finding its lines took (the
-/// Cornell box at resolution 256, 2,880 emitting surfels): the pass ran about 5 % faster.
+/// scratch, a bit per line, all clear before and after, used where the frame has at most
+/// `max_bits` lines. Setting the lines' bits and reading back the few hundred words between the
+/// first and the last replaced sorting the emitters' line numbers, which was most of the 6 % of
+/// a direct pass that finding its lines took (the Cornell box at resolution 256, 2,880 emitting
+/// surfels): the pass ran about 5 % faster.
 fn emitter_lines(
     frame: &LineFrame,
     voxels: impl Iterator<Item = [i32; 3]>,
+    max_bits: u64,
     bits: &mut Vec<u64>,
     lines: &mut Vec<u64>,
 ) {
+    if frame.line_count > max_bits {
+        lines.clear();
+        lines.extend(voxels.map(|voxel| frame.line_index(voxel)));
+        lines.sort_unstable();
+        lines.dedup();
+        return;
+    }
     let words = frame.line_count.div_ceil(64) as usize;
     if bits.len() < words {
         bits.resize(words, 0);
@@ -508,6 +521,7 @@ impl Context<'_> {
             self.emitters
                 .iter()
                 .map(|&e| self.surfels[e as usize].voxel),
+            MAX_LINE_BITS,
             &mut b.line_bits,
             &mut b.line_ids,
         );
@@ -1066,10 +1080,15 @@ mod tests {
         let mut lines = Vec::new();
         for d in &DirectionSet::with_count(30).directions {
             let frame = LineFrame::new(d.vector, dims);
-            for count in [0, 1, 37, 200] {
+            // Sorted (no bits allowed) and through the bits.
+            for (max_bits, count) in [0, MAX_LINE_BITS]
+                .into_iter()
+                .flat_map(|m| [0, 1, 37, 200].map(|c| (m, c)))
+            {
                 emitter_lines(
                     &frame,
                     voxels[..count].iter().copied(),
+                    max_bits,
                     &mut bits,
                     &mut lines,
                 );
@@ -1079,7 +1098,11 @@ mod tests {
                     .collect();
                 want.sort_unstable();
                 want.dedup();
-                assert_eq!(lines, want, "direction {:?}, {count} voxels", d.vector);
+                assert_eq!(
+                    lines, want,
+                    "direction {:?}, {count} voxels, max_bits {max_bits}",
+                    d.vector
+                );
                 assert!(
                     bits.iter().all(|&w| w == 0),
                     "the scratch bits are left clear"
