@@ -263,27 +263,25 @@ impl LinkBlock {
         let side_mask = (1u64 << shift) - 1;
         let starts = &self.starts[2 * first..=2 * (first + acc.len())];
         let entries = &entries[..starts[starts.len() - 1] as usize];
+        // Side `t` of the light is surfel `t / 2`'s side `t % 2`, as the entries name it.
+        let sides = radiosity.as_flattened();
         let mut k = starts[0] as usize;
         for (s, sums) in acc.iter_mut().enumerate() {
             for (side, to) in sums.iter_mut().enumerate() {
                 let last = starts[2 * s + side + 1] as usize;
                 let mut light = *to;
-                while k < last {
-                    if let Some(&ahead) = entries.get(k + PREFETCH_AHEAD) {
-                        prefetch(
-                            radiosity.as_ptr(),
-                            ((ahead.into() & side_mask) >> 1) as usize,
-                        );
+                for (at, &entry) in (k..).zip(&entries[k..last]) {
+                    if let Some(&ahead) = entries.get(at + PREFETCH_AHEAD) {
+                        prefetch(sides.as_ptr(), (ahead.into() & side_mask) as usize);
                     }
-                    let entry: u64 = entries[k].into();
-                    let from = entry & side_mask;
-                    let sent = &radiosity[(from >> 1) as usize][(from & 1) as usize];
+                    let entry: u64 = entry.into();
+                    let sent = &sides[(entry & side_mask) as usize];
                     let factor = self.factors[(entry >> shift) as usize];
                     for c in 0..CHANNELS {
                         light[c] += sent[c] as f64 * factor;
                     }
-                    k += 1;
                 }
+                k = last;
                 *to = light;
             }
         }
