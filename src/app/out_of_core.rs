@@ -11,7 +11,7 @@ pub(super) fn analyse_source(
     budget: u64,
 ) -> Result<crate::solve::effects::Analysis, AppError> {
     let info = source.info();
-    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
+    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1, 0)
         .map(|p| p.io_bytes as u64)
         .unwrap_or(1 << 16);
     let mut sides = Vec::new();
@@ -95,7 +95,7 @@ pub(super) fn out_of_core_identity(
     budget: u64,
 ) -> Result<Identity, AppError> {
     let info = source.info();
-    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1)
+    let window = crate::outcore::MemoryPlan::new(budget, info.grid.dims, 1, 0)
         .map(|p| p.io_bytes as u64)
         .unwrap_or(1 << 16);
     Ok(Identity {

@@ -11,6 +11,7 @@ use super::files::{
     decode_static, Gathered, IoCounters, Radiosity, RecordFile, GATHER_LEN, RADIOSITY_LEN,
     STATIC_LEN,
 };
+use super::framed::FramedStatics;
 use super::links::BandLinks;
 use super::workset::AxisCopy;
 use super::OocError;
@@ -22,9 +23,27 @@ use crate::solve::links::gather_and_record;
 use crate::solve::propagate::{DirectionInput, PropSurfel};
 use std::time::Instant;
 
+/// Where a pass reads its copy's static records: an axis copy's compressed frames (the
+/// one-process solver, `super::framed`), or a rank's held files, whose records lie end to end
+/// (the data mode, `distribute::ooc`).
+pub enum StaticFile {
+    Framed(std::sync::Arc<FramedStatics>),
+    Records(RecordFile),
+}
+
+impl StaticFile {
+    /// Fills `out` (a whole number of records) with the records from `start` on.
+    fn read(&self, start: u64, out: &mut [u8], io: &mut IoCounters) -> Result<(), OocError> {
+        match self {
+            StaticFile::Framed(frames) => frames.read(start, out, io),
+            StaticFile::Records(file) => file.read_at(start * STATIC_LEN as u64, out, io),
+        }
+    }
+}
+
 /// The open files of one axis copy, and the shared file of gathered light.
 pub struct CopyFiles {
-    pub statics: RecordFile,
+    pub statics: StaticFile,
     pub radiosity: RecordFile,
     /// Where a direction writes the light gathered so far, its own added.
     pub gathered: RecordFile,
@@ -36,26 +55,20 @@ pub struct CopyFiles {
 }
 
 impl CopyFiles {
-    /// A copy's files adding each direction's light in place, in `gathered`.
-    pub fn open(copy: &AxisCopy, gathered: &std::path::Path) -> Result<Self, OocError> {
-        Ok(CopyFiles {
-            statics: RecordFile::open(&copy.statics)?,
-            radiosity: RecordFile::open(&copy.radiosity)?,
-            gathered: RecordFile::open(gathered)?,
-            previous: None,
-        })
-    }
-
-    /// A copy's files reading the earlier directions' light from `previous` and writing it,
-    /// with this direction's added, to `gathered`.
+    /// A copy's files (its static records `statics`, opened once for the copy) reading the
+    /// earlier directions' light from `previous` and writing it, with this direction's added,
+    /// to `gathered`.
     pub fn open_from(
         copy: &AxisCopy,
+        statics: &std::sync::Arc<FramedStatics>,
         previous: &std::path::Path,
         gathered: &std::path::Path,
     ) -> Result<Self, OocError> {
         Ok(CopyFiles {
+            statics: StaticFile::Framed(statics.clone()),
+            radiosity: RecordFile::open(&copy.radiosity)?,
+            gathered: RecordFile::open(gathered)?,
             previous: Some(RecordFile::open(previous)?),
-            ..CopyFiles::open(copy, gathered)?
         })
     }
 }
@@ -320,10 +333,11 @@ impl DirectionPass<'_> {
 
     /// The voxel coordinate along `u` of copy record `index`.
     fn u_of(&self, index: u64, io: &mut IoCounters) -> Result<i64, OocError> {
-        let mut w = [0u8; 4];
-        let offset = index * STATIC_LEN as u64 + 4 * self.copy.u as u64;
-        self.files.statics.read_at(offset, &mut w, io)?;
-        Ok(super::files::static_coordinate(w) as i64)
+        let mut record = [0u8; STATIC_LEN];
+        self.files.statics.read(index, &mut record, io)?;
+        let at = 4 * self.copy.u;
+        let word = record[at..at + 4].try_into().expect("4 bytes");
+        Ok(super::files::static_coordinate(word) as i64)
     }
 
     /// Solves a column `j0` holding `surfels`, in blocks of rows `i` that fit the budget. In each
@@ -367,8 +381,17 @@ impl DirectionPass<'_> {
                 let mut count = 0;
                 for (k, &(z, from, to)) in spans.iter().enumerate() {
                     let limit = (i0 + rows) as i64 - frame.layer_shift(z).0 as i64;
-                    // First record of [from, to) with u >= limit.
-                    let (mut lo, mut hi) = (from, to);
+                    // First record of [from, to) with u >= limit: galloping from `from`, then
+                    // bisection. The ends move forward block by block, so the answer is
+                    // usually near `from`, in the frame of static records read last
+                    // (`super::framed`): a bisection over the whole span read a frame at each
+                    // probe.
+                    let (mut lo, mut hi, mut step) = (from, from, 1);
+                    while hi < to && self.u_of(hi, io)? < limit {
+                        lo = hi + 1;
+                        hi = (hi + step).min(to);
+                        step *= 2;
+                    }
                     while lo < hi {
                         let mid = lo + (hi - lo) / 2;
                         if self.u_of(mid, io)? < limit {
@@ -467,9 +490,7 @@ impl DirectionPass<'_> {
             while at < count {
                 let k = piece.min(count - at);
                 let bytes = &mut buffers.bytes[..k as usize * STATIC_LEN];
-                self.files
-                    .statics
-                    .read_at((start + at) * STATIC_LEN as u64, bytes, io)?;
+                self.files.statics.read(start + at, bytes, io)?;
                 for rec in bytes.chunks_exact(STATIC_LEN) {
                     let r = decode_static(rec);
                     buffers.entries.push(OrderedEntry {

@@ -117,8 +117,10 @@ pub struct MemoryPlan {
 }
 
 impl MemoryPlan {
-    /// Splits `budget` for a grid of `dims` solved with `threads` threads.
-    pub fn new(budget: u64, dims: [u32; 3], threads: usize) -> Result<Self, OocError> {
+    /// Splits `budget` for a grid of `dims` solved with `threads` threads, holding the readers
+    /// of three axis copies of `framed` surfels in compressed frames (0: none, as in the data
+    /// mode).
+    pub fn new(budget: u64, dims: [u32; 3], threads: usize, framed: u64) -> Result<Self, OocError> {
         let io_bytes = (budget / 64).clamp(4 << 10, 1 << 20) as usize;
         let d = dims.map(u64::from);
         // The row histogram of one copy (layers x rows), per-layer cursors and the per-column
@@ -138,9 +140,29 @@ impl MemoryPlan {
             });
         }
         let working = budget - fixed;
+        // The iterations hold the readers of the copies' static records beside a band, a
+        // replay or a permutation chunk; the set-up, the closure check and the direct-light pass
+        // come before them, with the whole working memory.
+        let readers = if framed > 0 {
+            super::framed::readers_bytes(3, framed, io_bytes)
+        } else {
+            0
+        };
+        if working < readers + minimum_working {
+            return Err(OocError::BudgetTooSmall {
+                budget,
+                needed: fixed + readers + minimum_working,
+                what: format!(
+                    "the index of the static records of {framed} surfels and the grid of \
+                     {}x{}x{} voxels",
+                    d[0], d[1], d[2]
+                ),
+            });
+        }
+        let iterating = working - readers;
         let counters = 4 * (threads as u64 + 2);
-        let band_surfels = working * 3 / 4 / BAND_BYTES_PER_SURFEL;
-        let replay_surfels = ((working * 3 / 4)
+        let band_surfels = iterating * 3 / 4 / BAND_BYTES_PER_SURFEL;
+        let replay_surfels = ((iterating * 3 / 4)
             .saturating_sub(band_surfels * REPLAY_BAND_BYTES_PER_SURFEL)
             .saturating_sub(Self::replay_chunk_of(io_bytes) * REPLAY_BYTES_PER_SURFEL)
             / REPLAY_BYTES_PER_SURFEL)
@@ -150,10 +172,10 @@ impl MemoryPlan {
             io_bytes,
             working,
             band_surfels,
-            band_lines: working / 4 / counters,
+            band_lines: iterating / 4 / counters,
             replay_surfels,
             sort_records: working / 2 / SORT_BYTES_PER_RECORD,
-            chunk_surfels: working / 2 / CHUNK_BYTES_PER_SURFEL,
+            chunk_surfels: iterating / 2 / CHUNK_BYTES_PER_SURFEL,
         })
     }
 
@@ -201,9 +223,9 @@ mod tests {
 
     #[test]
     fn a_tiny_budget_is_refused_with_what_it_needs() {
-        let e = MemoryPlan::new(1 << 10, [100, 100, 100], 2).unwrap_err();
+        let e = MemoryPlan::new(1 << 10, [100, 100, 100], 2, 0).unwrap_err();
         assert!(e.to_string().contains("too small"), "{e}");
-        let plan = MemoryPlan::new(64 << 20, [100, 100, 100], 2).unwrap();
+        let plan = MemoryPlan::new(64 << 20, [100, 100, 100], 2, 1_000_000).unwrap();
         assert!(plan.band_surfels > 100_000);
     }
 }

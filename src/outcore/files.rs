@@ -7,7 +7,9 @@
 //! map would save no copy here, so positioned reads keep the address space flat instead.
 //!
 //! ```text
-//! static record (72 bytes), one per surfel, in a copy's order
+//! static record (72 bytes), one per surfel, in a copy's order (an axis copy keeps them in
+//!                          compressed frames, super::framed; a rank's held files in the
+//!                          data mode, end to end)
 //!   0 voxel    i32 x 3     see crate::voxel::Surfel; below 2^24, so the top bytes hold
 //!                          PropSurfel::rank (in x) and PropSurfel::mate_sides (low byte in y,
 //!                          high byte in z)

@@ -45,6 +45,7 @@ use super::files::{
     decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, Gathered, IoCounters,
     Radiosity, RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN,
 };
+use super::framed::{FrameBuffers, FramedStatics};
 use super::links::LinkStore;
 use super::scatter::{ChunkReader, Scatter};
 use super::source::SurfelSource;
@@ -59,6 +60,7 @@ use crate::solve::update::{add_power, carried, update_surfel};
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// What an out-of-core solve did, beyond the in-memory solver's statistics.
@@ -302,7 +304,7 @@ fn run(
     mut checkpoints: Option<OocCheckpoints>,
 ) -> Result<OocSolution, OocError> {
     let info = source.info();
-    let plan = MemoryPlan::new(budget_bytes, info.grid.dims, threads)?;
+    let plan = MemoryPlan::new(budget_bytes, info.grid.dims, threads, info.count)?;
     tracing::info!(
         budget = super::budget::format_bytes(budget_bytes),
         band_surfels = plan.band_surfels,
@@ -379,13 +381,20 @@ fn run(
     // Each copy's files twice: a pass of an axis reads the light of the directions before it
     // from one gathered file and writes to the other: `files[m][w]` writes file `w` (see
     // `WorkSet` and `OutOfCore::light_file`).
+    let frame_buffers = FrameBuffers::shared();
     let files: Vec<[CopyFiles; 2]> = work
         .copies
         .iter()
         .map(|c| {
+            let statics = Arc::new(FramedStatics::open(
+                &c.statics,
+                &c.statics_index,
+                work.count,
+                &frame_buffers,
+            )?);
             Ok([
-                CopyFiles::open_from(c, &work.gathered[1], &work.gathered[0])?,
-                CopyFiles::open_from(c, &work.gathered[0], &work.gathered[1])?,
+                CopyFiles::open_from(c, &statics, &work.gathered[1], &work.gathered[0])?,
+                CopyFiles::open_from(c, &statics, &work.gathered[0], &work.gathered[1])?,
             ])
         })
         .collect::<Result<_, OocError>>()?;

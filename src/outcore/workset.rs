@@ -14,6 +14,7 @@ use super::files::{
     encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, GATHER_LEN,
     RADIOSITY_LEN, STATIC_LEN,
 };
+use super::framed::FramedWriter;
 use super::scatter::Scatter;
 use super::source::{SurfelSource, VoxelGroups};
 use super::OocError;
@@ -30,8 +31,10 @@ pub struct AxisCopy {
     /// Layers (voxels along the main axis) and rows per layer (voxels along `v`).
     pub layers: usize,
     pub rows: usize,
-    /// Static records, in copy order.
+    /// Static records, in copy order, in compressed frames (`super::framed`).
     pub statics: PathBuf,
+    /// Where each frame of `statics` starts.
+    pub statics_index: PathBuf,
     /// Radiosity of the previous iteration, in copy order.
     pub radiosity: PathBuf,
     /// Canonical index of each record, in copy order (u32).
@@ -108,6 +111,7 @@ pub fn build(
             layers: dims[main],
             rows: dims[v],
             statics: name("static"),
+            statics_index: name("static-index"),
             radiosity: name("radiosity"),
             ids: name("ids"),
             positions: name("positions"),
@@ -193,7 +197,7 @@ pub fn build(
             io.written += b.finish()?;
         }
         // Sort each bucket, append it to the copy, and note where each surfel went.
-        let mut statics = SeqWriter::create(&copy.statics, plan.io_bytes)?;
+        let mut statics = FramedWriter::create(&copy.statics, &copy.statics_index, plan.io_bytes)?;
         let mut ids = SeqWriter::create(&copy.ids, plan.io_bytes)?;
         let chunks = count.div_ceil(plan.chunk_surfels.max(1));
         let mut positions = Scatter::<4>::new(
@@ -281,7 +285,9 @@ fn check_voxel(
 
 /// Bytes of work files per surfel at their peak: the three copies' static records, radiosity,
 /// indices and positions, the two shared gathered files and the canonical one, canonical
-/// radiosity, and the bucket files of one permutation.
+/// radiosity, and the bucket files of one permutation. The static records are counted at their
+/// full size: compressed (`super::framed`) they take about a fifth of it, but how much is known
+/// only once they are written, and a long solve must not fail later for want of disk.
 pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + RADIOSITY_LEN as u64 + 8)
     + 3 * GATHER_LEN as u64
     + RADIOSITY_LEN as u64

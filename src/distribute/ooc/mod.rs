@@ -76,7 +76,7 @@ use super::Comm;
 use crate::checkpoint::{CheckpointFile, Saver, State};
 use crate::geometry::directions::{Direction, DirectionSet};
 use crate::geometry::lines::LineFrame;
-use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
+use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass, StaticFile};
 use crate::outcore::budget::MemoryPlan;
 use crate::outcore::files::{
     decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, IoCounters, SeqReader,
@@ -246,7 +246,7 @@ impl Solver<'_> {
         let info = self.source.info();
         let dims = info.grid.dims;
         let (ranks, me) = (self.group.size(), self.comm.rank());
-        let plan = MemoryPlan::new(budget, dims, self.threads)?;
+        let plan = MemoryPlan::new(budget, dims, self.threads, 0)?;
         // At a merge a rank holds its old and new held files and the received runs, about three
         // times its share; rank 0 also the canonical radiosity.
         let share = info.count.div_ceil(ranks as u64) * held::WIRE_LEN as u64;
@@ -608,6 +608,7 @@ impl Solver<'_> {
             rows,
             // Opened below from the held files, which may lie in several sets.
             statics: PathBuf::new(),
+            statics_index: PathBuf::new(),
             radiosity: PathBuf::new(),
             ids: PathBuf::new(),
             positions: PathBuf::new(),
@@ -616,7 +617,7 @@ impl Solver<'_> {
         };
         let [statics, radiosity, gathered, _] = held.open_files()?;
         let files = CopyFiles {
-            statics,
+            statics: StaticFile::Records(statics),
             radiosity,
             gathered,
             previous: None,
