@@ -76,8 +76,8 @@ impl FramedWriter {
     }
 
     fn flush_frame(&mut self) -> Result<(), OocError> {
-        let len = lz4_flex::block::compress_into(&self.pending, &mut self.packed)
-            .map_err(|e| OocError::io(self.out.path(), "compress", std::io::Error::other(e)))?;
+        let len = compress_frame(&self.pending, &mut self.packed)
+            .map_err(|e| OocError::io(self.out.path(), "compress", e))?;
         self.index.write(&self.offset.to_le_bytes())?;
         self.out.write(&self.packed[..len])?;
         self.offset += len as u64;
@@ -92,6 +92,48 @@ impl FramedWriter {
         }
         self.index.write(&self.offset.to_le_bytes())?;
         Ok(self.out.finish()? + self.index.finish()?)
+    }
+}
+
+/// Compresses one frame's records into `packed` (of LZ4's bound for a frame); returns its length.
+fn compress_frame(records: &[u8], packed: &mut [u8]) -> std::io::Result<usize> {
+    lz4_flex::block::compress_into(records, packed).map_err(std::io::Error::other)
+}
+
+/// Counts the bytes that records would take in frames, without writing them: what
+/// [`FramedWriter`] writes of the same records in the same order, less the index.
+pub struct FrameSizer {
+    pending: Vec<u8>,
+    packed: Vec<u8>,
+    bytes: u64,
+}
+
+impl Default for FrameSizer {
+    fn default() -> Self {
+        FrameSizer {
+            pending: Vec::with_capacity(FRAME_BYTES),
+            packed: vec![0; lz4_flex::block::get_maximum_output_size(FRAME_BYTES)],
+            bytes: 0,
+        }
+    }
+}
+
+impl FrameSizer {
+    pub fn add(&mut self, record: &[u8; STATIC_LEN]) -> std::io::Result<()> {
+        self.pending.extend_from_slice(record);
+        if self.pending.len() == FRAME_BYTES {
+            self.bytes += compress_frame(&self.pending, &mut self.packed)? as u64;
+            self.pending.clear();
+        }
+        Ok(())
+    }
+
+    /// The bytes of the frames of the records added.
+    pub fn finish(mut self) -> std::io::Result<u64> {
+        if !self.pending.is_empty() {
+            self.bytes += compress_frame(&self.pending, &mut self.packed)? as u64;
+        }
+        Ok(self.bytes)
     }
 }
 
@@ -265,6 +307,11 @@ mod tests {
         }
         w.finish().unwrap();
         let packed = std::fs::metadata(&path).unwrap().len();
+        let mut sizer = FrameSizer::default();
+        for k in 0..records {
+            sizer.add(&record(k)).unwrap();
+        }
+        assert_eq!(sizer.finish().unwrap(), packed);
         assert!(
             packed * 4 < records as u64 * STATIC_LEN as u64,
             "{packed} bytes"
