@@ -178,22 +178,12 @@ pub fn build(
                 buffer,
             )?);
         }
-        let mut groups = VoxelGroups::new(source.stream(plan.io_bytes as u64)?);
-        let mut group = Vec::new();
-        let mut id = 0u32;
-        let mut record = [0u8; STATIC_LEN];
-        while groups.next_group(&mut group)? {
-            let props = PropSurfel::of_voxel(&group, &source.info().materials);
-            for (s, prop) in group.iter().zip(props) {
-                let r = StaticRecord { prop, id };
-                encode_static(&r, &mut record);
-                let row = row_of(&copy, s.voxel);
-                let b = bucket_rows.partition_point(|&first| first <= row) - 1;
-                buckets[b].write(&record)?;
-                id += 1;
-            }
-        }
-        io.read += id as u64 * crate::storage::RECORD_LEN as u64;
+        let records = for_each_static_record(source, plan, |voxel, record| {
+            let row = row_of(&copy, voxel);
+            let b = bucket_rows.partition_point(|&first| first <= row) - 1;
+            buckets[b].write(record)
+        })?;
+        io.read += records * crate::storage::RECORD_LEN as u64;
         let bucket_paths: Vec<PathBuf> = buckets.iter().map(|b| b.path().to_path_buf()).collect();
         for b in buckets {
             io.written += b.finish()?;
@@ -326,24 +316,33 @@ fn check_disk(
 /// The bytes the static records of `source` take in frames, in its own order: one pass over it,
 /// compressing without writing.
 fn static_bytes_in_frames(source: &dyn SurfelSource, plan: &MemoryPlan) -> Result<u64, OocError> {
+    let failed = |e| OocError::io(Path::new(&source.describe()), "compress", e);
     let mut sizer = FrameSizer::default();
+    for_each_static_record(source, plan, |_, record| sizer.add(record).map_err(failed))?;
+    sizer.finish().map_err(failed)
+}
+
+/// Hands `f` the static record of every surfel of `source`, in its order, with its voxel (the
+/// coverage and the sides of its voxel-mates found from the voxel's surfels, adjacent in a
+/// source); returns the number of records.
+fn for_each_static_record(
+    source: &dyn SurfelSource,
+    plan: &MemoryPlan,
+    mut f: impl FnMut([i32; 3], &[u8; STATIC_LEN]) -> Result<(), OocError>,
+) -> Result<u64, OocError> {
     let mut groups = VoxelGroups::new(source.stream(plan.io_bytes as u64)?);
     let mut group = Vec::new();
     let mut id = 0u32;
     let mut record = [0u8; STATIC_LEN];
     while groups.next_group(&mut group)? {
         let props = PropSurfel::of_voxel(&group, &source.info().materials);
-        for prop in props {
+        for (s, prop) in group.iter().zip(props) {
             encode_static(&StaticRecord { prop, id }, &mut record);
-            sizer
-                .add(&record)
-                .map_err(|e| OocError::io(Path::new(&source.describe()), "compress", e))?;
+            f(s.voxel, &record)?;
             id += 1;
         }
     }
-    sizer
-        .finish()
-        .map_err(|e| OocError::io(Path::new(&source.describe()), "compress", e))
+    Ok(id as u64)
 }
 
 /// Refuses to start when `needed` bytes of work files cannot fit on the disk of `parent`.
