@@ -277,9 +277,9 @@ fn check_voxel(
 
 /// Bytes of work files per surfel at their peak: the three copies' static records, radiosity,
 /// indices and positions, the two shared gathered files and the canonical one, canonical
-/// radiosity, and the bucket files of one permutation. The static records are counted at their
-/// full size: compressed (`super::framed`) they take about a fifth of it, but how much is known
-/// only once they are written, and a long solve must not fail later for want of disk.
+/// radiosity, and the bucket files of one permutation, with the static records at their full
+/// size. Compressed (`super::framed`) they take about a fifth of it; `check_disk` counts them
+/// so only where the files would not fit otherwise.
 pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + RADIOSITY_LEN as u64 + 8)
     + 3 * GATHER_LEN as u64
     + RADIOSITY_LEN as u64
