@@ -220,13 +220,9 @@ fn local_of(p: &PropSurfel, sf: Vec3A) -> Local {
         point: lanes(p, std::mem::offset_of!(PropSurfel, point)),
         normal,
         ns,
-        sgn: if ns > 0.0 {
-            1.0
-        } else if ns < 0.0 {
-            -1.0
-        } else {
-            0.0
-        },
+        // +1, -1 or 0 (also for NaN), without branches: the sign of a surfel's cosine is as
+        // likely one way as the other.
+        sgn: (ns > 0.0) as i32 as f32 - (ns < 0.0) as i32 as f32,
         lo: lanes(p, std::mem::offset_of!(PropSurfel, extent)),
         hi: lanes(p, std::mem::offset_of!(PropSurfel, extent) + 12),
         coverage: p.coverage,
