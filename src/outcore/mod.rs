@@ -22,7 +22,8 @@
 //!
 //! **An iteration** ([`solver`]) walks the directions grouped by main axis, then brings the
 //! three gather files back to canonical order ([`scatter`]), computes `B = E + rho H / S(n)`
-//! there, and sends the new radiosity back to the three copies.
+//! there, and sends the new radiosity to each copy in turn, before that copy's directions (the
+//! three share one radiosity file).
 //!
 //! **Partner links** ([`links`]): a direction's first pass writes its bands' links to a work
 //! file of its own, within a disk allowance; later iterations replay them band by band instead

@@ -1,7 +1,8 @@
 //! The out-of-core solver, a sweep of the one iteration loop (`solve::iterate`): directions
 //! grouped by main axis, each solved band by band ([`super::band`]); then the light gathered in
 //! the three copies is brought to canonical order, `B = E + rho H / S(n)` is computed there,
-//! and the new radiosity is sent back to the copies ([`super::scatter`]). As in memory, a grey
+//! and the new radiosity is sent to each copy, in its order, just before that copy's directions
+//! ([`super::scatter`]): the copies share one radiosity file. As in memory, a grey
 //! scene gathers one channel, and the tail extrapolation (`solve::accelerate`) runs on the
 //! canonical file chunk by chunk, from the radiosity the update replaced (kept in one more work
 //! file). Every surfel is updated by `solve::update`, as in every other loop.
@@ -9,7 +10,8 @@
 //! **The direct-light pass** ([`super::direct`]) runs once after the first update (`B = E`),
 //! into a direct-light file in canonical order that every update reads (`B` gains `rho` times
 //! it); the axis copies then receive `B - E` instead of `B`, written beside the canonical
-//! radiosity after each update, and the bands gather only the reflected light, as in memory.
+//! radiosity at the start of each iteration, and the bands gather only the reflected light, as
+//! in memory.
 //!
 //! **Directions gathered together.** Lines of the same slope along `v` put every surfel in the
 //! same column, so such directions (the walk puts them next to each other; a cube direction
@@ -22,7 +24,7 @@
 //!
 //! Checkpoints ([`solve_out_of_core_checkpointed`]) hold the canonical radiosity file and the
 //! stopping rule's last change; everything else in the work files is rebuilt on resume (the axis
-//! copies from the source, their radiosity from the canonical file). Inside an iteration
+//! copies from the source, the radiosity they share from the canonical file). Inside an iteration
 //! (`Saver::within`) a checkpoint can be written between any two passes, when one is due
 //! or on a stop signal ([`Position`]: the axes folded and the directions done of the next).
 //! Between two main axes it adds the canonical sum of the light gathered by the axes done (the
@@ -59,7 +61,7 @@ use crate::solve::normalize::cosine_sums;
 use crate::solve::update::{add_power, carried, update_surfel};
 use crate::solve::{SolveOptions, SolveStats};
 use crate::voxel::Surfel;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -363,7 +365,7 @@ fn run(
         _ => None,
     };
     let t = Instant::now();
-    send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
+    let mut lit = lit_file(source, &work, &plan, direct.is_some(), &mut io)?;
     stats.update_seconds += t.elapsed().as_secs_f64();
     // As `solve::jacobi`: one channel for a grey scene, checked here on the materials used.
     let channels = if options.grey && first.grey { 1 } else { 3 };
@@ -414,7 +416,7 @@ fn run(
     if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
         let t = Instant::now();
         resume_at = restore(&file, previous.as_deref(), &work, &plan, &axes, &mut io)?;
-        send_lit(source, &work, &plan, direct.is_some(), &mut io)?;
+        lit = lit_file(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
         let done = axes.done(resume_at);
         start = Start::resumed(
@@ -456,7 +458,8 @@ fn run(
         times: BandTimes::default(),
         io,
         last: first,
-        lit: true,
+        lit: Some(lit),
+        lit_copy: None,
         update_seconds: 0.0,
         closed: verdict.closed,
         scales: Scales::ONE,
@@ -509,6 +512,9 @@ fn run(
     stats.joint_directions = times.joint_directions;
     stats.bytes_read = io.read;
     stats.bytes_written = io.written;
+    // The links' files go with the store; the rest but the answer with this.
+    drop(links);
+    work.keep_only_the_answer();
     Ok(OocSolution {
         stats,
         work,
@@ -554,8 +560,11 @@ struct OutOfCore<'a> {
     io: IoCounters,
     /// The last update (its energy).
     last: Update,
-    /// The axis copies hold what the lines carry of the current radiosity.
-    lit: bool,
+    /// The file (in canonical order) of what the lines carry of the current radiosity; `None`
+    /// after an update, until the next iteration begins.
+    lit: Option<PathBuf>,
+    /// The copy whose order the shared radiosity file (`AxisCopy::radiosity`) holds `lit` in.
+    lit_copy: Option<usize>,
     update_seconds: f64,
     /// The scene's light is sealed in: each update scales the light by `scales`
     /// (`solve::closed`), found in a pass over the files before it.
@@ -612,17 +621,17 @@ impl Sweep for OutOfCore<'_> {
     }
 
     fn begin(&mut self, from: usize) -> Result<(), OocError> {
-        if !self.lit {
+        if self.lit.is_none() {
             let t = Instant::now();
-            send_lit(
+            self.lit = Some(lit_file(
                 self.source,
                 self.work,
                 self.plan,
                 self.direct.is_some(),
                 &mut self.io,
-            )?;
+            )?);
+            self.lit_copy = None;
             self.update_seconds += t.elapsed().as_secs_f64();
-            self.lit = true;
         }
         if from == 0 {
             self.at = Position::default();
@@ -640,6 +649,16 @@ impl Sweep for OutOfCore<'_> {
             return Ok(true);
         }
         let (m, k) = self.place(step);
+        if self.lit_copy != Some(m) {
+            // The copies share one radiosity file: it is sent this copy's order at the first
+            // direction of its axis (or the first after a resume), before the histogram and a
+            // band take the memory.
+            let t = Instant::now();
+            let lit = self.lit.as_deref().expect("an iteration begun");
+            send_to_copy(self.work, self.plan, lit, m, &mut self.io)?;
+            self.update_seconds += t.elapsed().as_secs_f64();
+            self.lit_copy = Some(m);
+        }
         let copy = &self.work.copies[m];
         if self.histogram.as_ref().is_none_or(|(axis, _)| *axis != m) {
             self.histogram = Some((m, copy.load_histogram(self.plan)?));
@@ -648,6 +667,11 @@ impl Sweep for OutOfCore<'_> {
         // The axis's first direction writes file 0 and reads nothing; each pass after it reads
         // the light from the file that holds it and writes the other.
         let write = if k == 0 { 0 } else { 1 - self.light_file };
+        // Between passes only the file that holds the light is kept at its length: the other
+        // is emptied after the pass that read it, and given its length back here, before the
+        // pass that writes it. So a checkpoint or a fold between passes, whose buckets take
+        // about as much again, does not find both on the disk (48 bytes a surfel).
+        resize_gathered(&self.work.gathered[write], self.work.count)?;
         let pass = DirectionPass {
             copy,
             files: &self.files[m][write],
@@ -679,6 +703,8 @@ impl Sweep for OutOfCore<'_> {
         if stopped {
             return Ok(false);
         }
+        // The file this pass read (or, at an axis's first pass, the one it did not use).
+        resize_gathered(&self.work.gathered[1 - write], 0)?;
         let done = k + together.len();
         self.times.joint_passes += (together.len() > 1) as u64;
         self.times.joint_directions += (together.len() - 1) as u64;
@@ -693,7 +719,8 @@ impl Sweep for OutOfCore<'_> {
             // holds.
             self.histogram = None;
             drop(std::mem::take(&mut self.buffers));
-            // This axis's light joins the canonical sum before the next axis reuses the files.
+            // This axis's light joins the canonical sum before the next axis reuses the files;
+            // the file it is folded from is emptied after it.
             let t = Instant::now();
             let last_file = &self.work.gathered[self.light_file];
             fold_gathered(
@@ -704,6 +731,7 @@ impl Sweep for OutOfCore<'_> {
                 !self.summed,
                 &mut self.io,
             )?;
+            resize_gathered(last_file, 0)?;
             self.update_seconds += t.elapsed().as_secs_f64();
             self.summed = true;
             self.at = Position {
@@ -769,7 +797,8 @@ impl Sweep for OutOfCore<'_> {
         let result = self.update_canonical(UpdatePass::Update(&scales), omega)?;
         self.update_seconds += t.elapsed().as_secs_f64();
         self.last = result;
-        self.lit = false;
+        self.lit = None;
+        self.lit_copy = None;
         let sums = result.sums;
         Ok([sums.change, sums.total, sums.falling, sums.residual])
     }
@@ -1471,23 +1500,28 @@ fn extrapolate_canonical(
     Ok(())
 }
 
+/// Sets a gathered file to hold `surfels` records (0 frees its disk; records added read as zero).
+fn resize_gathered(path: &Path, surfels: u64) -> Result<(), OocError> {
+    RecordFile::open(path)?.set_len(surfels * GATHER_LEN as u64)
+}
+
 /// Surfels per chunk of an update.
 fn chunk_len(plan: &MemoryPlan, work: &WorkSet) -> usize {
     plan.chunk_surfels.min(work.count).max(1) as usize
 }
 
-/// Sends what the lines carry to the axis copies: the canonical radiosity `B`, or with the
-/// direct pass the reflected part `B - E` (as `solve::direct::DirectLight::reflected` makes
-/// it), written beside it first.
-fn send_lit(
+/// The file, in canonical order, of what the lines carry: the canonical radiosity `B`, or with
+/// the direct pass the reflected part `B - E` (as `solve::direct::DirectLight::reflected` makes
+/// it), written beside it here. Each copy is sent it before its directions ([`send_to_copy`]).
+fn lit_file(
     source: &dyn SurfelSource,
     work: &WorkSet,
     plan: &MemoryPlan,
     direct: bool,
     io: &mut IoCounters,
-) -> Result<(), OocError> {
+) -> Result<PathBuf, OocError> {
     if !direct {
-        return send_to_copies(work, plan, &work.canonical_radiosity, io);
+        return Ok(work.canonical_radiosity.clone());
     }
     let info = source.info();
     let reflected = work.dir.path().join("radiosity-reflected.bin");
@@ -1509,21 +1543,23 @@ fn send_lit(
     }
     io.read += work.count * (RADIOSITY_LEN + crate::storage::RECORD_LEN) as u64;
     io.written += out.finish()?;
-    send_to_copies(work, plan, &reflected, io)
+    Ok(reflected)
 }
 
-/// Sends the canonical values of `from` (radiosity-sized records) to each copy, in copy order,
-/// one copy at a time.
-fn send_to_copies(
+/// Sends the canonical values of `from` (radiosity-sized records) to copy `m`'s radiosity file,
+/// in that copy's order.
+fn send_to_copy(
     work: &WorkSet,
     plan: &MemoryPlan,
     from: &Path,
+    m: usize,
     io: &mut IoCounters,
 ) -> Result<(), OocError> {
     let n = work.count;
     let chunk = plan.chunk_surfels.min(n).max(1);
     let buffer = plan.bucket_buffer(n.div_ceil(chunk));
-    for copy in &work.copies {
+    {
+        let copy = &work.copies[m];
         let mut scatter = Scatter::<RADIOSITY_LEN>::new(
             work.dir.path(),
             &format!("radiosity-{}", copy.main),

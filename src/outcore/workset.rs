@@ -35,7 +35,10 @@ pub struct AxisCopy {
     pub statics: PathBuf,
     /// Where each frame of `statics` starts.
     pub statics_index: PathBuf,
-    /// Radiosity of the previous iteration, in copy order.
+    /// What the lines carry of the current radiosity, in copy order. One file serves the three
+    /// copies in turn: it is written for a copy just before that copy's directions are solved
+    /// (`solver::OutOfCore::step`), which saves two copies' worth of it on disk (48 bytes a
+    /// surfel).
     pub radiosity: PathBuf,
     /// Canonical index of each record, in copy order (u32).
     pub ids: PathBuf,
@@ -78,6 +81,33 @@ pub struct WorkSet {
     pub voxels: u64,
 }
 
+impl WorkSet {
+    /// Removes every work file but the canonical radiosity, once the solve is over: the
+    /// outputs are written from that file and the source alone, and the files they make would
+    /// otherwise be added to the work files' peak on the disk (on a building of 7 million
+    /// surfels the results file, 96 bytes a surfel, was written beside 261 bytes a surfel of
+    /// files no longer read). Best effort: what cannot be removed now goes with the directory.
+    pub fn keep_only_the_answer(&self) {
+        let Ok(entries) = std::fs::read_dir(self.dir.path()) else {
+            return;
+        };
+        for entry in entries.flatten() {
+            let path = entry.path();
+            if path == self.canonical_radiosity {
+                continue;
+            }
+            let removed = if path.is_dir() {
+                std::fs::remove_dir_all(&path)
+            } else {
+                std::fs::remove_file(&path)
+            };
+            if let Err(e) = removed {
+                tracing::debug!(path = %path.display(), error = %e, "work file left to the end");
+            }
+        }
+    }
+}
+
 /// Key of a voxel in copy order: `(x_m, x_v, x_u)` packed (each below 2^21).
 #[inline]
 fn row_of(copy: &AxisCopy, voxel: [i32; 3]) -> u64 {
@@ -103,6 +133,8 @@ pub fn build(
     let count = info.count;
     let mut copies = Vec::with_capacity(3);
     let mut voxels = 0;
+    let copy_radiosity = dir.path().join("radiosity-axis.bin");
+    RecordFile::create(&copy_radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
     for main in 0..3 {
         let (u, v) = ((main + 1) % 3, (main + 2) % 3);
         let name = |what: &str| dir.path().join(format!("{what}-{main}.bin"));
@@ -114,7 +146,7 @@ pub fn build(
             rows: dims[v],
             statics: name("static"),
             statics_index: name("static-index"),
-            radiosity: name("radiosity"),
+            radiosity: copy_radiosity.clone(),
             ids: name("ids"),
             positions: name("positions"),
             histogram: name("histogram"),
@@ -237,8 +269,6 @@ pub fn build(
         }
         io.written += out.finish()? + chunks.written;
         io.read += chunks.read;
-        // The per-iteration files, at full length.
-        RecordFile::create(&copy.radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
         copies.push(copy);
     }
     let canonical_radiosity = dir.path().join("radiosity-canonical.bin");
@@ -275,14 +305,17 @@ fn check_voxel(
     })
 }
 
-/// Bytes of work files per surfel at their peak: the three copies' static records, radiosity,
-/// indices and positions, the two shared gathered files and the canonical one, canonical
-/// radiosity, and the bucket files of one permutation, with the static records at their full
-/// size. Compressed (`super::framed`) they take about a fifth of it; `check_disk` counts them
-/// so only where the files would not fit otherwise.
-pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + RADIOSITY_LEN as u64 + 8)
-    + 3 * GATHER_LEN as u64
-    + RADIOSITY_LEN as u64
+/// Bytes of work files per surfel at their peak, with the static records at their full size:
+/// the three copies' static records, indices and positions, the radiosity file they share, the
+/// canonical radiosity, and then whichever is larger of a pass over an axis (its two gathered
+/// files and the canonical sum) and a fold or a checkpoint inside an axis (the one gathered file
+/// that holds the light, the canonical sum, and the buckets of one permutation of it: the other
+/// gathered file is empty between passes). Compressed (`super::framed`) the static records take
+/// about a fifth of it; `check_disk` counts them so only where the files would not fit
+/// otherwise.
+pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + 8)
+    + 2 * RADIOSITY_LEN as u64
+    + 2 * GATHER_LEN as u64
     + (8 + GATHER_LEN as u64);
 
 /// Refuses to start when the work files of `surfels` surfels cannot fit on the disk of
