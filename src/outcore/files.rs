@@ -402,6 +402,29 @@ impl RecordFile {
     }
 }
 
+/// Removes everything in the work directory `dir` but the file `keep`, once a solve is over and
+/// its outputs need only that file (the answer in canonical order) and the source. Best effort:
+/// what cannot be removed now goes with the directory when it is dropped.
+pub fn remove_all_but(dir: &Path, keep: Option<&Path>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if Some(path.as_path()) == keep {
+            continue;
+        }
+        let removed = if path.is_dir() {
+            std::fs::remove_dir_all(&path)
+        } else {
+            std::fs::remove_file(&path)
+        };
+        if let Err(e) = removed {
+            tracing::debug!(path = %path.display(), error = %e, "work file left to the end");
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

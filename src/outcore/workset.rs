@@ -86,25 +86,9 @@ impl WorkSet {
     /// outputs are written from that file and the source alone, and the files they make would
     /// otherwise be added to the work files' peak on the disk (on a building of 7 million
     /// surfels the results file, 96 bytes a surfel, was written beside 261 bytes a surfel of
-    /// files no longer read). Best effort: what cannot be removed now goes with the directory.
+    /// files no longer read).
     pub fn keep_only_the_answer(&self) {
-        let Ok(entries) = std::fs::read_dir(self.dir.path()) else {
-            return;
-        };
-        for entry in entries.flatten() {
-            let path = entry.path();
-            if path == self.canonical_radiosity {
-                continue;
-            }
-            let removed = if path.is_dir() {
-                std::fs::remove_dir_all(&path)
-            } else {
-                std::fs::remove_file(&path)
-            };
-            if let Err(e) = removed {
-                tracing::debug!(path = %path.display(), error = %e, "work file left to the end");
-            }
-        }
+        super::files::remove_all_but(self.dir.path(), Some(&self.canonical_radiosity));
     }
 }
 

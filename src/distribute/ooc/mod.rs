@@ -491,6 +491,9 @@ impl Solver<'_> {
         };
         let totals = self.summarize(&tally, surfels, stats.iterations);
         stats.data = Some(totals.data);
+        // The held files went above; the rest (links, direct light) go too before the outputs
+        // are written, as one process does: rank 0 keeps the answer in canonical order.
+        crate::outcore::files::remove_all_but(work.path(), canonical.as_deref());
         Ok(DataOocSolution {
             stats,
             voxels,
