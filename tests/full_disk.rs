@@ -527,15 +527,9 @@ fn a_read_only_place_stops_the_run_and_keeps_what_was_there() {
 fn the_work_files_fit_the_disk_the_check_admits() {
     let plain = TempDir::new().unwrap();
     let set = plain.path().join("scene.shards");
+    let (scene, set_arg) = (example("cornell_box.obj"), s(&set));
     let o = shard_tool(
-        &[
-            "convert",
-            &example("cornell_box.obj"),
-            "--resolution",
-            "96",
-            "--out",
-            &s(&set),
-        ],
+        &["convert", &scene, "--resolution", "96", "--out", &set_arg],
         None,
     );
     assert_ok(&o, "convert");
@@ -552,30 +546,15 @@ fn the_work_files_fit_the_disk_the_check_admits() {
             return;
         }
     };
-    let out = plain.path().join("out");
-    let o = voxrad(
-        &[
-            "solve",
-            &s(&set),
-            "--out",
-            &s(&out),
-            "--work-dir",
-            &s(disk.path()),
-            "--memory",
-            "16MiB",
-            "--directions",
-            "49",
-            "--iterations",
-            "3",
-            "--direct-directions",
-            "0",
-            "--links-disk",
-            "0",
-            "--threads",
-            "2",
-        ],
-        None,
+    let (set, out, work) = (s(&set), s(&plain.path().join("out")), s(disk.path()));
+    let mut args = vec!["solve", &set, "--out", &out, "--work-dir", &work];
+    // Three iterations, so that updates and sends to the copies come between passes; no links
+    // and no direct-light pass, whose files the disk check counts apart.
+    args.extend(
+        "--memory 16MiB --directions 49 --iterations 3 --direct-directions 0 --links-disk 0"
+            .split(' '),
     );
+    let o = voxrad(&args, None);
     assert_ok(
         &o,
         "out-of-core solve with its work files on a disk of 320 bytes a surfel",
