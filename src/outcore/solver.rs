@@ -1558,32 +1558,30 @@ fn send_to_copy(
     let n = work.count;
     let chunk = plan.chunk_surfels.min(n).max(1);
     let buffer = plan.bucket_buffer(n.div_ceil(chunk));
-    {
-        let copy = &work.copies[m];
-        let mut scatter = Scatter::<RADIOSITY_LEN>::new(
-            work.dir.path(),
-            &format!("radiosity-{}", copy.main),
-            n,
-            chunk,
-            buffer,
-        )?;
-        let mut positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
-        let mut radiosity = SeqReader::<RADIOSITY_LEN>::open(from, plan.io_bytes)?;
-        while let Some(p) = positions.next_record()? {
-            scatter.push(u32::from_le_bytes(p) as u64, &radiosity.expect_record()?)?;
-        }
-        io.read += n * (4 + RADIOSITY_LEN as u64);
-        let mut reader = scatter.into_chunks()?;
-        let mut out = SeqWriter::create(&copy.radiosity, plan.io_bytes)?;
-        let mut values: Vec<[u8; RADIOSITY_LEN]> = vec![[0u8; RADIOSITY_LEN]; chunk as usize];
-        while let Some((_, len)) = reader.next_chunk(|at, value| values[at] = *value)? {
-            for v in &values[..len as usize] {
-                out.write(v)?;
-            }
-        }
-        io.written += out.finish()? + reader.written;
-        io.read += reader.read;
+    let copy = &work.copies[m];
+    let mut scatter = Scatter::<RADIOSITY_LEN>::new(
+        work.dir.path(),
+        &format!("radiosity-{}", copy.main),
+        n,
+        chunk,
+        buffer,
+    )?;
+    let mut positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
+    let mut radiosity = SeqReader::<RADIOSITY_LEN>::open(from, plan.io_bytes)?;
+    while let Some(p) = positions.next_record()? {
+        scatter.push(u32::from_le_bytes(p) as u64, &radiosity.expect_record()?)?;
     }
+    io.read += n * (4 + RADIOSITY_LEN as u64);
+    let mut reader = scatter.into_chunks()?;
+    let mut out = SeqWriter::create(&copy.radiosity, plan.io_bytes)?;
+    let mut values: Vec<[u8; RADIOSITY_LEN]> = vec![[0u8; RADIOSITY_LEN]; chunk as usize];
+    while let Some((_, len)) = reader.next_chunk(|at, value| values[at] = *value)? {
+        for v in &values[..len as usize] {
+            out.write(v)?;
+        }
+    }
+    io.written += out.finish()? + reader.written;
+    io.read += reader.read;
     Ok(())
 }
 
