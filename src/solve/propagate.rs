@@ -235,8 +235,8 @@ fn local_of(p: &PropSurfel, sf: Vec3A) -> Local {
 
 /// The three floats of `p` at byte `offset` as a [`Vec3A`], read as one unaligned 16-byte load:
 /// its fourth lane holds the next field's first 4 bytes, which `Vec3A` never reads (its sums,
-/// dot products and comparisons take three lanes). Building the vectors float by float was most
-/// of the 80 instructions a surfel-direction that copying a line's surfels took.
+/// dot products and comparisons take three lanes). Building the vectors float by float took
+/// about 12 instructions a surfel-direction more in a first pass (callgrind, docs/throughput.md).
 #[inline(always)]
 fn lanes(p: &PropSurfel, offset: usize) -> Vec3A {
     const {
