@@ -549,7 +549,8 @@ fn the_work_files_fit_the_disk_the_check_admits() {
     let (set, out, work) = (s(&set), s(&plain.path().join("out")), s(disk.path()));
     let mut args = vec!["solve", &set, "--out", &out, "--work-dir", &work];
     // Three iterations, so that updates and sends to the copies come between passes; no links
-    // and no direct-light pass, whose files the disk check counts apart.
+    // (their allowance is taken from what is free after the check) and no direct-light pass
+    // (whose files the check does not count yet).
     args.extend(
         "--memory 16MiB --directions 49 --iterations 3 --direct-directions 0 --links-disk 0"
             .split(' '),
