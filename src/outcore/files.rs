@@ -425,6 +425,22 @@ pub fn remove_all_but(dir: &Path, keep: Option<&Path>) {
     }
 }
 
+/// The disk blocks the files directly in `dir` hold now, in bytes (a file made at its full
+/// length holds none until written).
+pub fn allocated_bytes(dir: &Path) -> u64 {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return 0;
+    };
+    entries
+        .flatten()
+        .filter_map(|entry| entry.metadata().ok())
+        .filter(|m| m.is_file())
+        // `st_blocks` counts 512-byte units whatever the filesystem's block size.
+        .map(|m| m.blocks() * 512)
+        .sum()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

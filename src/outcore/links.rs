@@ -333,10 +333,15 @@ impl LinkStore {
     }
 }
 
-/// The default allowance of the links files: half of what is free on the disk of `dir` (the
-/// work files already made), nothing where that cannot be read.
-pub fn default_allowance(dir: &Path) -> u64 {
-    super::workset::free_bytes(dir).unwrap_or(0) / 2
+/// The default allowance of the links files: half of what is free on the disk of `dir` once
+/// the work files' growth still to come, `still_needed` bytes, is set aside (files made at
+/// their full length take their blocks only as they are written); nothing where the free space
+/// cannot be read.
+pub fn default_allowance(dir: &Path, still_needed: u64) -> u64 {
+    super::workset::free_bytes(dir)
+        .unwrap_or(0)
+        .saturating_sub(still_needed)
+        / 2
 }
 
 #[cfg(test)]

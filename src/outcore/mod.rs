@@ -86,7 +86,7 @@ pub enum OocError {
     },
     #[error(
         "the work files need about {} on the disk of {}, which has {} free: no space left for \
-         them; give --out a directory on a larger disk, or free space",
+         them; give --work-dir (or --out) a directory on a larger disk, or free space",
         budget::format_bytes(*needed),
         path.display(),
         budget::format_bytes(*free)

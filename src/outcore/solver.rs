@@ -316,7 +316,12 @@ fn run(
     );
     let mut io = IoCounters::default();
     let started = Instant::now();
-    let work = workset::build(source, &plan, work_parent, &mut io)?;
+    // What the solve's own files add to the work set's: the direct-light files counted
+    // wherever the pass may run, until the emitting surfels are counted below.
+    let direct_may_run =
+        options.direct.may_run(directions.len()) && info.materials.iter().any(|m| m.is_emitter());
+    let also = workset::solve_files_per_surfel(options.accelerate, direct_may_run);
+    let work = workset::build(source, &plan, work_parent, also, &mut io)?;
     let mut stats = OocStats {
         voxels: work.voxels,
         surfels: work.count,
@@ -353,8 +358,13 @@ fn run(
         longest_axis: info.grid.dims.into_iter().max().unwrap_or(0),
         directions: directions.len(),
     };
-    let direct = match options.direct.resolve(shape) {
-        Some(count) if any_light => Some(super::direct::gather_direct_out_of_core(
+    let dense = options.direct.resolve(shape).filter(|_| any_light);
+    // Again with the static records at the size they were written and the direct-light pass
+    // decided: the first check counted those records' size from one order of them.
+    let also = workset::solve_files_per_surfel(options.accelerate, dense.is_some());
+    workset::check_free_space(work.dir.path(), work.disk_still_needed(also))?;
+    let direct = match dense {
+        Some(count) => Some(super::direct::gather_direct_out_of_core(
             source,
             &DirectionSet::with_count(count),
             &plan,
@@ -404,9 +414,9 @@ fn run(
     let links = LinkStore::new(
         work.dir.path(),
         directions.len(),
-        options
-            .links_disk
-            .unwrap_or_else(|| super::links::default_allowance(work.dir.path())),
+        options.links_disk.unwrap_or_else(|| {
+            super::links::default_allowance(work.dir.path(), work.disk_still_needed(also))
+        }),
         work.count,
         plan.io_bytes,
     );

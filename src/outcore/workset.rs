@@ -90,6 +90,37 @@ impl WorkSet {
     pub fn keep_only_the_answer(&self) {
         super::files::remove_all_but(self.dir.path(), Some(&self.canonical_radiosity));
     }
+
+    /// Bytes the work files will still take on the disk beyond what they take now, at their
+    /// peak, with `also_per_surfel` of the solve's own files: the peak of
+    /// [`DISK_BYTES_PER_SURFEL`] with the static records at the size they were written, less
+    /// the blocks every file of the work directory holds now (files made at their full length
+    /// hold none until written).
+    pub fn disk_still_needed(&self, also_per_surfel: u64) -> u64 {
+        let statics: u64 = self
+            .copies
+            .iter()
+            .flat_map(|c| [&c.statics, &c.statics_index])
+            .filter_map(|path| std::fs::metadata(path).ok())
+            .map(|m| m.len())
+            .sum();
+        let peak = self.count * (DISK_BYTES_PER_SURFEL - 3 * STATIC_LEN as u64 + also_per_surfel)
+            + statics;
+        peak.saturating_sub(super::files::allocated_bytes(self.dir.path()))
+    }
+}
+
+/// Bytes a surfel of the files the solve adds to the work set's own during the iterations:
+/// the radiosity before each update, kept for the tail extrapolation, and with the direct-light
+/// pass its light, in canonical order, and the reflected part the lines carry (`solver`).
+pub fn solve_files_per_surfel(extrapolate: bool, direct: bool) -> u64 {
+    let previous = if extrapolate { RADIOSITY_LEN } else { 0 };
+    let direct = if direct {
+        GATHER_LEN + RADIOSITY_LEN
+    } else {
+        0
+    };
+    (previous + direct) as u64
 }
 
 /// Key of a voxel in copy order: `(x_m, x_v, x_u)` packed (each below 2^21).
@@ -99,13 +130,16 @@ fn row_of(copy: &AxisCopy, voxel: [i32; 3]) -> u64 {
 }
 
 /// Builds the three copies of `source` in a new temporary directory under `parent`.
+/// `also_per_surfel` is what the solve's own files add to the work set's peak, a surfel
+/// ([`solve_files_per_surfel`]): the disk must hold both.
 pub fn build(
     source: &dyn SurfelSource,
     plan: &MemoryPlan,
     parent: &Path,
+    also_per_surfel: u64,
     io: &mut IoCounters,
 ) -> Result<WorkSet, OocError> {
-    check_disk(parent, source.info().count, || {
+    check_disk(parent, source.info().count, also_per_surfel, || {
         static_bytes_in_frames(source, plan)
     })?;
     let dir = tempfile::Builder::new()
@@ -302,8 +336,9 @@ pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + 8)
     + 2 * GATHER_LEN as u64
     + (8 + GATHER_LEN as u64);
 
-/// Refuses to start when the work files of `surfels` surfels cannot fit on the disk of
-/// `parent`: a long solve must not find out hours later. Where they would not fit with their
+/// Refuses to start when the work files of `surfels` surfels, with `also_per_surfel` bytes a
+/// surfel of the solve's own files, cannot fit on the disk of `parent`: a long solve must not
+/// find out hours later. Where they would not fit with their
 /// static records at full size, `static_bytes` is asked what those records take compressed in
 /// one order (the source's), and each copy is counted at half as much again: the copies' orders
 /// put other neighbours side by side (measured on a building of 7 million surfels: the copies
@@ -311,16 +346,18 @@ pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + 8)
 fn check_disk(
     parent: &Path,
     surfels: u64,
+    also_per_surfel: u64,
     static_bytes: impl FnOnce() -> Result<u64, OocError>,
 ) -> Result<(), OocError> {
     let Some(free) = free_bytes(parent) else {
         return Ok(());
     };
-    if free >= surfels * DISK_BYTES_PER_SURFEL {
+    let per_surfel = DISK_BYTES_PER_SURFEL + also_per_surfel;
+    if free >= surfels * per_surfel {
         return Ok(());
     }
     let statics = static_bytes()?;
-    let needed = surfels * (DISK_BYTES_PER_SURFEL - 3 * STATIC_LEN as u64) + 3 * (statics * 3 / 2);
+    let needed = surfels * (per_surfel - 3 * STATIC_LEN as u64) + 3 * (statics * 3 / 2);
     tracing::info!(
         static_bytes_per_surfel = statics as f64 / surfels.max(1) as f64,
         needed = super::budget::format_bytes(needed),
@@ -397,16 +434,16 @@ mod tests {
         let free = free_bytes(dir.path()).expect("statvfs of a temporary directory");
         assert!(free > 0);
         let unasked = || -> Result<u64, OocError> { panic!("the records' size asked for") };
-        assert!(check_disk(dir.path(), 1000, unasked).is_ok());
+        assert!(check_disk(dir.path(), 1000, 0, unasked).is_ok());
         // Twice what is free: other tests running beside this one create and delete files, and
         // one more surfel than fits was refused or not by a few hundred bytes freed meanwhile.
         let too_many = 2 * (free / DISK_BYTES_PER_SURFEL + 1);
         let full_size = Ok(too_many * STATIC_LEN as u64);
-        let e = check_disk(dir.path(), too_many, || full_size).unwrap_err();
+        let e = check_disk(dir.path(), too_many, 0, || full_size).unwrap_err();
         assert!(e.to_string().contains("free"), "{e}");
         // The records compressed to nothing: the rest of the files still take more than twice
         // what is free (they are at least 3 * 32 + 3 * 48 bytes a surfel).
-        let e = check_disk(dir.path(), too_many, || Ok(0)).unwrap_err();
+        let e = check_disk(dir.path(), too_many, 0, || Ok(0)).unwrap_err();
         assert!(e.to_string().contains("free"), "{e}");
         // Admitted with the records compressed where they would not fit at full size: as many
         // surfels as fit in four fifths of the free space with 20 bytes of records a surfel in
@@ -419,6 +456,22 @@ mod tests {
             "free space too small to tell"
         );
         let statics = Ok(surfels * compressed);
-        assert!(check_disk(dir.path(), surfels, || statics).is_ok());
+        assert!(check_disk(dir.path(), surfels, 0, || statics).is_ok());
+    }
+
+    #[test]
+    fn the_solves_own_files_are_counted_with_the_work_set() {
+        let dir = tempfile::tempdir().unwrap();
+        let free = free_bytes(dir.path()).expect("statvfs of a temporary directory");
+        // Surfels whose work set fits in nine tenths of the free space, and whose tail
+        // extrapolation and direct-light files (96 bytes a surfel) make it a tenth too large.
+        let also = solve_files_per_surfel(true, true);
+        assert_eq!(also, 96);
+        let surfels = free / (DISK_BYTES_PER_SURFEL + also / 2);
+        let unasked = || -> Result<u64, OocError> { panic!("the records' size asked for") };
+        assert!(check_disk(dir.path(), surfels, 0, unasked).is_ok());
+        let full_size = Ok(surfels * STATIC_LEN as u64);
+        let e = check_disk(dir.path(), surfels, also, || full_size).unwrap_err();
+        assert!(e.to_string().contains("free"), "{e}");
     }
 }

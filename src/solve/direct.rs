@@ -51,9 +51,9 @@
 //! [`BUDGET_ITERATIONS`] iterations cost ([`affordable_directions`]). Every in-memory solve runs it
 //! (one process, and every MPI mode: the dense directions are dealt over all ranks, each of
 //! which holds the whole scene), and so does the one-process out-of-core solver, on parts of the
-//! scene that hold the emitters' lines (`outcore::direct`, through [`gather_groups`]); the data
-//! mode out of core does not have it yet. A stop signal during the pass is answered at the first
-//! direction after it.
+//! scene that hold the emitters' lines (`outcore::direct`, through [`gather_groups`]), which
+//! rank 0 of the data mode out of core also runs for every rank (`distribute::ooc::direct`). A
+//! stop signal during the pass is answered at the first direction after it.
 //!
 //! **Determinism.** Directions are taken in blocks; a block's directions run in parallel, each
 //! returning its receivers' contributions, which are then added in direction order: the result
@@ -1060,6 +1060,16 @@ impl DirectPass {
                     .then_some(n)
             }
             DirectPass::On(n) => Some(n),
+        }
+    }
+
+    /// Whether a solve with `directions` line directions may run the pass on a scene that emits,
+    /// before its emitting surfels are counted: what [`Self::resolve`] decides without them.
+    pub fn may_run(self, directions: usize) -> bool {
+        match self {
+            DirectPass::Off | DirectPass::Auto(0) | DirectPass::On(0) => false,
+            DirectPass::Auto(n) => n >= 2 * directions,
+            DirectPass::On(_) => true,
         }
     }
 

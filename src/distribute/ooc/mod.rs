@@ -385,8 +385,10 @@ impl Solver<'_> {
         // The links files' allowance: the ranks of one node share its disk.
         let links_allowance = match self.options.links_disk {
             Some(bytes) => bytes,
+            // A merge adds about two shares to the held files on the disk now (see the
+            // check above).
             None => {
-                crate::outcore::links::default_allowance(dir)
+                crate::outcore::links::default_allowance(dir, 2 * share + canonical_bytes)
                     / crate::solve::links::ranks_on_this_node(self.comm) as u64
             }
         };
