@@ -24,6 +24,11 @@ pub trait Comm {
     /// Splits the processes into groups: those passing the same `color` form one, ranked in the
     /// order of their ranks here. Every process must call it.
     fn split(&self, color: usize) -> Box<dyn Comm>;
+    /// Returns once every rank has called it, sleeping between checks instead of spinning: a
+    /// rank that waits while another works alone (rank 0 writing the outputs, or running the
+    /// direct-light pass out of core) leaves its core to that rank's threads. MPI's own waits
+    /// spin, and where ranks share a node's cores that halved the writing rank's threads.
+    fn wait_quietly(&self);
 }
 
 /// One process: sums are the values themselves.
@@ -52,6 +57,8 @@ impl Comm for SingleProcess {
     fn split(&self, _color: usize) -> Box<dyn Comm> {
         Box::new(SingleProcess)
     }
+
+    fn wait_quietly(&self) {}
 }
 
 /// Splits `count` items (directions) into this rank's share: every `size`-th one from `rank`.

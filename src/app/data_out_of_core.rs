@@ -110,6 +110,8 @@ pub(super) fn run_solve_data_out_of_core(
         None
     };
     let write_seconds = t.elapsed().as_secs_f64();
+    // The other ranks leave their cores to rank 0's writing threads meanwhile.
+    comm.wait_quietly();
     // Every rank's peak, after its last work.
     let ranks = comm.size();
     let mut peaks = vec![0.0; 2 * ranks];

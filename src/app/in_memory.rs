@@ -112,6 +112,8 @@ pub(super) fn solve_in_memory_from_scene(
     report.set_phase("voxelize", voxelize_seconds);
     report.set_phase("write", write_seconds);
     report.set_total(started.elapsed().as_secs_f64());
+    // The other ranks leave their cores to rank 0's writing threads meanwhile.
+    comm.wait_quietly();
     // The largest peak over ranks: what a node must have.
     report.peak_rss_bytes = comm.max_u64(crate::output::report::peak_rss_bytes());
     if let Some(staging) = staged {

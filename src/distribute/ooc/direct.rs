@@ -32,15 +32,22 @@ impl Solver<'_> {
     ) -> Result<(Held, DirectStats), OocError> {
         let plan = router.plan;
         let mut stats = DirectStats::default();
-        let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
-            let file = crate::outcore::direct::gather_direct_out_of_core(
+        let pass = (self.comm.rank() == 0).then(|| {
+            crate::outcore::direct::gather_direct_out_of_core(
                 self.source,
                 &DirectionSet::with_count(count),
                 plan,
                 self.pool,
                 router.dir,
                 io,
-            )?;
+            )
+        });
+        // The other ranks have nothing to do meanwhile: they leave their cores to rank 0's
+        // threads, where ranks share a node. A failure of the pass reaches them through
+        // `send_slices`, as one of reading its file would.
+        self.comm.wait_quietly();
+        let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
+            let file = pass.expect("rank 0 ran the pass")?;
             stats = file.stats.clone();
             let mut reader = SeqReader::<GATHER_LEN>::open(&file.path, plan.io_bytes)?;
             while let Some(record) = reader.next_record()? {
