@@ -243,14 +243,10 @@ impl<'a> Refinement<'a> {
         let [a, b, c] = triangle.vertices.map(|p| self.vertex(p, normal));
         self.add([a, b, c]);
         let centre = (triangle.vertices[0] + triangle.vertices[1] + triangle.vertices[2]) / 3.0;
-        let centre_value = self
-            .index
-            .lookup(centre, -normal)
-            .radiosity
-            .map(|v| v as f32);
+        let centre_value = self.index.radiosity_at(centre, -normal).map(|v| v as f32);
         let back_values = triangle
             .vertices
-            .map(|p| self.index.lookup(p, -normal).radiosity.map(|v| v as f32));
+            .map(|p| self.index.radiosity_at(p, -normal).map(|v| v as f32));
         let lit = back_values
             .iter()
             .chain([&centre_value])
@@ -269,10 +265,10 @@ impl<'a> Refinement<'a> {
         if let Some(&k) = self.vertex_at.get(&key) {
             return k;
         }
-        let row = self.index.lookup(p, normal);
+        let radiosity = self.index.radiosity_at(p, normal);
         self.points.push(p);
         self.normals.push(normal);
-        self.values.push(row.radiosity.map(|v| v as f32));
+        self.values.push(radiosity.map(|v| v as f32));
         let k = self.points.len() - 1;
         self.vertex_at.insert(key, k);
         k
