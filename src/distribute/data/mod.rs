@@ -447,31 +447,60 @@ impl<'a> DataSolver<'a> {
         world: &dyn Comm,
         omega: f64,
     ) -> [f64; 4] {
-        let size = world.size();
+        let (size, me) = (world.size(), world.rank());
         // Parts, by owner (each rank sends each surfel it has once: the owner's sum is in rank
         // order whatever order a pack lists them in).
         sharing.sent = vec![Vec::new(); size];
+        for (place, &id) in held.ids.iter().enumerate() {
+            sharing.sent[self.owner_of_id(id, size)].push(place as u32);
+        }
         // Of a grey scene's gathered light only the first channel is read (`update_surfel`,
         // `ClosureSums`, `add_power`): that one is sent.
         let channels = self.channels;
         let part_bytes = 4 + 2 * channels * 8;
-        let mut packs = vec![Vec::new(); size];
-        for (place, &id) in held.ids.iter().enumerate() {
-            let owner = self.owner_of_id(id, size);
-            sharing.sent[owner].push(place as u32);
-            let pack: &mut Vec<u8> = &mut packs[owner];
-            pack.extend_from_slice(&id.to_le_bytes());
-            for side in &held.acc[place] {
-                for a in &side[..channels] {
-                    pack.extend_from_slice(&a.to_le_bytes());
+        // This rank's own parts are not packed: they are added in place, in their turn among
+        // the ranks' (they and their replies were a third of the end of an iteration at 2
+        // ranks).
+        let packs: Vec<Vec<u8>> = (sharing.sent.iter().enumerate())
+            .map(|(owner, places)| {
+                if owner == me {
+                    return Vec::new();
                 }
-            }
-        }
-        sharing.bytes += packs.iter().map(|p| p.len() as u64).sum::<u64>();
+                let mut pack = Vec::with_capacity(places.len() * part_bytes);
+                for &place in places {
+                    let place = place as usize;
+                    pack.extend_from_slice(&held.ids[place].to_le_bytes());
+                    for side in &held.acc[place] {
+                        for a in &side[..channels] {
+                            pack.extend_from_slice(&a.to_le_bytes());
+                        }
+                    }
+                }
+                pack
+            })
+            .collect();
+        // Counted with the own parts, as if sent: the figure tells the surfels a rank has met.
+        sharing.bytes += (held.ids.len() * part_bytes) as u64;
         let received = world.exchange(packs);
         owned.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         sharing.asked = Vec::with_capacity(size);
-        for pack in &received {
+        for (from, pack) in received.iter().enumerate() {
+            if from == me {
+                let places = &sharing.sent[me];
+                let mut ids = Vec::with_capacity(places.len());
+                for &place in places {
+                    let id = held.ids[place as usize];
+                    let sum = &mut owned.acc[id as usize - owned.ids.start];
+                    for (to, part) in sum.iter_mut().zip(&held.acc[place as usize]) {
+                        for (v, a) in to[..channels].iter_mut().zip(&part[..channels]) {
+                            *v += a;
+                        }
+                    }
+                    ids.push(id);
+                }
+                sharing.asked.push(ids);
+                continue;
+            }
             let mut ids = Vec::with_capacity(pack.len() / part_bytes);
             for r in pack.chunks_exact(part_bytes) {
                 let id = u32::from_le_bytes([r[0], r[1], r[2], r[3]]);
@@ -555,10 +584,13 @@ impl<'a> DataSolver<'a> {
     ) {
         let channels = self.channels;
         let reply_bytes = 2 * channels * 4;
-        let replies: Vec<Vec<u8>> = sharing
-            .asked
-            .iter()
-            .map(|ids| {
+        let me = world.rank();
+        let replies: Vec<Vec<u8>> = (sharing.asked.iter().enumerate())
+            .map(|(to, ids)| {
+                // This rank's own surfels take their radiosity in place, below.
+                if to == me {
+                    return Vec::new();
+                }
                 let mut out = Vec::with_capacity(ids.len() * reply_bytes);
                 for &id in ids {
                     for side in &owned.radiosity[id as usize - owned.ids.start] {
@@ -571,8 +603,17 @@ impl<'a> DataSolver<'a> {
                 out
             })
             .collect();
-        sharing.bytes += replies.iter().map(|p| p.len() as u64).sum::<u64>();
+        // Counted with the own replies, as the parts are.
+        sharing.bytes += (held.ids.len() * reply_bytes) as u64;
         let received = world.exchange(replies);
+        for (&place, &id) in sharing.sent[me].iter().zip(&sharing.asked[me]) {
+            let mut b = owned.radiosity[id as usize - owned.ids.start];
+            if channels == 1 {
+                // As a reply carries a grey scene's radiosity: its first channel.
+                b = b.map(|side| [side[0]; 3]);
+            }
+            held.set_radiosity(place as usize, b, &self.emission[id as usize]);
+        }
         for (places, pack) in sharing.sent.iter().zip(&received) {
             for (&place, r) in places.iter().zip(pack.chunks_exact(reply_bytes)) {
                 let f = |k: usize| f32::from_le_bytes([r[k], r[k + 1], r[k + 2], r[k + 3]]);
