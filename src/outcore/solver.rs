@@ -362,7 +362,7 @@ fn run(
     // Again with the static records at the size they were written and the direct-light pass
     // decided: the first check counted those records' size from one order of them.
     let also = workset::solve_files_per_surfel(options.accelerate, dense.is_some());
-    workset::check_free_space(work.dir.path(), work.disk_still_needed(also))?;
+    workset::check_free_space(work_parent, work.disk_still_needed(also))?;
     let direct = match dense {
         Some(count) => Some(super::direct::gather_direct_out_of_core(
             source,

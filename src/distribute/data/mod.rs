@@ -459,26 +459,19 @@ impl<'a> DataSolver<'a> {
         let channels = self.channels;
         let part_bytes = 4 + 2 * channels * 8;
         // This rank's own parts are not packed: they are added in place, in their turn among
-        // the ranks' (they and their replies were a third of the end of an iteration at 2
-        // ranks).
-        let packs: Vec<Vec<u8>> = (sharing.sent.iter().enumerate())
-            .map(|(owner, places)| {
-                if owner == me {
-                    return Vec::new();
-                }
-                let mut pack = Vec::with_capacity(places.len() * part_bytes);
-                for &place in places {
-                    let place = place as usize;
-                    pack.extend_from_slice(&held.ids[place].to_le_bytes());
-                    for side in &held.acc[place] {
-                        for a in &side[..channels] {
-                            pack.extend_from_slice(&a.to_le_bytes());
-                        }
+        // the ranks' (packing and exchanging them and their replies with itself was about a
+        // fifth of the end of an iteration at 2 ranks).
+        let packs = packs_for_others(&sharing.sent, me, part_bytes, |places, pack| {
+            for &place in places {
+                let place = place as usize;
+                pack.extend_from_slice(&held.ids[place].to_le_bytes());
+                for side in &held.acc[place] {
+                    for a in &side[..channels] {
+                        pack.extend_from_slice(&a.to_le_bytes());
                     }
                 }
-                pack
-            })
-            .collect();
+            }
+        });
         // Counted with the own parts, as if sent: the figure tells the surfels a rank has met.
         sharing.bytes += (held.ids.len() * part_bytes) as u64;
         let received = world.exchange(packs);
@@ -585,24 +578,17 @@ impl<'a> DataSolver<'a> {
         let channels = self.channels;
         let reply_bytes = 2 * channels * 4;
         let me = world.rank();
-        let replies: Vec<Vec<u8>> = (sharing.asked.iter().enumerate())
-            .map(|(to, ids)| {
-                // This rank's own surfels take their radiosity in place, below.
-                if to == me {
-                    return Vec::new();
-                }
-                let mut out = Vec::with_capacity(ids.len() * reply_bytes);
-                for &id in ids {
-                    for side in &owned.radiosity[id as usize - owned.ids.start] {
-                        debug_assert!(channels == 3 || side.iter().all(|&b| b == side[0]));
-                        for f in &side[..channels] {
-                            out.extend_from_slice(&f.to_le_bytes());
-                        }
+        // This rank's own surfels take their radiosity in place, below.
+        let replies = packs_for_others(&sharing.asked, me, reply_bytes, |ids, out| {
+            for &id in ids {
+                for side in &owned.radiosity[id as usize - owned.ids.start] {
+                    debug_assert!(channels == 3 || side.iter().all(|&b| b == side[0]));
+                    for f in &side[..channels] {
+                        out.extend_from_slice(&f.to_le_bytes());
                     }
                 }
-                out
-            })
-            .collect();
+            }
+        });
         // Counted with the own replies, as the parts are.
         sharing.bytes += (held.ids.len() * reply_bytes) as u64;
         let received = world.exchange(replies);
@@ -777,6 +763,27 @@ impl Owned {
             ids,
         }
     }
+}
+
+/// One buffer per rank, filled by `fill` from that rank's list (`bytes_each` bytes an item),
+/// and an empty one for this rank (`me`), whose own items are taken in place: what the ends of
+/// iterations send.
+fn packs_for_others(
+    lists: &[Vec<u32>],
+    me: usize,
+    bytes_each: usize,
+    mut fill: impl FnMut(&[u32], &mut Vec<u8>),
+) -> Vec<Vec<u8>> {
+    (lists.iter().enumerate())
+        .map(|(rank, list)| {
+            let mut pack = Vec::new();
+            if rank != me {
+                pack.reserve_exact(list.len() * bytes_each);
+                fill(list, &mut pack);
+            }
+            pack
+        })
+        .collect()
 }
 
 /// Who has which surfel, as the last `reduce` found it: the places this rank sent parts of to
