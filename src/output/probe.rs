@@ -138,8 +138,9 @@ impl<'a> ProbeIndex<'a> {
     }
 
     /// The radiosity of [`Self::lookup`] alone, the same bits, without the irradiance and the
-    /// material: what a bake reads at every vertex of a scene (the irradiance's divisions and
-    /// each call's list of matches were about a third of a bake's look-ups).
+    /// material: what a bake reads at every vertex of a scene (without the irradiance's
+    /// divisions and a new list of matches per call, a bake of a building took about a tenth
+    /// less time: docs/throughput.md).
     pub fn radiosity_at(&self, point: DVec3, normal: DVec3) -> [f64; 3] {
         MATCHES
             .with_borrow_mut(|matches| self.lookup_with::<false>(point, normal, matches).radiosity)

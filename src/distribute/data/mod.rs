@@ -592,7 +592,10 @@ impl<'a> DataSolver<'a> {
         // Counted with the own replies, as the parts are.
         sharing.bytes += (held.ids.len() * reply_bytes) as u64;
         let received = world.exchange(replies);
-        for (&place, &id) in sharing.sent[me].iter().zip(&sharing.asked[me]) {
+        // (Nothing before the first end of an iteration has filled the lists.)
+        let own_places = sharing.sent.get(me).map_or(&[][..], Vec::as_slice);
+        let own_ids = sharing.asked.get(me).map_or(&[][..], Vec::as_slice);
+        for (&place, &id) in own_places.iter().zip(own_ids) {
             let mut b = owned.radiosity[id as usize - owned.ids.start];
             if channels == 1 {
                 // As a reply carries a grey scene's radiosity: its first channel.
