@@ -525,8 +525,8 @@ fn a_read_only_place_stops_the_run_and_keeps_what_was_there() {
 /// longer read were removed before the outputs are written; 260 since (docs/out-of-core.md).
 /// The solve's own files add up to 96 bytes a surfel to that, and the links files take only
 /// what is left once the work files' growth still to come is set aside: a build that counted
-/// neither filled this disk. Without a tmpfs (not root, or no mount allowed) it says so loudly
-/// and checks nothing.
+/// neither filled this disk, nor does one with more links asked for (`--links-disk`) than it
+/// has. Without a tmpfs (not root, or no mount allowed) it says so loudly and checks nothing.
 #[test]
 fn the_work_files_fit_the_disk_the_check_admits() {
     let plain = TempDir::new().unwrap();
@@ -567,6 +567,19 @@ fn the_work_files_fit_the_disk_the_check_admits() {
     assert!(
         report["out_of_core"]["direct_light_parts"].as_u64() > Some(0),
         "the direct-light pass did not run: {report}"
+    );
+    // Links asked for beyond what the disk has left: they keep to what is free beyond the work
+    // files' growth (a build that took what was asked filled the disk and failed writing a
+    // gathered file), and they change no bit of the answer.
+    let asked = s(&plain.path().join("asked"));
+    args[3] = &asked;
+    args.extend(["--links-disk", "1G"]);
+    let o = voxrad(&args, None);
+    assert_ok(&o, "the same solve with --links-disk 1G on that disk");
+    let answer = |dir: &str| std::fs::read(Path::new(dir).join("surfels.bin")).unwrap();
+    assert!(
+        answer(&out) == answer(&asked),
+        "links on disk changed the answer"
     );
     eprintln!(
         "work files' peak: {surfels} surfels solved with a {} MB disk for the work files",

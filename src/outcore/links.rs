@@ -333,15 +333,30 @@ impl LinkStore {
     }
 }
 
-/// The default allowance of the links files: half of what is free on the disk of `dir` once
-/// the work files' growth still to come, `still_needed` bytes, is set aside (files made at
-/// their full length take their blocks only as they are written); nothing where the free space
-/// cannot be read.
-pub fn default_allowance(dir: &Path, still_needed: u64) -> u64 {
-    super::workset::free_bytes(dir)
-        .unwrap_or(0)
-        .saturating_sub(still_needed)
-        / 2
+/// The allowance of the links files of one of `sharers` ranks whose work files share the disk
+/// of `dir`: `asked` (`--links-disk`) or by default half of what is free there once the work
+/// files' growth still to come, `still_needed` bytes a rank, is set aside (files made at their
+/// full length take their blocks only as they are written), divided among the sharers. An allowance
+/// asked for is cut to what is free beyond that growth: links written into it made the next
+/// gathered file find the disk full, and the solve fail. Nothing by default where the free
+/// space cannot be read; what was asked for, then.
+pub fn allowance(dir: &Path, asked: Option<u64>, still_needed: u64, sharers: u64) -> u64 {
+    let free = super::workset::free_bytes(dir);
+    let sharers = sharers.max(1);
+    let room = free.map(|f| f.saturating_sub(still_needed.saturating_mul(sharers)) / sharers);
+    match (asked, room) {
+        (None, room) => room.unwrap_or(0) / 2,
+        (Some(asked), Some(room)) if asked > room => {
+            tracing::warn!(
+                asked = super::budget::format_bytes(asked),
+                kept = super::budget::format_bytes(room),
+                "--links-disk is more than the disk has beyond the work files' growth: the \
+                 links keep to what it has"
+            );
+            room
+        }
+        (Some(asked), _) => asked,
+    }
 }
 
 #[cfg(test)]

@@ -414,9 +414,12 @@ fn run(
     let links = LinkStore::new(
         work.dir.path(),
         directions.len(),
-        options.links_disk.unwrap_or_else(|| {
-            super::links::default_allowance(work.dir.path(), work.disk_still_needed(also))
-        }),
+        super::links::allowance(
+            work.dir.path(),
+            options.links_disk,
+            work.disk_still_needed(also),
+            1,
+        ),
         work.count,
         plan.io_bytes,
     );

@@ -382,16 +382,14 @@ impl Solver<'_> {
             })
             .collect();
         let starts = self.slice_starts(slice.first);
-        // The links files' allowance: the ranks of one node share its disk.
-        let links_allowance = match self.options.links_disk {
-            Some(bytes) => bytes,
-            // A merge adds about two shares to the held files on the disk now (see the
-            // check above).
-            None => {
-                crate::outcore::links::default_allowance(dir, 2 * share + canonical_bytes)
-                    / crate::solve::links::ranks_on_this_node(self.comm) as u64
-            }
-        };
+        // The links files' allowance: the ranks of one node share its disk, and a merge adds
+        // about two shares to the held files on it now (see the check above).
+        let links_allowance = crate::outcore::links::allowance(
+            dir,
+            self.options.links_disk,
+            2 * share + canonical_bytes,
+            crate::solve::links::ranks_on_this_node(self.comm) as u64,
+        );
         let links = LinkStore::new(dir, d_count, links_allowance, surfels, plan.io_bytes);
         let mut sweep = DataOocSweep {
             solver: self,
