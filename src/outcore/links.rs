@@ -336,10 +336,10 @@ impl LinkStore {
 /// The allowance of the links files of one of `sharers` ranks whose work files share the disk
 /// of `dir`: `asked` (`--links-disk`) or by default half of what is free there once the work
 /// files' growth still to come, `still_needed` bytes a rank, is set aside (files made at their
-/// full length take their blocks only as they are written), divided among the sharers. An allowance
-/// asked for is cut to what is free beyond that growth: links written into it made the next
-/// gathered file find the disk full, and the solve fail. Nothing by default where the free
-/// space cannot be read; what was asked for, then.
+/// full length take their blocks only as they are written), divided among the sharers.
+/// An allowance asked for is cut to what is free beyond that growth: links written into it
+/// made the next gathered file find the disk full, and the solve fail. Nothing by default
+/// where the free space cannot be read; what was asked for, then.
 pub fn allowance(dir: &Path, asked: Option<u64>, still_needed: u64, sharers: u64) -> u64 {
     let free = super::workset::free_bytes(dir);
     let sharers = sharers.max(1);
