@@ -474,7 +474,7 @@ impl InMemory<'_> {
             dispatch(&orders[order::order_of(d.vector)], frame, threads, lines);
             let t1 = Instant::now();
             if defer {
-                let links = record_links(lines, &input, threads);
+                let links = record_links(lines, &input, threads, kept.spare_words());
                 kept.keep_deferred(step, links, input.radiosity, input.channels, acc);
             } else if record {
                 kept.keep(step, gather_and_record(lines, &input, acc, threads));

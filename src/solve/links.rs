@@ -202,6 +202,18 @@ impl DirectionLinks {
         }
     }
 
+    /// The memory of the links, emptied, for the links of another direction
+    /// ([`record_links`]); `None` where they are wide.
+    pub(crate) fn into_words(self) -> Option<Vec<u64>> {
+        match self.packed {
+            Packed::Narrow(mut words) => {
+                words.clear();
+                Some(words)
+            }
+            Packed::Wide(_) => None,
+        }
+    }
+
     /// The links, in order.
     fn links(&self) -> Box<dyn Iterator<Item = Link> + '_> {
         match &self.packed {
@@ -454,24 +466,30 @@ pub fn gather_and_record(
     acc: &mut [Gathered],
     threads: usize,
 ) -> DirectionLinks {
-    packed(super::jacobi::gather_pieces::<_, true>(
-        lines, input, acc, threads,
-    ))
+    packed(
+        super::jacobi::gather_pieces::<_, true>(lines, input, acc, threads),
+        Vec::new(),
+    )
 }
 
 /// The links [`gather_and_record`] would return, found without adding any light: replayed
-/// later, they add what that gather would have added, bit for bit.
-pub fn record_links(lines: &Lines, input: &DirectionInput, threads: usize) -> DirectionLinks {
-    packed(super::jacobi::gather_pieces::<_, false>(
-        lines,
-        input,
-        &mut [],
-        threads,
-    ))
+/// later, they add what that gather would have added, bit for bit. They are packed into `words`
+/// where they are narrow (its memory reused: see `KeptLinks::spare_words`).
+pub fn record_links(
+    lines: &Lines,
+    input: &DirectionInput,
+    threads: usize,
+    words: Vec<u64>,
+) -> DirectionLinks {
+    packed(
+        super::jacobi::gather_pieces::<_, false>(lines, input, &mut [], threads),
+        words,
+    )
 }
 
-/// The links the pieces of one direction recorded, packed into one [`DirectionLinks`].
-fn packed(pieces: Vec<PieceRecorder>) -> DirectionLinks {
+/// The links the pieces of one direction recorded, packed into one [`DirectionLinks`] (into
+/// `words` where they are narrow).
+fn packed(pieces: Vec<PieceRecorder>, words: Vec<u64>) -> DirectionLinks {
     // The pieces' factor tables merged into one of distinct factors (by their bits), so that
     // the direction's factor indices take as few bits as they can.
     let mut factors: Vec<f64> = Vec::new();
@@ -504,7 +522,9 @@ fn packed(pieces: Vec<PieceRecorder>) -> DirectionLinks {
         // pass on two threads). The array is not zeroed first: its memory, often reused from
         // the heap, was zeroed by one thread for every direction, 8 bytes a link.
         let total = bounds[bounds.len() - 1];
-        let mut packed: Vec<u64> = Vec::with_capacity(total);
+        let mut packed = words;
+        packed.clear();
+        packed.reserve(total);
         let mut parts = Vec::with_capacity(pieces.len());
         let mut rest = &mut packed.spare_capacity_mut()[..total];
         for piece in &pieces {

@@ -41,6 +41,11 @@ impl HeldLinks {
         self.kept.tried(k - self.first)
     }
 
+    /// Memory for a direction's links to be written down into (`KeptLinks::spare_words`).
+    pub(super) fn spare_words(&mut self) -> Vec<u64> {
+        self.kept.spare_words()
+    }
+
     /// Whether every direction of the group has its links kept.
     pub(super) fn all_kept(&self) -> bool {
         self.kept.all_kept()

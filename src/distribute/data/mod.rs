@@ -421,7 +421,7 @@ impl<'a> DataSolver<'a> {
             dispatch(order, &self.frames[k], self.threads, lines);
             let t1 = Instant::now();
             if defer {
-                let recorded = record_links(lines, &input, self.threads);
+                let recorded = record_links(lines, &input, self.threads, links.spare_words());
                 links.keep_deferred(k, recorded, &input, acc);
             } else if links.tried(k) {
                 gather_all_lines(lines, &input, acc, self.threads);
