@@ -911,6 +911,24 @@ mod tests {
             .collect()
     }
 
+    /// `steps` steps' links over `surfels` surfels, radiosity that differs from surfel to
+    /// surfel, side to side and channel to channel, and the light the steps gather from it
+    /// step after step (three channels, from 0.5 everywhere).
+    fn steps_apart(
+        surfels: u32,
+        steps: usize,
+    ) -> (Vec<DirectionLinks>, Vec<Radiosity>, Vec<Gathered>) {
+        let directions = some_links(steps, surfels);
+        let radiosity: Vec<Radiosity> = (0..surfels)
+            .map(|s| [[s as f32 / 7.0, 1.0, 0.5], [0.25, s as f32 / 3.0, 2.0]])
+            .collect();
+        let mut light = vec![[[0.5f64; 3]; 2]; surfels as usize];
+        for d in &directions {
+            d.replay(&radiosity, 3, &mut light);
+        }
+        (directions, radiosity, light)
+    }
+
     #[test]
     fn a_block_replays_to_the_bits_of_its_directions() {
         let surfels = 5_000u32;
@@ -957,21 +975,8 @@ mod tests {
     /// run's: the blocks replay as the steps apart do, and nothing is left spare at the end.
     #[test]
     fn blocks_made_in_the_memory_of_the_last_one_replay_alike() {
-        let surfels = 4_000u32;
-        let steps = 2 * BLOCK_STEPS + 3;
-        let directions = some_links(steps, surfels);
-        let radiosity: Vec<Radiosity> = (0..surfels)
-            .map(|s| {
-                [
-                    [s as f32 / 3.0, 0.5, 1.0 / (s + 2) as f32],
-                    [2.0, s as f32, 0.125],
-                ]
-            })
-            .collect();
-        let mut expected = vec![[[0.5f64; 3]; 2]; surfels as usize];
-        for d in &directions {
-            d.replay(&radiosity, 3, &mut expected);
-        }
+        let (surfels, steps) = (4_000u32, 2 * BLOCK_STEPS + 3);
+        let (directions, radiosity, expected) = steps_apart(surfels, steps);
         let mut kept = KeptLinks::new(steps, u64::MAX);
         for (step, d) in directions.iter().enumerate() {
             kept.keep(step, d.clone());
@@ -1136,16 +1141,8 @@ mod tests {
 
     #[test]
     fn a_first_iteration_replays_its_runs_to_the_bits_of_gathering_step_after_step() {
-        let surfels = 2_000u32;
-        let steps = 2 * BLOCK_STEPS + 5;
-        let directions = some_links(steps, surfels);
-        let radiosity: Vec<Radiosity> = (0..surfels)
-            .map(|s| [[s as f32 / 7.0, 1.0, 0.5], [0.25, s as f32 / 3.0, 2.0]])
-            .collect();
-        let mut expected = vec![[[0.5f64; 3]; 2]; surfels as usize];
-        for d in &directions {
-            d.replay(&radiosity, 3, &mut expected);
-        }
+        let (surfels, steps) = (2_000u32, 2 * BLOCK_STEPS + 5);
+        let (directions, radiosity, expected) = steps_apart(surfels, steps);
         let all: u64 = directions.iter().map(DirectionLinks::bytes).sum();
         // Every run whole; a checkpoint inside the second run (its steps before it gathered
         // apart, those after it gathered at once); the budget running out inside the second;
@@ -1200,16 +1197,8 @@ mod tests {
     /// the start of runs: not every step was kept on every rank).
     #[test]
     fn ranks_make_blocks_at_the_same_runs() {
-        let surfels = 1_000u32;
-        let steps = 3 * BLOCK_STEPS;
-        let directions = some_links(steps, surfels);
-        let radiosity: Vec<Radiosity> = (0..surfels)
-            .map(|s| [[s as f32 / 5.0, 1.5, 0.5], [0.75, s as f32 / 9.0, 2.0]])
-            .collect();
-        let mut expected = vec![[[0.0f64; 3]; 2]; surfels as usize];
-        for d in &directions {
-            d.replay(&radiosity, 3, &mut expected);
-        }
+        let (surfels, steps) = (1_000u32, 3 * BLOCK_STEPS);
+        let (directions, radiosity, expected) = steps_apart(surfels, steps);
         let first_runs: u64 = directions[..BLOCK_STEPS + 4]
             .iter()
             .map(DirectionLinks::bytes)
@@ -1218,11 +1207,11 @@ mod tests {
             KeptLinks::new(steps, u64::MAX),
             KeptLinks::new(steps, first_runs),
         ];
-        let mut acc = vec![vec![[[0.0f64; 3]; 2]; surfels as usize]; 2];
+        let mut acc = vec![vec![[[0.5f64; 3]; 2]; surfels as usize]; 2];
         for iteration in 0..2 {
             for (kept, acc) in ranks.iter_mut().zip(&mut acc) {
                 kept.begin_iteration(Blocks::Off);
-                acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
+                acc.iter_mut().for_each(|a| *a = [[0.5; 3]; 2]);
             }
             for (step, d) in directions.iter().enumerate() {
                 for (kept, acc) in ranks.iter_mut().zip(&mut acc) {
