@@ -453,9 +453,10 @@ where
 /// 2.6 s of system time on two threads. Kept, the next run's steps take them over one by one;
 /// none are kept from the last run of an iteration ([`KeptLinks::fuse_if_whole`]), when the
 /// most blocks are held, nor past an iteration. There the faults halved, the setting took
-/// about 0.6 s less (17.6 s against 18.3) and its peak resident memory grew by 1 to 2 %: a
+/// about 0.6 s less (17.6 s against 18.3) and its peak resident memory grew by 1 to 3 %: a
 /// block is now made beside its steps' memory kept, not as it is given back
-/// (`docs/throughput.md`).
+/// (`docs/throughput.md`). What is spare (at most one run's steps, whose links the budget
+/// counted while they were kept) is not counted again by the links' budget.
 #[derive(Debug, Default)]
 struct Spare {
     words: Vec<Vec<u64>>,
