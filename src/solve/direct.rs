@@ -56,8 +56,9 @@
 //! stop signal during the pass is answered at the first direction after it.
 //!
 //! **Determinism.** Directions are taken in blocks; a block's directions run in parallel, each
-//! returning its receivers' contributions, which are then added in direction order: the result
-//! does not depend on the thread count, and a resumed solve recomputes it bit for bit.
+//! returning its receivers' contributions, which are then added in direction order (while the
+//! next block runs): the result does not depend on the thread count, and a resumed solve
+//! recomputes it bit for bit.
 
 use super::mix_hash::MixMap;
 use super::normalize::cosine;

@@ -29,7 +29,8 @@
 //! light can be saved stay the same on every rank ([`Blocks::Off`]). Where the budget refuses a
 //! step's links, or a checkpoint or a stop falls inside the run ([`KeptLinks::settle`]), the
 //! steps waiting are gathered apart at once, in order, and the run's remaining steps gather as
-//! they search.
+//! they search. A run's steps are written down into the memory of the last block's steps
+//! ([`KeptLinks::spare_words`]), not into fresh pages (see `Spare`).
 
 use super::links::{DirectionLinks, LinkBudget};
 use super::propagate::prefetch;
