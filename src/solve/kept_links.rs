@@ -87,7 +87,7 @@ pub struct LinkBlock {
 /// entries (2.1 GB an iteration for the Cornell box at resolution 256 with 589 directions, in
 /// 8-byte entries) and they are most of a solve's memory. Else **wide**, 64 bits (the factor
 /// index from bit [`FACTOR_SHIFT`]).
-#[derive(Debug)]
+#[derive(Debug, PartialEq)]
 enum Entries {
     Narrow(Vec<u32>),
     Wide(Vec<u64>),
@@ -160,35 +160,33 @@ impl LinkBlock {
     ) -> LinkBlock {
         let total: usize = steps.iter().map(|d| d.len()).sum();
         debug_assert!(Self::bytes_for(&steps.iter().collect::<Vec<_>>(), surfels).is_some());
-        // Links per bucket of receiving sides, then where each bucket's links begin (those of
-        // each side are counted inside its bucket, by `place`). Counted by side here, each
-        // thread held an array of every side: 8 bytes a surfel a thread, 32 GB for 2^27
-        // surfels on a node of 32 threads (on the 2 cores here, no difference in time).
+        // Links per bucket of receiving sides, step by step, then where each bucket's links
+        // begin (those of each side are counted inside its bucket, by `place`). By step, so
+        // that `place` can give each thread a range of steps and where its links go in every
+        // bucket: 4 bytes a bucket and step, 8 MiB for 2^27 surfels in a run of 32 steps.
+        // (Counted by side, each thread held an array of every side: 8 bytes a surfel a
+        // thread, 32 GB for 2^27 surfels on a node of 32 threads.)
         let sides = 2 * surfels;
         let buckets = sides.div_ceil(BUCKET_SIDES);
-        let counts = steps
+        let step_counts: Vec<Vec<u32>> = steps
             .par_iter()
-            .fold(
-                || vec![0u32; buckets],
-                |mut counts, d| {
-                    d.for_each_link(|to, from, _| {
-                        // A narrow entry holds the sending side in `side_bits(surfels)` bits.
-                        assert!(
-                            (from as usize) < sides,
-                            "a link names a surfel of the block"
-                        );
-                        counts[to as usize / BUCKET_SIDES] += 1
-                    });
-                    counts
-                },
-            )
-            .reduce(
-                || vec![0u32; buckets],
-                |mut a, b| {
-                    a.iter_mut().zip(&b).for_each(|(x, y)| *x += y);
-                    a
-                },
-            );
+            .map(|d| {
+                let mut counts = vec![0u32; buckets];
+                d.for_each_link(|to, from, _| {
+                    // A narrow entry holds the sending side in `side_bits(surfels)` bits.
+                    assert!(
+                        (from as usize) < sides,
+                        "a link names a surfel of the block"
+                    );
+                    counts[to as usize / BUCKET_SIDES] += 1
+                });
+                counts
+            })
+            .collect();
+        let mut counts = vec![0u32; buckets];
+        for step in &step_counts {
+            counts.iter_mut().zip(step).for_each(|(x, y)| *x += y);
+        }
         let mut bucket_starts = Vec::with_capacity(buckets + 1);
         let mut at = 0u32;
         bucket_starts.push(0);
@@ -208,6 +206,7 @@ impl LinkBlock {
             let bits = side_bits(surfels);
             let entries = place(
                 steps,
+                &step_counts,
                 sides,
                 &bucket_starts,
                 &mut starts,
@@ -218,6 +217,7 @@ impl LinkBlock {
         } else {
             let entries = place(
                 steps,
+                &step_counts,
                 sides,
                 &bucket_starts,
                 &mut starts,
@@ -311,21 +311,27 @@ const BUCKET_SIDES: usize = 1 << 12;
 
 /// The entries of the links of `steps`, each made by `entry(from, factor, step)`, by receiving
 /// side (of `sides`); each side's in step order, and in each step in link order. Bucket `b` of
-/// [`BUCKET_SIDES`] sides holds the links `bucket_starts[b]..bucket_starts[b + 1]`; where each
-/// side's links begin is written to `starts` (`sides + 1` of them).
+/// [`BUCKET_SIDES`] sides holds the links `bucket_starts[b]..bucket_starts[b + 1]`, of which
+/// step `s` has `step_counts[s][b]`; where each side's links begin is written to `starts`
+/// (`sides + 1` of them).
 ///
 /// Placing each link straight at its side's place writes all over the block's entries (far
 /// larger than the caches, every write a miss): instead the links are first appended, step
 /// after step, to their buckets, each at its own final range, with the receiver's place in its
 /// bucket beside (two bytes a link); then each bucket's sides are counted and its links put in
-/// order inside its range, which the caches hold. Both passes run on the threads, by ranges of
-/// buckets. A step's links are dropped once appended. The entries are made at their final
-/// width at once: an array of wide entries narrowed afterwards was 12 more bytes a link of
-/// fresh pages, which the first iteration of the Cornell setting faulted in for every block.
-/// With `spare`, the steps' memory and the receivers' places are handed to it for the next
-/// block instead of being freed ([`Spare`]).
+/// order inside its range, which the caches hold. The first pass runs on the threads by ranges
+/// of steps, each range's links placed in every bucket after the earlier ranges' (from the
+/// counts by step), so that each link is read once; the second by ranges of buckets. (The
+/// first pass by ranges of buckets had every thread read every link and keep those of its
+/// buckets: on two threads it read the steps twice, on a node of 32 threads 32 times.) A
+/// step's links are dropped once appended. The entries are made at their final width at once:
+/// an array of wide entries narrowed afterwards was 12 more bytes a link of fresh pages, which
+/// the first iteration of the Cornell setting faulted in for every block. With `spare`, the
+/// steps' memory and the receivers' places are handed to it for the next block instead of
+/// being freed ([`Spare`]).
 fn place<E, F>(
     steps: Vec<DirectionLinks>,
+    step_counts: &[Vec<u32>],
     sides: usize,
     bucket_starts: &[u32],
     starts: &mut [u32],
@@ -340,6 +346,7 @@ where
     let buckets = bucket_starts.len() - 1;
     debug_assert_eq!(buckets, sides.div_ceil(BUCKET_SIDES));
     debug_assert_eq!(starts.len(), sides + 1);
+    debug_assert_eq!(step_counts.len(), steps.len());
     let total = bucket_starts[buckets] as usize;
     let bucket_start = |b: usize| bucket_starts[b] as usize;
     let mut entries = vec![E::default(); total];
@@ -349,8 +356,74 @@ where
         .unwrap_or_default();
     places.clear();
     places.resize(total, 0);
-    // Ranges of buckets of about equal entries, one a thread.
     let threads = rayon::current_num_threads().max(1);
+
+    // Pass 1: ranges of steps of about equal links, one a thread, each with where its links
+    // begin and end in every bucket; each step's links appended to their buckets, then the
+    // step dropped (or its memory kept).
+    let mut step_ranges = Vec::with_capacity(threads);
+    let mut cursor: Vec<u32> = bucket_starts[..buckets].to_vec();
+    let mut rest = steps.into_iter();
+    let mut links_before = 0usize;
+    let mut first = 0;
+    while first < step_counts.len() {
+        let target = total * (step_ranges.len() + 1) / threads;
+        let mut end = first;
+        let mut links = links_before;
+        while end < step_counts.len() && (end == first || links < target) {
+            links += step_counts[end].iter().map(|&c| c as usize).sum::<usize>();
+            end += 1;
+        }
+        let begin = cursor.clone();
+        for counts in &step_counts[first..end] {
+            cursor.iter_mut().zip(counts).for_each(|(c, n)| *c += n);
+        }
+        let range: Vec<DirectionLinks> = rest.by_ref().take(end - first).collect();
+        step_ranges.push((first, range, begin, cursor.clone()));
+        links_before = links;
+        first = end;
+    }
+    debug_assert!(cursor
+        .iter()
+        .enumerate()
+        .all(|(b, &c)| c == bucket_starts[b + 1]));
+    let keep_words = spare.is_some();
+    let out = Placed {
+        entries: entries.as_mut_ptr(),
+        places: places.as_mut_ptr(),
+    };
+    let words: Vec<Vec<Vec<u64>>> = step_ranges
+        .into_par_iter()
+        .map(|(first, range, mut cursors, ends)| {
+            let mut words = Vec::new();
+            for (i, d) in range.into_iter().enumerate() {
+                let step = first + i;
+                d.for_each_link(|to, from, factor| {
+                    let s = to as usize;
+                    let b = s / BUCKET_SIDES;
+                    let at = cursors[b];
+                    // The counts by step were made from these very links; this keeps a
+                    // miscount from writing into another range's entries.
+                    assert!(at < ends[b], "a link beyond its step's count");
+                    // SAFETY: `at` lies in this range's own part of bucket `b`
+                    // (`cursors[b]..ends[b]`, disjoint from every other range's and inside
+                    // `total`), so no other thread writes it.
+                    unsafe { out.write(at as usize, entry(from, factor, step), s) };
+                    cursors[b] = at + 1;
+                });
+                if keep_words {
+                    words.extend(d.into_words());
+                }
+            }
+            words
+        })
+        .collect();
+    if let Some(spare) = spare.as_deref_mut() {
+        spare.words.extend(words.into_iter().flatten());
+    }
+
+    // Pass 2: ranges of buckets of about equal entries, one a thread; each bucket's sides
+    // counted, then its links in side order, inside its range.
     let mut cuts = vec![0usize];
     for t in 1..threads {
         let target = total * t / threads;
@@ -375,40 +448,14 @@ where
         let (part_places, tail_places) = rest_places.split_at_mut(len);
         let side_len = (w[1] * BUCKET_SIDES).min(sides) - w[0] * BUCKET_SIDES;
         let (part_starts, tail_starts) = rest_starts.split_at_mut(side_len);
-        let base = bucket_start(w[0]);
-        let cursors: Vec<usize> = (w[0]..w[1]).map(|b| bucket_start(b) - base).collect();
-        parts.push((w[0]..w[1], part, part_places, part_starts, cursors));
+        parts.push((w[0]..w[1], part, part_places, part_starts));
         rest = tail;
         rest_places = tail_places;
         rest_starts = tail_starts;
     }
-    // Pass 1: each step's links appended to their buckets, then the step dropped.
-    for (step, d) in steps.into_iter().enumerate() {
-        parts
-            .par_iter_mut()
-            .for_each(|(range, part, part_places, _, cursors)| {
-                let (first, last) = (
-                    range.start * BUCKET_SIDES,
-                    (range.end * BUCKET_SIDES).min(sides),
-                );
-                d.for_each_link(|to, from, factor| {
-                    let s = to as usize;
-                    if (first..last).contains(&s) {
-                        let c = &mut cursors[s / BUCKET_SIDES - range.start];
-                        part[*c] = entry(from, factor, step);
-                        part_places[*c] = (s % BUCKET_SIDES) as u16;
-                        *c += 1;
-                    }
-                });
-            });
-        if let Some(spare) = spare.as_deref_mut() {
-            spare.words.extend(d.into_words());
-        }
-    }
-    // Pass 2: each bucket's sides counted, then its links in side order, inside its range.
     parts
         .into_par_iter()
-        .for_each(|(range, part, part_places, part_starts, _)| {
+        .for_each(|(range, part, part_places, part_starts)| {
             let base = bucket_start(range.start);
             let first_side = range.start * BUCKET_SIDES;
             let mut buffer = Vec::new();
@@ -444,6 +491,32 @@ where
         spare.places = places;
     }
     entries
+}
+
+/// The arrays pass 1 of [`place`] writes from several threads, each at places no other thread
+/// writes.
+struct Placed<E> {
+    entries: *mut E,
+    places: *mut u16,
+}
+
+// SAFETY: the pointers are only written through `Placed::write`, whose callers write disjoint
+// places, while the arrays outlive the threads (they are owned by `place`, which joins them).
+unsafe impl<E: Send> Send for Placed<E> {}
+unsafe impl<E: Send> Sync for Placed<E> {}
+
+impl<E> Placed<E> {
+    /// Writes link entry `e` for receiving side `side` at place `at`.
+    ///
+    /// # Safety
+    /// `at` lies inside both arrays, and no other thread reads or writes it meanwhile.
+    #[inline(always)]
+    unsafe fn write(&self, at: usize, e: E, side: usize) {
+        unsafe {
+            self.entries.add(at).write(e);
+            self.places.add(at).write((side % BUCKET_SIDES) as u16);
+        }
+    }
 }
 
 /// Memory of the links of a run just made a block, kept for the next run's: each step's links
@@ -970,6 +1043,28 @@ mod tests {
                 assert!(matches!(kept.blocks[1], Block::Fused(_)));
                 assert_eq!(kept.held().0, steps);
             }
+        }
+    }
+
+    /// A block is placed by ranges of steps, one a thread, then by ranges of buckets: on any
+    /// thread count (more threads than steps too) it holds the same entries in the same order.
+    #[test]
+    fn blocks_are_the_same_on_any_thread_count() {
+        let surfels = 20_000u32;
+        assert!(2 * surfels as usize > 4 * BUCKET_SIDES, "several buckets");
+        let directions = some_links(BLOCK_STEPS, surfels);
+        let on = |threads: usize| {
+            rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a pool")
+                .install(|| LinkBlock::fuse(directions.clone(), surfels as usize))
+        };
+        let one = on(1);
+        for threads in [2, 3, 7, 64] {
+            let block = on(threads);
+            assert_eq!(block.starts, one.starts, "{threads} threads");
+            assert_eq!(block.entries, one.entries, "{threads} threads");
         }
     }
 
