@@ -90,10 +90,15 @@ pub struct ProbeIndex<'a> {
     results: &'a Results,
     /// Record indices sorted by voxel, so each voxel's records are one contiguous run.
     order: Vec<usize>,
-    /// Voxel (by `voxel::packed_voxel`) -> (start, length) of its run in `order`. Baking looks up every
-    /// vertex's neighbourhood, 27 voxels each: with the standard library's SipHash these look-ups
-    /// were a tenth of a whole solve of the Cornell box at resolution 128.
-    cells: MixMap<(usize, usize)>,
+    /// Each voxel's run in `order` as (z, start, length), by voxel: the voxels of one column
+    /// `(x, y)` are one run of this list, in order of z. Only voxels `voxel::packed_voxel`
+    /// takes are listed.
+    voxels: Vec<(i32, usize, usize)>,
+    /// Column `(x, y)` (by `voxel::packed_voxel` of `[x, y, 0]`) -> its range in `voxels`. A
+    /// look-up reads the 4 x 4 x 4 voxels around its point as 16 columns: one hash look-up
+    /// each instead of one a voxel, whose cache misses in a table of every voxel of the scene
+    /// were most of a bake's look-up time.
+    columns: MixMap<(usize, usize)>,
 }
 
 impl<'a> ProbeIndex<'a> {
@@ -102,7 +107,9 @@ impl<'a> ProbeIndex<'a> {
         let mut order: Vec<usize> = (0..records.len()).collect();
         // Stable, so records of one voxel keep their file order (deterministic averages).
         order.sort_by_key(|&i| records[i].voxel);
-        let mut cells = MixMap::default();
+        let mut voxels = Vec::new();
+        let mut columns = MixMap::default();
+        let mut column: Option<(u64, usize)> = None;
         let mut start = 0;
         while start < order.len() {
             let voxel = records[order[start]].voxel;
@@ -110,25 +117,50 @@ impl<'a> ProbeIndex<'a> {
             while end < order.len() && records[order[end]].voxel == voxel {
                 end += 1;
             }
-            if let Some(key) = crate::voxel::packed_voxel(voxel) {
-                cells.insert(key, (start, end - start));
+            if crate::voxel::packed_voxel(voxel).is_some() {
+                let key = crate::voxel::packed_voxel([voxel[0], voxel[1], 0])
+                    .expect("a column of a voxel in range");
+                if column.is_some_and(|(k, _)| k != key) {
+                    let (k, first) = column.take().expect("a column");
+                    columns.insert(k, (first, voxels.len()));
+                }
+                if column.is_none() {
+                    column = Some((key, voxels.len()));
+                }
+                voxels.push((voxel[2], start, end - start));
             }
             start = end;
+        }
+        if let Some((k, first)) = column {
+            columns.insert(k, (first, voxels.len()));
         }
         ProbeIndex {
             results,
             order,
-            cells,
+            voxels,
+            columns,
         }
     }
 
-    fn records_in(&self, voxel: [i32; 3]) -> impl Iterator<Item = &Record> + '_ {
-        let (start, len) = crate::voxel::packed_voxel(voxel)
-            .and_then(|key| self.cells.get(&key).copied())
-            .unwrap_or((0, 0));
-        self.order[start..start + len]
+    /// The records of the voxels `(x, y, z)` for `z` in `z_range`, voxel by voxel in order of z.
+    fn records_in_column(
+        &self,
+        x: i32,
+        y: i32,
+        z_range: std::ops::RangeInclusive<i32>,
+    ) -> impl Iterator<Item = &Record> + '_ {
+        let column = crate::voxel::packed_voxel([x, y, 0])
+            .and_then(|key| self.columns.get(&key).copied())
+            .map_or(&[][..], |(first, end)| &self.voxels[first..end]);
+        let from = column.partition_point(|v| v.0 < *z_range.start());
+        column[from..]
             .iter()
-            .map(move |&i| &self.results.records[i])
+            .take_while(move |v| v.0 <= *z_range.end())
+            .flat_map(move |&(_, start, len)| {
+                self.order[start..start + len]
+                    .iter()
+                    .map(move |&i| &self.results.records[i])
+            })
     }
 
     /// Radiosity at `point` (world units) on the side facing `normal` (see the module header).
@@ -184,29 +216,27 @@ impl<'a> ProbeIndex<'a> {
         matches.clear();
         for x in lo.x as i32..=hi.x as i32 {
             for y in lo.y as i32..=hi.y as i32 {
-                for z in lo.z as i32..=hi.z as i32 {
-                    for rec in self.records_in([x, y, z]) {
-                        let d = rec.position().distance(q);
-                        if d > r {
-                            continue;
-                        }
-                        let height = (rec.position() - q).dot(n);
-                        for side in [FRONT, BACK] {
-                            if rec.side_normal(side).dot(n) > MIN_NORMAL_DOT {
-                                matches.push(Match {
-                                    area: rec.area as f64,
-                                    inverse_distance: 1.0 / d.max(1e-3),
-                                    radiosity: rec.radiosity[side],
-                                    irradiance: if IRRADIANCE {
-                                        rec.irradiance(side, materials)
-                                            .map(|h| h.unwrap_or(f64::NAN))
-                                    } else {
-                                        [0.0; 3]
-                                    },
-                                    height,
-                                    material: rec.material[side],
-                                });
-                            }
+                for rec in self.records_in_column(x, y, lo.z as i32..=hi.z as i32) {
+                    let d = rec.position().distance(q);
+                    if d > r {
+                        continue;
+                    }
+                    let height = (rec.position() - q).dot(n);
+                    for side in [FRONT, BACK] {
+                        if rec.side_normal(side).dot(n) > MIN_NORMAL_DOT {
+                            matches.push(Match {
+                                area: rec.area as f64,
+                                inverse_distance: 1.0 / d.max(1e-3),
+                                radiosity: rec.radiosity[side],
+                                irradiance: if IRRADIANCE {
+                                    rec.irradiance(side, materials)
+                                        .map(|h| h.unwrap_or(f64::NAN))
+                                } else {
+                                    [0.0; 3]
+                                },
+                                height,
+                                material: rec.material[side],
+                            });
                         }
                     }
                 }
