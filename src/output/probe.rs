@@ -13,8 +13,9 @@
 //! has zero area (voxels only touched by the surface), sides are weighted by inverse distance. If
 //! there is none, the radiosity is 0 and [`ProbeRow::found`] is false.
 //!
-//! A hash map from voxel coordinates to surfel indices makes each lookup touch only the 4x4x4
-//! voxels around the point, whatever the scene size.
+//! A hash map from columns of voxels `(x, y)` to their occupied voxels, in order of z, makes
+//! each lookup touch only the 4x4x4 voxels around the point, whatever the scene size, with one
+//! hash look-up a column.
 //!
 //! The irradiance `H` (the light arriving on that side; a side reflects `rho H`) is averaged the
 //! same way from each side's `(B - E) / rho` (see [`Record::irradiance`]); it is NaN in a channel
