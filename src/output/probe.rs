@@ -634,40 +634,37 @@ mod tests {
         assert!(e.to_string().contains("missing.csv"), "{e}");
     }
 
-    /// A look-up's neighbourhood, read column by column, lists the records of every voxel of
-    /// the box in the order of a plain scan (x, then y, then z, then the file's order), the
-    /// voxels outside the grid's range and the empty ones giving nothing: what a look-up per
-    /// voxel listed.
-    #[test]
-    fn columns_list_the_box_as_a_scan_of_every_record_does() {
-        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = move |below: i32| {
-            seed ^= seed << 13;
-            seed ^= seed >> 7;
-            seed ^= seed << 17;
-            (seed % below as u64) as i32
-        };
-        // Several records a voxel, in a shuffled file order, some of them sharing a column.
-        let mut records = Vec::new();
-        for _ in 0..600 {
-            let voxel = [next(6), next(6), next(9)];
-            let mut surfel = testutil::surfel(voxel, [0.5; 3], [1.0, 0.0, 0.0], 1.0);
-            surfel.area = records.len() as f32;
-            records.push(Record::from_surfel(&surfel, [[0.0; 3]; 2]));
-        }
-        let results = Results {
-            grid: wall().grid,
-            records,
-            materials: Vec::new(),
-        };
-        let index = ProbeIndex::new(&results);
-        for _ in 0..200 {
-            let lo = [next(8) - 2, next(8) - 2, next(11) - 2];
-            let hi = lo.map(|c| c + 3);
-            let mut expected: Vec<usize> = (0..results.records.len())
-                .filter(|&i| (0..3).all(|k| (lo[k]..=hi[k]).contains(&results.records[i].voxel[k])))
+    proptest::proptest! {
+        /// A look-up's neighbourhood, read column by column, lists the records of every voxel
+        /// of the box in the order of a plain scan (x, then y, then z, then the file's order),
+        /// the voxels outside the grid's range and the empty ones giving nothing: what a
+        /// look-up per voxel listed.
+        #[test]
+        fn columns_list_the_box_as_a_scan_of_every_record_does(
+            // Several records a voxel, in any file order, many sharing a column.
+            voxels in proptest::collection::vec([0..6i32, 0..6, 0..9], 1..400),
+            lo in [-2..6i32, -2..6, -2..9],
+        ) {
+            let records = voxels
+                .iter()
+                .enumerate()
+                .map(|(k, &voxel)| {
+                    let mut surfel = testutil::surfel(voxel, [0.5; 3], [1.0, 0.0, 0.0], 1.0);
+                    surfel.area = k as f32;
+                    Record::from_surfel(&surfel, [[0.0; 3]; 2])
+                })
                 .collect();
-            expected.sort_by_key(|&i| results.records[i].voxel);
+            let results = Results {
+                grid: wall().grid,
+                records,
+                materials: Vec::new(),
+            };
+            let index = ProbeIndex::new(&results);
+            let hi = lo.map(|c| c + 3);
+            let inside = |v: [i32; 3]| (0..3).all(|k| (lo[k]..=hi[k]).contains(&v[k]));
+            let mut expected: Vec<usize> =
+                (0..voxels.len()).filter(|&i| inside(voxels[i])).collect();
+            expected.sort_by_key(|&i| voxels[i]);
             let mut listed = Vec::new();
             for x in lo[0]..=hi[0] {
                 for y in lo[1]..=hi[1] {
@@ -678,7 +675,7 @@ mod tests {
                     );
                 }
             }
-            assert_eq!(listed, expected, "box {lo:?} to {hi:?}");
+            proptest::prop_assert_eq!(listed, expected);
         }
     }
 }
