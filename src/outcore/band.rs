@@ -8,7 +8,7 @@
 
 use super::budget::MemoryPlan;
 use super::files::{
-    decode_static, Gathered, IoCounters, Radiosity, RecordFile, GATHER_LEN, RADIOSITY_LEN,
+    decode_static, AxisLight, IoCounters, Radiosity, RecordFile, AXIS_LIGHT_LEN, RADIOSITY_LEN,
     STATIC_LEN,
 };
 use super::framed::FramedStatics;
@@ -78,7 +78,7 @@ impl CopyFiles {
 pub struct BandBuffers {
     props: Vec<PropSurfel>,
     radiosity: Vec<Radiosity>,
-    gathered: Vec<Gathered>,
+    gathered: Vec<AxisLight>,
     entries: Vec<OrderedEntry>,
     lines: Lines,
     ranges: Vec<(u64, u64)>,
@@ -94,7 +94,7 @@ pub struct BandBuffers {
     pieces: Vec<(u64, u64, u64)>,
     /// The light of one run of the copy, read or written at once.
     staged_radiosity: Vec<Radiosity>,
-    staged_gathered: Vec<Gathered>,
+    staged_gathered: Vec<AxisLight>,
 }
 
 /// Time spent per phase of the directions, summed.
@@ -637,7 +637,7 @@ impl DirectionPass<'_> {
                         light.fill([[0.0; 3]; 2]);
                     } else {
                         let bytes = bytemuck::cast_slice_mut(light);
-                        earlier.read_at(from * GATHER_LEN as u64, bytes, io)?;
+                        earlier.read_at(from * AXIS_LIGHT_LEN as u64, bytes, io)?;
                     }
                 }
                 return Ok(());
@@ -656,7 +656,7 @@ impl DirectionPass<'_> {
                 staged_gathered[..n].fill([[0.0; 3]; 2]);
             } else {
                 let bytes = bytemuck::cast_slice_mut(&mut staged_gathered[..n]);
-                earlier.read_at(start * GATHER_LEN as u64, bytes, io)?;
+                earlier.read_at(start * AXIS_LIGHT_LEN as u64, bytes, io)?;
             }
             for &(from, len, to) in parts {
                 let (from, len, to) = ((from - start) as usize, len as usize, to as usize);
@@ -693,7 +693,7 @@ impl DirectionPass<'_> {
                     let bytes = bytemuck::cast_slice(&gathered[to..to + len]);
                     self.files
                         .gathered
-                        .write_at(from * GATHER_LEN as u64, bytes, io)?;
+                        .write_at(from * AXIS_LIGHT_LEN as u64, bytes, io)?;
                 }
                 return Ok(());
             }
@@ -705,7 +705,7 @@ impl DirectionPass<'_> {
             let bytes = bytemuck::cast_slice(&staged_gathered[..n]);
             self.files
                 .gathered
-                .write_at(start * GATHER_LEN as u64, bytes, io)
+                .write_at(start * AXIS_LIGHT_LEN as u64, bytes, io)
         })?;
         times.read += (t1 - t0).as_secs_f64() + link_reads;
         times.propagate += (t2 - t1).as_secs_f64() - link_reads;
@@ -728,7 +728,7 @@ impl DirectionPass<'_> {
         ranges: impl Iterator<Item = (u64, u64)>,
         surfels: usize,
         radiosity: &mut Vec<Radiosity>,
-        gathered: &mut Vec<Gathered>,
+        gathered: &mut Vec<AxisLight>,
         io: &mut IoCounters,
     ) -> Result<(), OocError> {
         radiosity.clear();
@@ -747,7 +747,7 @@ impl DirectionPass<'_> {
             if !self.first {
                 let earlier = self.files.previous.as_ref();
                 earlier.unwrap_or(&self.files.gathered).read_at(
-                    start * GATHER_LEN as u64,
+                    start * AXIS_LIGHT_LEN as u64,
                     bytemuck::cast_slice_mut(&mut gathered[from..]),
                     io,
                 )?;
@@ -762,14 +762,14 @@ impl DirectionPass<'_> {
     fn write_light(
         &self,
         ranges: impl Iterator<Item = (u64, u64)>,
-        gathered: &[Gathered],
+        gathered: &[AxisLight],
         io: &mut IoCounters,
     ) -> Result<(), OocError> {
         let mut done = 0usize;
         for (start, count) in ranges {
             let light = &gathered[done..done + count as usize];
             self.files.gathered.write_at(
-                start * GATHER_LEN as u64,
+                start * AXIS_LIGHT_LEN as u64,
                 bytemuck::cast_slice(light),
                 io,
             )?;

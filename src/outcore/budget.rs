@@ -1,7 +1,7 @@
 //! The memory budget: parsing `--memory`, and how the solver splits it (see the `outcore`
 //! module header for what is counted).
 
-use super::files::{Gathered, Radiosity};
+use super::files::{AxisLight, Gathered, Radiosity};
 use super::OocError;
 use crate::solve::dispatch::OrderedEntry;
 use crate::solve::propagate::PropSurfel;
@@ -71,7 +71,7 @@ pub fn format_bytes(bytes: u64) -> String {
 /// bytes, `super::links`).
 pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
     + std::mem::size_of::<Radiosity>()
-    + std::mem::size_of::<Gathered>()
+    + std::mem::size_of::<AxisLight>()
     + std::mem::size_of::<OrderedEntry>()
     + 4
     + 4
@@ -82,7 +82,7 @@ pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
 /// Bytes a replay holds per surfel of the bands whose light it has read together (see
 /// `super::band`): their radiosity and gathered light.
 pub const REPLAY_BYTES_PER_SURFEL: u64 =
-    (std::mem::size_of::<Radiosity>() + std::mem::size_of::<Gathered>()) as u64;
+    (std::mem::size_of::<Radiosity>() + std::mem::size_of::<AxisLight>()) as u64;
 
 /// Bytes a replay holds per surfel of the one band whose links it replays: its links read and
 /// decoded (twice about 20 bytes in a building, whose surfels have more links than those of a

@@ -22,8 +22,20 @@
 //!                          inside a closed solid (PropSurfel::inside_back)
 //!  68 id       u32         index of the surfel in the canonical (shard set) order
 //! radiosity (24 bytes): f32 x 6, side-major (front RGB, back RGB)
-//! gathered light (48 bytes): f64 x 6, side-major
+//! gathered light (48 bytes): f64 x 6, side-major (the canonical sum of an iteration's axes,
+//!                          the direct light)
+//! axis light (24 bytes): f32 x 6, side-major: the light of a main axis's directions so far
 //! ```
+//!
+//! **The axis light in f32.** A band sums the light of its axis's directions in f32, each
+//! link's light added in f64 and the sum rounded at once (`solve::light_sum`), and its file
+//! holds those sums as they are: half the bytes of f64 (the two files of an axis's light took 96
+//! bytes a surfel of the work files' peak, and every pass read and wrote 48 bytes a surfel of
+//! each). Every path adds a surfel's links in the same order, so the sums do not depend on where
+//! passes begin and end: the one-process solver and the data mode cut them differently and
+//! still agree to the bit. Over an axis's directions (a few hundred at most) the sum stays
+//! within about `links * 2^-24` of the f64 sum, relatively; the in-memory solver keeps f64
+//! throughout, and the sum of the axes (the canonical sum) is f64 here too.
 
 use super::OocError;
 use crate::solve::propagate::PropSurfel;
@@ -35,9 +47,12 @@ use std::path::{Path, PathBuf};
 pub const STATIC_LEN: usize = 72;
 pub const RADIOSITY_LEN: usize = 24;
 pub const GATHER_LEN: usize = 48;
+pub const AXIS_LIGHT_LEN: usize = 24;
 
 pub type Radiosity = [[f32; 3]; 2];
 pub type Gathered = [[f64; 3]; 2];
+/// An axis light record: see the module header.
+pub type AxisLight = [[f32; 3]; 2];
 
 /// A surfel as the bands need it, with its canonical index.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -130,10 +145,10 @@ pub fn decode_static(bytes: &[u8]) -> StaticRecord {
     }
 }
 
-// The light records (`Radiosity`, `Gathered`) are little-endian f32 and f64, the in-memory
-// layout of those arrays on the machines voxrad builds for, so a band reads and writes them as
-// the arrays' own bytes (`band`); a big-endian build is refused here rather than reading them
-// wrong.
+// The light records (`Radiosity`, `AxisLight`, `Gathered`) are little-endian f32 and f64, the
+// in-memory layout of those arrays on the machines voxrad builds for, so a band reads and writes
+// them as the arrays' own bytes (`band`); a big-endian build is refused here rather than reading
+// them wrong.
 const _: () = {
     assert!(
         cfg!(target_endian = "little"),
@@ -141,6 +156,7 @@ const _: () = {
     );
     assert!(std::mem::size_of::<Radiosity>() == RADIOSITY_LEN);
     assert!(std::mem::size_of::<Gathered>() == GATHER_LEN);
+    assert!(std::mem::size_of::<AxisLight>() == AXIS_LIGHT_LEN);
 };
 
 pub fn encode_radiosity(b: &Radiosity, out: &mut [u8]) {
@@ -166,6 +182,18 @@ pub fn decode_gathered(bytes: &[u8]) -> Gathered {
         w.copy_from_slice(&bytes[8 * k..8 * k + 8]);
         f64::from_le_bytes(w)
     };
+    [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
+}
+
+/// Writes an axis light record: `h` rounded to f32 (exact after [`round_axis_light`]).
+pub fn encode_axis_light(h: &Gathered, out: &mut [u8]) {
+    for (k, v) in h.iter().flatten().enumerate() {
+        out[4 * k..4 * k + 4].copy_from_slice(&(*v as f32).to_le_bytes());
+    }
+}
+
+pub fn decode_axis_light(bytes: &[u8]) -> Gathered {
+    let f = |k: usize| f32::from_le_bytes(word(bytes, k)) as f64;
     [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
 }
 

@@ -44,8 +44,9 @@
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
 use super::files::{
-    decode_gathered, decode_radiosity, encode_gathered, encode_radiosity, Gathered, IoCounters,
-    Radiosity, RecordFile, SeqReader, SeqWriter, GATHER_LEN, RADIOSITY_LEN,
+    decode_axis_light, decode_gathered, decode_radiosity, encode_axis_light, encode_gathered,
+    encode_radiosity, Gathered, IoCounters, Radiosity, RecordFile, SeqReader, SeqWriter,
+    AXIS_LIGHT_LEN, GATHER_LEN, RADIOSITY_LEN,
 };
 use super::framed::{FrameBuffers, FramedStatics};
 use super::links::LinkStore;
@@ -1078,8 +1079,13 @@ fn restore(
             let copy = &work.copies[at.axes];
             let chunk = plan.chunk_surfels.min(n).max(1);
             let buffer = plan.bucket_buffer(n.div_ceil(chunk));
-            let scatter =
-                Scatter::<GATHER_LEN>::new(work.dir.path(), "checkpoint-axis", n, chunk, buffer)?;
+            let scatter = Scatter::<AXIS_LIGHT_LEN>::new(
+                work.dir.path(),
+                "checkpoint-axis",
+                n,
+                chunk,
+                buffer,
+            )?;
             let positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
             Some((scatter, positions))
         }
@@ -1112,10 +1118,13 @@ fn restore(
             let Some((scatter, positions)) = axis.as_mut() else {
                 return Ok(());
             };
+            // The checkpoint holds the axis's light in f64, as the band rounded it: the axis
+            // light record holds it exactly.
+            let mut record = [0u8; AXIS_LIGHT_LEN];
             for value in piece.chunks_exact(GATHER_LEN) {
                 let p = u32::from_le_bytes(positions.expect_record()?) as u64;
-                let value: &[u8; GATHER_LEN] = value.try_into().expect("whole records");
-                scatter.push(p, value)?;
+                encode_axis_light(&decode_gathered(value), &mut record);
+                scatter.push(p, &record)?;
             }
             Ok(())
         },
@@ -1137,7 +1146,7 @@ fn restore(
         let into = &work.gathered[(at.directions - 1) % 2];
         let mut out = SeqWriter::create(into, plan.io_bytes)?;
         let chunk = plan.chunk_surfels.min(n).max(1) as usize;
-        let mut values = vec![[0u8; GATHER_LEN]; chunk];
+        let mut values = vec![[0u8; AXIS_LIGHT_LEN]; chunk];
         while let Some((_, len)) = chunks.next_chunk(|at, value| values[at] = *value)? {
             for v in &values[..len as usize] {
                 out.write(v)?;
@@ -1183,7 +1192,7 @@ pub use crate::solve::update::UpdateSums;
 /// a permutation by the copy's canonical indices ([`Scatter`]), its first pass made by
 /// [`Canonical::new`].
 struct Canonical {
-    chunks: ChunkReader<GATHER_LEN>,
+    chunks: ChunkReader<AXIS_LIGHT_LEN>,
     /// One chunk's values (`chunk` surfels at most), reused.
     values: Vec<Gathered>,
     chunk: u64,
@@ -1202,14 +1211,14 @@ impl Canonical {
         let n = work.count;
         let chunk = plan.chunk_surfels.min(n).max(1);
         let buffer = plan.bucket_buffer(n.div_ceil(chunk));
-        let mut scatter = Scatter::<GATHER_LEN>::new(work.dir.path(), name, n, chunk, buffer)?;
+        let mut scatter = Scatter::<AXIS_LIGHT_LEN>::new(work.dir.path(), name, n, chunk, buffer)?;
         let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
-        let mut values = SeqReader::<GATHER_LEN>::open(gathered, plan.io_bytes)?;
+        let mut values = SeqReader::<AXIS_LIGHT_LEN>::open(gathered, plan.io_bytes)?;
         while let Some(id) = ids.next_record()? {
             let value = values.expect_record()?;
             scatter.push(u32::from_le_bytes(id) as u64, &value)?;
         }
-        io.read += n * (4 + GATHER_LEN as u64);
+        io.read += n * (4 + AXIS_LIGHT_LEN as u64);
         Ok(Canonical {
             chunks: scatter.into_chunks()?,
             values: Vec::new(),
@@ -1224,7 +1233,7 @@ impl Canonical {
         values.resize(self.chunk as usize, [[0.0; 3]; 2]);
         let Some((start, len)) = self
             .chunks
-            .next_chunk(|at, value| values[at] = decode_gathered(value))?
+            .next_chunk(|at, value| values[at] = decode_axis_light(value))?
         else {
             return Ok(None);
         };
@@ -1515,7 +1524,7 @@ fn extrapolate_canonical(
 
 /// Sets a gathered file to hold `surfels` records (0 frees its disk; records added read as zero).
 fn resize_gathered(path: &Path, surfels: u64) -> Result<(), OocError> {
-    RecordFile::open(path)?.set_len(surfels * GATHER_LEN as u64)
+    RecordFile::open(path)?.set_len(surfels * AXIS_LIGHT_LEN as u64)
 }
 
 /// Surfels per chunk of an update.

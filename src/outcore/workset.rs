@@ -11,8 +11,8 @@
 
 use super::budget::MemoryPlan;
 use super::files::{
-    encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, GATHER_LEN,
-    RADIOSITY_LEN, STATIC_LEN,
+    encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, AXIS_LIGHT_LEN,
+    GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use super::framed::{FrameSizer, FramedWriter};
 use super::scatter::Scatter;
@@ -293,7 +293,7 @@ pub fn build(
     RecordFile::create(&canonical_radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
     let gathered = [0, 1].map(|k| dir.path().join(format!("gathered-{k}.bin")));
     for path in &gathered {
-        RecordFile::create(path)?.set_len(count * GATHER_LEN as u64)?;
+        RecordFile::create(path)?.set_len(count * AXIS_LIGHT_LEN as u64)?;
     }
     let canonical_gathered = dir.path().join("gathered-canonical.bin");
     RecordFile::create(&canonical_gathered)?.set_len(count * GATHER_LEN as u64)?;
@@ -325,16 +325,16 @@ fn check_voxel(
 
 /// Bytes of work files per surfel at their peak, with the static records at their full size:
 /// the three copies' static records, indices and positions, the radiosity file they share, the
-/// canonical radiosity, and then whichever is larger of a pass over an axis (its two gathered
-/// files and the canonical sum) and a fold or a checkpoint inside an axis (the one gathered file
-/// that holds the light, the canonical sum, and the buckets of one permutation of it: the other
-/// gathered file is empty between passes). Compressed (`super::framed`) the static records take
-/// about a fifth of it; `check_disk` counts them so only where the files would not fit
-/// otherwise.
+/// canonical radiosity, the canonical sum, and then whichever is larger of a pass over an axis
+/// (its two files of axis light) and a fold or a checkpoint inside an axis (the one file of axis
+/// light that holds the light and the buckets of one permutation of it: the other is empty
+/// between passes). Compressed (`super::framed`) the static records take about a fifth of it;
+/// `check_disk` counts them so only where the files would not fit otherwise.
 pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + 8)
     + 2 * RADIOSITY_LEN as u64
-    + 2 * GATHER_LEN as u64
-    + (8 + GATHER_LEN as u64);
+    + GATHER_LEN as u64
+    + AXIS_LIGHT_LEN as u64
+    + (8 + AXIS_LIGHT_LEN as u64);
 
 /// Refuses to start when the work files of `surfels` surfels, with `also_per_surfel` bytes a
 /// surfel of the solve's own files, cannot fit on the disk of `parent`: a long solve must not
@@ -441,8 +441,10 @@ mod tests {
         let full_size = Ok(too_many * STATIC_LEN as u64);
         let e = check_disk(dir.path(), too_many, 0, || full_size).unwrap_err();
         assert!(e.to_string().contains("free"), "{e}");
-        // The records compressed to nothing: the rest of the files still take more than twice
-        // what is free (they are at least 3 * 32 + 3 * 48 bytes a surfel).
+        // The records compressed to nothing: the rest of the files, for twice as many surfels
+        // as they alone would fit, are refused.
+        let bare = DISK_BYTES_PER_SURFEL - 3 * STATIC_LEN as u64;
+        let too_many = 2 * (free / bare + 1);
         let e = check_disk(dir.path(), too_many, 0, || Ok(0)).unwrap_err();
         assert!(e.to_string().contains("free"), "{e}");
         // Admitted with the records compressed where they would not fit at full size: as many

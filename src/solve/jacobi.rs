@@ -13,6 +13,7 @@
 use super::dispatch::{dispatch, Lines, OrderedEntry};
 use super::iterate::{iterate, Start, Sweep};
 use super::kept_links::{Blocks, KeptLinks, BLOCK_STEPS};
+use super::light_sum::LightSum;
 use super::links::{gather_and_record, record_links};
 use super::normalize::cosine_sums;
 use super::propagate::{
@@ -642,22 +643,22 @@ impl Sweep for InMemory<'_> {
 
 /// Runs `gather_line` over all lines, spread over `threads` in contiguous line ranges of about
 /// equal surfel counts.
-pub(crate) fn gather_all_lines(
+pub(crate) fn gather_all_lines<A: LightSum>(
     lines: &Lines,
     input: &DirectionInput,
-    acc: &mut [[[f64; 3]; 2]],
+    acc: &mut [A],
     threads: usize,
 ) {
-    gather_pieces::<(), true>(lines, input, acc, threads);
+    gather_pieces::<(), A, true>(lines, input, acc, threads);
 }
 
 /// Gathers direction `input` along `lines` into `acc` in [`line_pieces`] spread over the
 /// threads; returns what each piece's `R` recorded, in piece order. Without `ADD`, only
 /// records (`acc` is not touched and may be empty).
-pub(crate) fn gather_pieces<R: Record + Default + Send, const ADD: bool>(
+pub(crate) fn gather_pieces<R: Record + Default + Send, A: LightSum, const ADD: bool>(
     lines: &Lines,
     input: &DirectionInput,
-    acc: &mut [[[f64; 3]; 2]],
+    acc: &mut [A],
     threads: usize,
 ) -> Vec<R> {
     let bounds = line_pieces(lines, threads);
@@ -673,7 +674,7 @@ pub(crate) fn gather_pieces<R: Record + Default + Send, const ADD: bool>(
             // by two threads. Without, `acc` is not touched.
             let range = w[0]..w[1];
             unsafe {
-                gather_lines::<R, ADD>(
+                gather_lines::<R, A, ADD>(
                     lines,
                     range,
                     input,
@@ -709,13 +710,13 @@ pub(crate) fn line_pieces(lines: &Lines, threads: usize) -> Vec<usize> {
 }
 
 #[derive(Clone, Copy)]
-pub(crate) struct AccPtr(pub(crate) *mut [[f64; 3]; 2]);
+pub(crate) struct AccPtr<A>(pub(crate) *mut A);
 // SAFETY: shared only for writes at disjoint indices (see `gather_pieces` and
 // `links::DirectionLinks::replay`).
-unsafe impl Send for AccPtr {}
-unsafe impl Sync for AccPtr {}
-impl AccPtr {
-    pub(crate) fn get(self) -> *mut [[f64; 3]; 2] {
+unsafe impl<A> Send for AccPtr<A> {}
+unsafe impl<A> Sync for AccPtr<A> {}
+impl<A> AccPtr<A> {
+    pub(crate) fn get(self) -> *mut A {
         self.0
     }
 }

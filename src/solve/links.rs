@@ -23,6 +23,7 @@
 
 use super::dispatch::Lines;
 use super::jacobi::AccPtr;
+use super::light_sum::LightSum;
 use super::mix_hash::MixMap;
 use super::propagate::{prefetch, DirectionInput, Record};
 use super::update::{Gathered, Radiosity};
@@ -268,7 +269,7 @@ impl DirectionLinks {
     }
 
     /// Adds to `acc` what the links bring from `radiosity` (the first `channels` channels).
-    pub fn replay(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [Gathered]) {
+    pub fn replay<A: LightSum>(&self, radiosity: &[Radiosity], channels: usize, acc: &mut [A]) {
         let acc_ptr = AccPtr(acc.as_mut_ptr());
         let len = acc.len();
         assert!(
@@ -286,10 +287,10 @@ impl DirectionLinks {
             // header), so the pieces write disjoint parts of `acc`; `AccPtr` is shared for that.
             unsafe {
                 match (&self.packed, channels) {
-                    (Packed::Narrow(v), 1) => replay_piece::<1, _>(&v[w[0]..w[1]], unpack, &at),
-                    (Packed::Narrow(v), _) => replay_piece::<3, _>(&v[w[0]..w[1]], unpack, &at),
-                    (Packed::Wide(v), 1) => replay_piece::<1, _>(&v[w[0]..w[1]], |l| l, &at),
-                    (Packed::Wide(v), _) => replay_piece::<3, _>(&v[w[0]..w[1]], |l| l, &at),
+                    (Packed::Narrow(v), 1) => replay_piece::<1, _, _>(&v[w[0]..w[1]], unpack, &at),
+                    (Packed::Narrow(v), _) => replay_piece::<3, _, _>(&v[w[0]..w[1]], unpack, &at),
+                    (Packed::Wide(v), 1) => replay_piece::<1, _, _>(&v[w[0]..w[1]], |l| l, &at),
+                    (Packed::Wide(v), _) => replay_piece::<3, _, _>(&v[w[0]..w[1]], |l| l, &at),
                 }
             }
         });
@@ -410,10 +411,10 @@ impl DirectionLinks {
 }
 
 /// What a replay reads and writes besides the links.
-struct Arrays<'a> {
+struct Arrays<'a, A> {
     factors: &'a [f64],
     radiosity: &'a [Radiosity],
-    acc: *mut Gathered,
+    acc: *mut A,
     /// Surfels of `acc`.
     len: usize,
 }
@@ -425,10 +426,10 @@ struct Arrays<'a> {
 /// `at.acc` points to `at.len` surfels, no other thread touches those the links of `piece`
 /// receive on, and `at.radiosity` holds at least `at.len` surfels.
 #[inline(never)]
-unsafe fn replay_piece<const CHANNELS: usize, T: Copy>(
+unsafe fn replay_piece<const CHANNELS: usize, T: Copy, A: LightSum>(
     piece: &[T],
     link: impl Fn(T) -> Link,
-    at: &Arrays,
+    at: &Arrays<A>,
 ) {
     for (k, &item) in piece.iter().enumerate() {
         // The surfels a link names lie scattered over arrays far larger than the caches: ask
@@ -436,7 +437,7 @@ unsafe fn replay_piece<const CHANNELS: usize, T: Copy>(
         if let Some(&ahead) = piece.get(k + PREFETCH_AHEAD) {
             let ahead = link(ahead);
             prefetch(at.radiosity.as_ptr(), (ahead.from >> 1) as usize);
-            prefetch(at.acc as *const Gathered, (ahead.to >> 1) as usize);
+            prefetch(at.acc as *const A, (ahead.to >> 1) as usize);
         }
         let link = link(item);
         let (receiver, partner) = ((link.to >> 1) as usize, (link.from >> 1) as usize);
@@ -448,26 +449,24 @@ unsafe fn replay_piece<const CHANNELS: usize, T: Copy>(
         let (from, to) = unsafe {
             (
                 &at.radiosity.get_unchecked(partner)[(link.from & 1) as usize],
-                &mut (*at.acc.add(receiver))[(link.to & 1) as usize],
+                &mut *at.acc.add(receiver),
             )
         };
         let factor = at.factors[link.factor as usize];
-        for c in 0..CHANNELS {
-            to[c] += from[c] as f64 * factor;
-        }
+        to.add((link.to & 1) as usize, from, factor, CHANNELS);
     }
 }
 
 /// Gathers direction `input` along `lines` into `acc`, as `jacobi::gather_all_lines` does (its
 /// pieces, its order), and returns the links it applied.
-pub fn gather_and_record(
+pub fn gather_and_record<A: LightSum>(
     lines: &Lines,
     input: &DirectionInput,
-    acc: &mut [Gathered],
+    acc: &mut [A],
     threads: usize,
 ) -> DirectionLinks {
     packed(
-        super::jacobi::gather_pieces::<_, true>(lines, input, acc, threads),
+        super::jacobi::gather_pieces::<_, A, true>(lines, input, acc, threads),
         Vec::new(),
     )
 }
@@ -482,7 +481,7 @@ pub fn record_links(
     words: Vec<u64>,
 ) -> DirectionLinks {
     packed(
-        super::jacobi::gather_pieces::<_, false>(lines, input, &mut [], threads),
+        super::jacobi::gather_pieces::<_, Gathered, false>(lines, input, &mut [], threads),
         words,
     )
 }

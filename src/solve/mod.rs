@@ -15,6 +15,7 @@ pub mod enclosure;
 pub mod iterate;
 pub mod jacobi;
 pub mod kept_links;
+pub mod light_sum;
 pub mod links;
 pub(crate) mod mix_hash;
 pub mod normalize;

@@ -81,6 +81,7 @@
 //! computed once per solve and kept with each piece ([`PropSurfel::mate_sides`]). A caller that
 //! needs only some searches of a line (the direct-light pass) says which ([`Toward`]).
 
+use super::light_sum::LightSum;
 use crate::voxel::{BACK, FRONT};
 use glam::{DVec3, Vec3A};
 
@@ -1846,12 +1847,12 @@ pub(crate) fn prefetch<T>(base: *const T, index: usize) {
 ///
 /// # Safety
 /// As for [`gather_line`], for every line of `range`.
-pub unsafe fn gather_lines<R: Record, const ADD: bool>(
+pub unsafe fn gather_lines<R: Record, A: LightSum, const ADD: bool>(
     lines: &crate::solve::dispatch::Lines,
     range: std::ops::Range<usize>,
     input: &DirectionInput,
     scratch: &mut LineScratch,
-    acc: *mut [[f64; 3]; 2],
+    acc: *mut A,
     record: &mut R,
 ) {
     let mut ahead = range.start;
@@ -1864,7 +1865,7 @@ pub unsafe fn gather_lines<R: Record, const ADD: bool>(
                     prefetch(input.surfels.as_ptr(), m as usize);
                     if ADD {
                         prefetch(input.radiosity.as_ptr(), m as usize);
-                        prefetch(acc as *const [[f64; 3]; 2], m as usize);
+                        prefetch(acc as *const A, m as usize);
                     }
                 }
             }
@@ -1875,7 +1876,7 @@ pub unsafe fn gather_lines<R: Record, const ADD: bool>(
             continue;
         }
         // SAFETY: see the function's contract.
-        unsafe { gather_line::<R, ADD>(line, input, scratch, acc, record) };
+        unsafe { gather_line::<R, A, ADD>(line, input, scratch, acc, record) };
     }
 }
 
@@ -1903,11 +1904,11 @@ impl Record for () {
 /// With `ADD`, `acc` must point to an array with one entry per surfel of `input.surfels`, and no
 /// other thread may access the entries of this line's surfels while this runs (each surfel lies
 /// on exactly one line of a direction).
-pub unsafe fn gather_line<R: Record, const ADD: bool>(
+pub unsafe fn gather_line<R: Record, A: LightSum, const ADD: bool>(
     line: &[u32],
     input: &DirectionInput,
     scratch: &mut LineScratch,
-    acc: *mut [[f64; 3]; 2],
+    acc: *mut A,
     record: &mut R,
 ) {
     let s = input.unit;
@@ -1917,14 +1918,14 @@ pub unsafe fn gather_line<R: Record, const ADD: bool>(
     for (k, &[ahead, behind]) in scratch.partners.iter().enumerate() {
         // SAFETY (all three): see the function's contract.
         unsafe {
-            add_link::<R, ADD>(
+            add_link::<R, A, ADD>(
                 line,
                 input,
                 acc,
                 scratch.link(s, k, 0, ahead.0, ahead.1),
                 record,
             );
-            add_link::<R, ADD>(
+            add_link::<R, A, ADD>(
                 line,
                 input,
                 acc,
@@ -1935,7 +1936,7 @@ pub unsafe fn gather_line<R: Record, const ADD: bool>(
     }
     for &(k, which, position, share) in &scratch.extra {
         let link = scratch.link(s, k as usize, which, position, share);
-        unsafe { add_link::<R, ADD>(line, input, acc, link, record) };
+        unsafe { add_link::<R, A, ADD>(line, input, acc, link, record) };
     }
 }
 
@@ -1944,10 +1945,10 @@ pub unsafe fn gather_line<R: Record, const ADD: bool>(
 /// # Safety
 /// As for [`gather_line`].
 #[inline(always)]
-unsafe fn add_link<R: Record, const ADD: bool>(
+unsafe fn add_link<R: Record, A: LightSum, const ADD: bool>(
     line: &[u32],
     input: &DirectionInput,
-    acc: *mut [[f64; 3]; 2],
+    acc: *mut A,
     link: Option<Link>,
     record: &mut R,
 ) {
@@ -1960,12 +1961,10 @@ unsafe fn add_link<R: Record, const ADD: bool>(
     let (receiver, partner) = (line[link.receiver], line[link.partner]);
     let f = link.cosine * input.weight * link.share as f64;
     if ADD {
-        let from = input.radiosity[partner as usize][link.from_side];
+        let from = &input.radiosity[partner as usize][link.from_side];
         // SAFETY: see the function's contract.
-        let to = unsafe { &mut (*acc.add(receiver as usize))[link.to_side] };
-        for (t, b) in to.iter_mut().zip(from).take(input.channels) {
-            *t += b as f64 * f;
-        }
+        let to = unsafe { &mut *acc.add(receiver as usize) };
+        to.add(link.to_side, from, f, input.channels);
     }
     record.link(receiver, link.to_side, partner, link.from_side, f);
 }

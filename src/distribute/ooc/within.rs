@@ -16,7 +16,10 @@ use super::held::{self, Held, Wire, EARLIER_AT, GATHERED_AT};
 use super::route::Router;
 use super::{fold_axis, DataOocSweep, Solver, WalkStep};
 use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
-use crate::outcore::files::{IoCounters, GATHER_LEN, RADIOSITY_LEN};
+use crate::outcore::files::{
+    decode_axis_light, decode_gathered, encode_axis_light, encode_gathered, IoCounters, GATHER_LEN,
+    RADIOSITY_LEN,
+};
 use crate::outcore::OocError;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -45,13 +48,14 @@ impl Position {
         slot(&record, EARLIER_AT)
     }
 
-    /// The light of the axis in progress (zeros between two axes).
+    /// The light of the axis in progress (zeros between two axes), in f64 as a checkpoint
+    /// holds it (the axis light record's f32 values, exactly).
     fn axis(self, w: &Wire) -> [u8; GATHER_LEN] {
+        let mut value = [0; GATHER_LEN];
         if self.in_axis {
-            slot(w, GATHERED_AT)
-        } else {
-            [0; GATHER_LEN]
+            encode_gathered(&decode_axis_light(&w[GATHERED_AT..]), &mut value);
         }
+        value
     }
 }
 
@@ -201,7 +205,13 @@ impl Solver<'_> {
             *generation += 1;
             held =
                 self.place_slice::<GATHER_LEN>(held, &mine, *generation, router, io, |w, v| {
-                    w[at..at + GATHER_LEN].copy_from_slice(v)
+                    if at == GATHERED_AT {
+                        // The axis in progress: its light in f64, as the band rounded it, which
+                        // the axis light record holds exactly.
+                        encode_axis_light(&decode_gathered(v), &mut w[at..]);
+                    } else {
+                        w[at..at + GATHER_LEN].copy_from_slice(v)
+                    }
                 })?;
         }
         Ok(held)
