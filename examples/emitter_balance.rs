@@ -70,7 +70,7 @@ fn main() {
                 continue;
             }
             unsafe {
-                gather_line::<(), true>(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ())
+                gather_line::<(), _, true>(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ())
             };
             if only.is_some()
                 && line

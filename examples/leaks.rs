@@ -69,7 +69,7 @@ fn main() {
             let line = lines.line(l);
             // SAFETY: one accumulator entry per surfel, one thread, each surfel on one line.
             unsafe {
-                gather_line::<(), true>(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ())
+                gather_line::<(), _, true>(line, &input, &mut scratch, acc.as_mut_ptr(), &mut ())
             };
             if let Some(v) = &line_of {
                 if line.iter().any(|&m| surfels[m as usize].voxel == *v) {
