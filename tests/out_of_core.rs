@@ -240,13 +240,17 @@ fn direct_pass_out_of_core(name: &str, scene: &Scene, resolution: u32) {
         if budget <= 1 << 20 {
             assert!(direct.parts > 1, "budget {budget}: {} part", direct.parts);
         }
+        // Out of core the direct light is kept in f32 (`outcore::direct`) and the light of an
+        // axis summed in f32 (`outcore::files`): each value within 2^-24 of the in-memory one,
+        // relatively, and the power they add up to within 1e-7 (1.1e-9 measured on the Cornell
+        // box here).
         for ch in 0..3 {
             let (got, want) = (
                 solution.stats.solve.absorbed_power[ch],
                 reference.stats.absorbed_power[ch],
             );
             assert!(
-                (got - want).abs() <= 1e-9 * want,
+                (got - want).abs() <= 1e-7 * want,
                 "channel {ch}: absorbed {got} out of core, {want} in memory"
             );
         }

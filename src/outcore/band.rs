@@ -8,7 +8,7 @@
 
 use super::budget::MemoryPlan;
 use super::files::{
-    decode_static, AxisLight, IoCounters, Radiosity, RecordFile, AXIS_LIGHT_LEN, RADIOSITY_LEN,
+    decode_static, AxisLight, IoCounters, Radiosity, RecordFile, LIGHT32_LEN, RADIOSITY_LEN,
     STATIC_LEN,
 };
 use super::framed::FramedStatics;
@@ -637,7 +637,7 @@ impl DirectionPass<'_> {
                         light.fill([[0.0; 3]; 2]);
                     } else {
                         let bytes = bytemuck::cast_slice_mut(light);
-                        earlier.read_at(from * AXIS_LIGHT_LEN as u64, bytes, io)?;
+                        earlier.read_at(from * LIGHT32_LEN as u64, bytes, io)?;
                     }
                 }
                 return Ok(());
@@ -656,7 +656,7 @@ impl DirectionPass<'_> {
                 staged_gathered[..n].fill([[0.0; 3]; 2]);
             } else {
                 let bytes = bytemuck::cast_slice_mut(&mut staged_gathered[..n]);
-                earlier.read_at(start * AXIS_LIGHT_LEN as u64, bytes, io)?;
+                earlier.read_at(start * LIGHT32_LEN as u64, bytes, io)?;
             }
             for &(from, len, to) in parts {
                 let (from, len, to) = ((from - start) as usize, len as usize, to as usize);
@@ -693,7 +693,7 @@ impl DirectionPass<'_> {
                     let bytes = bytemuck::cast_slice(&gathered[to..to + len]);
                     self.files
                         .gathered
-                        .write_at(from * AXIS_LIGHT_LEN as u64, bytes, io)?;
+                        .write_at(from * LIGHT32_LEN as u64, bytes, io)?;
                 }
                 return Ok(());
             }
@@ -705,7 +705,7 @@ impl DirectionPass<'_> {
             let bytes = bytemuck::cast_slice(&staged_gathered[..n]);
             self.files
                 .gathered
-                .write_at(start * AXIS_LIGHT_LEN as u64, bytes, io)
+                .write_at(start * LIGHT32_LEN as u64, bytes, io)
         })?;
         times.read += (t1 - t0).as_secs_f64() + link_reads;
         times.propagate += (t2 - t1).as_secs_f64() - link_reads;
@@ -747,7 +747,7 @@ impl DirectionPass<'_> {
             if !self.first {
                 let earlier = self.files.previous.as_ref();
                 earlier.unwrap_or(&self.files.gathered).read_at(
-                    start * AXIS_LIGHT_LEN as u64,
+                    start * LIGHT32_LEN as u64,
                     bytemuck::cast_slice_mut(&mut gathered[from..]),
                     io,
                 )?;
@@ -769,7 +769,7 @@ impl DirectionPass<'_> {
         for (start, count) in ranges {
             let light = &gathered[done..done + count as usize];
             self.files.gathered.write_at(
-                start * AXIS_LIGHT_LEN as u64,
+                start * LIGHT32_LEN as u64,
                 bytemuck::cast_slice(light),
                 io,
             )?;

@@ -22,14 +22,15 @@
 //!    parts before: each surfel adds its contributions in direction order, exactly as the
 //!    in-memory pass adds them, so the answer is that pass's bit for bit.
 //! 5. A last pass divides each side's light by `S_dense(n)` plus its shift into the direct-light
-//!    file ([`GATHER_LEN`] bytes a surfel, canonical order), which every update reads.
+//!    file ([`LIGHT32_LEN`] bytes a surfel, canonical order, rounded once to f32: the data mode
+//!    carries it in its records, and both read the same values), which every update reads.
 //!
 //! **Memory.** The occupancy map and the emitters' voxels stay for the whole pass; a part holds
 //! its voxels' keys and its surfels (about [`PART_BYTES_PER_SURFEL`] each with the tables the
 //! gathering builds). A single group that does not fit is refused with what it needs.
 
 use super::budget::{format_bytes, MemoryPlan};
-use super::files::{encode_gathered, IoCounters, RecordFile, SeqReader, SeqWriter, GATHER_LEN};
+use super::files::{encode_light32, IoCounters, RecordFile, SeqReader, SeqWriter, LIGHT32_LEN};
 use super::source::SurfelSource;
 use super::OocError;
 use crate::geometry::directions::DirectionSet;
@@ -53,7 +54,7 @@ pub const SUM_LEN: usize = 64;
 /// table's entry, the sums and the canonical index, with room for the per-direction lists.
 pub const PART_BYTES_PER_SURFEL: u64 = 320;
 
-/// The direct light, out of core: a work file of [`GATHER_LEN`] bytes per surfel in canonical
+/// The direct light, out of core: a work file of [`LIGHT32_LEN`] bytes per surfel in canonical
 /// order (`H_dense(E) / S_dense(n)` by side and channel), and what the pass did.
 pub struct DirectFile {
     pub path: PathBuf,
@@ -315,7 +316,7 @@ pub fn gather_direct_out_of_core(
     let path = dir.join("direct.bin");
     let mut out = SeqWriter::create(&path, plan.io_bytes)?;
     let mut sums = SeqReader::<SUM_LEN>::open(&sum_path, plan.io_bytes)?;
-    let mut record = [0u8; GATHER_LEN];
+    let mut record = [0u8; LIGHT32_LEN];
     for s in source.stream(plan.io_bytes as u64)? {
         let s = s?;
         let (mut light, shift) = decode_sum(&sums.expect_record()?);
@@ -325,7 +326,7 @@ pub fn gather_direct_out_of_core(
                 .iter_mut()
                 .for_each(|v| *v /= norm + shift[side]);
         }
-        encode_gathered(&light, &mut record);
+        encode_light32(&light, &mut record);
         out.write(&record)?;
     }
     io.read += n * (crate::storage::RECORD_LEN + SUM_LEN) as u64;

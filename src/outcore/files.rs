@@ -22,9 +22,9 @@
 //!                          inside a closed solid (PropSurfel::inside_back)
 //!  68 id       u32         index of the surfel in the canonical (shard set) order
 //! radiosity (24 bytes): f32 x 6, side-major (front RGB, back RGB)
-//! gathered light (48 bytes): f64 x 6, side-major (the canonical sum of an iteration's axes,
-//!                          the direct light)
-//! axis light (24 bytes): f32 x 6, side-major: the light of a main axis's directions so far
+//! gathered light (48 bytes): f64 x 6, side-major: the canonical sum of an iteration's axes
+//! light in f32 (24 bytes): f32 x 6, side-major: the light of a main axis's directions so far
+//!                          (an axis light record), and the direct light, rounded once
 //! ```
 //!
 //! **The axis light in f32.** A band sums the light of its axis's directions in f32, each
@@ -47,7 +47,7 @@ use std::path::{Path, PathBuf};
 pub const STATIC_LEN: usize = 72;
 pub const RADIOSITY_LEN: usize = 24;
 pub const GATHER_LEN: usize = 48;
-pub const AXIS_LIGHT_LEN: usize = 24;
+pub const LIGHT32_LEN: usize = 24;
 
 pub type Radiosity = [[f32; 3]; 2];
 pub type Gathered = [[f64; 3]; 2];
@@ -156,7 +156,7 @@ const _: () = {
     );
     assert!(std::mem::size_of::<Radiosity>() == RADIOSITY_LEN);
     assert!(std::mem::size_of::<Gathered>() == GATHER_LEN);
-    assert!(std::mem::size_of::<AxisLight>() == AXIS_LIGHT_LEN);
+    assert!(std::mem::size_of::<AxisLight>() == LIGHT32_LEN);
 };
 
 pub fn encode_radiosity(b: &Radiosity, out: &mut [u8]) {
@@ -185,14 +185,15 @@ pub fn decode_gathered(bytes: &[u8]) -> Gathered {
     [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
 }
 
-/// Writes an axis light record: `h` rounded to f32 (exact after [`round_axis_light`]).
-pub fn encode_axis_light(h: &Gathered, out: &mut [u8]) {
+/// Writes a light record in f32 (an axis light record, or the direct light): `h` rounded to
+/// f32, exactly where `h` came from such a record.
+pub fn encode_light32(h: &Gathered, out: &mut [u8]) {
     for (k, v) in h.iter().flatten().enumerate() {
         out[4 * k..4 * k + 4].copy_from_slice(&(*v as f32).to_le_bytes());
     }
 }
 
-pub fn decode_axis_light(bytes: &[u8]) -> Gathered {
+pub fn decode_light32(bytes: &[u8]) -> Gathered {
     let f = |k: usize| f32::from_le_bytes(word(bytes, k)) as f64;
     [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
 }

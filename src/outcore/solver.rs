@@ -44,9 +44,9 @@
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
 use super::files::{
-    decode_axis_light, decode_gathered, decode_radiosity, encode_axis_light, encode_gathered,
+    decode_gathered, decode_light32, decode_radiosity, encode_gathered, encode_light32,
     encode_radiosity, Gathered, IoCounters, Radiosity, RecordFile, SeqReader, SeqWriter,
-    AXIS_LIGHT_LEN, GATHER_LEN, RADIOSITY_LEN,
+    GATHER_LEN, LIGHT32_LEN, RADIOSITY_LEN,
 };
 use super::framed::{FrameBuffers, FramedStatics};
 use super::links::LinkStore;
@@ -1079,13 +1079,8 @@ fn restore(
             let copy = &work.copies[at.axes];
             let chunk = plan.chunk_surfels.min(n).max(1);
             let buffer = plan.bucket_buffer(n.div_ceil(chunk));
-            let scatter = Scatter::<AXIS_LIGHT_LEN>::new(
-                work.dir.path(),
-                "checkpoint-axis",
-                n,
-                chunk,
-                buffer,
-            )?;
+            let scatter =
+                Scatter::<LIGHT32_LEN>::new(work.dir.path(), "checkpoint-axis", n, chunk, buffer)?;
             let positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
             Some((scatter, positions))
         }
@@ -1120,10 +1115,10 @@ fn restore(
             };
             // The checkpoint holds the axis's light in f64, as the band rounded it: the axis
             // light record holds it exactly.
-            let mut record = [0u8; AXIS_LIGHT_LEN];
+            let mut record = [0u8; LIGHT32_LEN];
             for value in piece.chunks_exact(GATHER_LEN) {
                 let p = u32::from_le_bytes(positions.expect_record()?) as u64;
-                encode_axis_light(&decode_gathered(value), &mut record);
+                encode_light32(&decode_gathered(value), &mut record);
                 scatter.push(p, &record)?;
             }
             Ok(())
@@ -1146,7 +1141,7 @@ fn restore(
         let into = &work.gathered[(at.directions - 1) % 2];
         let mut out = SeqWriter::create(into, plan.io_bytes)?;
         let chunk = plan.chunk_surfels.min(n).max(1) as usize;
-        let mut values = vec![[0u8; AXIS_LIGHT_LEN]; chunk];
+        let mut values = vec![[0u8; LIGHT32_LEN]; chunk];
         while let Some((_, len)) = chunks.next_chunk(|at, value| values[at] = *value)? {
             for v in &values[..len as usize] {
                 out.write(v)?;
@@ -1192,7 +1187,7 @@ pub use crate::solve::update::UpdateSums;
 /// a permutation by the copy's canonical indices ([`Scatter`]), its first pass made by
 /// [`Canonical::new`].
 struct Canonical {
-    chunks: ChunkReader<AXIS_LIGHT_LEN>,
+    chunks: ChunkReader<LIGHT32_LEN>,
     /// One chunk's values (`chunk` surfels at most), reused.
     values: Vec<Gathered>,
     chunk: u64,
@@ -1211,14 +1206,14 @@ impl Canonical {
         let n = work.count;
         let chunk = plan.chunk_surfels.min(n).max(1);
         let buffer = plan.bucket_buffer(n.div_ceil(chunk));
-        let mut scatter = Scatter::<AXIS_LIGHT_LEN>::new(work.dir.path(), name, n, chunk, buffer)?;
+        let mut scatter = Scatter::<LIGHT32_LEN>::new(work.dir.path(), name, n, chunk, buffer)?;
         let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
-        let mut values = SeqReader::<AXIS_LIGHT_LEN>::open(gathered, plan.io_bytes)?;
+        let mut values = SeqReader::<LIGHT32_LEN>::open(gathered, plan.io_bytes)?;
         while let Some(id) = ids.next_record()? {
             let value = values.expect_record()?;
             scatter.push(u32::from_le_bytes(id) as u64, &value)?;
         }
-        io.read += n * (4 + AXIS_LIGHT_LEN as u64);
+        io.read += n * (4 + LIGHT32_LEN as u64);
         Ok(Canonical {
             chunks: scatter.into_chunks()?,
             values: Vec::new(),
@@ -1233,7 +1228,7 @@ impl Canonical {
         values.resize(self.chunk as usize, [[0.0; 3]; 2]);
         let Some((start, len)) = self
             .chunks
-            .next_chunk(|at, value| values[at] = decode_axis_light(value))?
+            .next_chunk(|at, value| values[at] = decode_light32(value))?
         else {
             return Ok(None);
         };
@@ -1318,7 +1313,7 @@ fn update(
     let mut d_bytes = vec![
         0u8;
         if direct.is_some() {
-            chunk_len(plan, work) * GATHER_LEN
+            chunk_len(plan, work) * LIGHT32_LEN
         } else {
             0
         }
@@ -1355,14 +1350,14 @@ fn update(
         let prev = &mut bytes[..len as usize * RADIOSITY_LEN];
         canonical.read_at(start * RADIOSITY_LEN as u64, prev, io)?;
         let d_slots = &mut d_bytes[..if direct.is_some() {
-            len as usize * GATHER_LEN
+            len as usize * LIGHT32_LEN
         } else {
             0
         }];
         if let Some(direct) = &direct {
-            direct.read_at(start * GATHER_LEN as u64, d_slots, io)?;
+            direct.read_at(start * LIGHT32_LEN as u64, d_slots, io)?;
         }
-        let mut d_slots = d_slots.chunks_exact(GATHER_LEN);
+        let mut d_slots = d_slots.chunks_exact(LIGHT32_LEN);
         if kept.is_some() {
             old.clear();
             old.extend_from_slice(prev);
@@ -1388,7 +1383,7 @@ fn update(
                 .material
                 .map(|m| info.materials[m as usize].emission.map(|e| e as f32));
             result.emitting += crate::solve::direct::emits(&emission) as u64;
-            let d = d_slots.next().map(decode_gathered);
+            let d = d_slots.next().map(decode_light32);
             let sides = s.material.map(|m| &info.materials[m as usize]);
             let (h, norm) = (decode_gathered(h_slot), cosine_sum[s.normal_id as usize]);
             let scales = match &mut pass {
@@ -1524,7 +1519,7 @@ fn extrapolate_canonical(
 
 /// Sets a gathered file to hold `surfels` records (0 frees its disk; records added read as zero).
 fn resize_gathered(path: &Path, surfels: u64) -> Result<(), OocError> {
-    RecordFile::open(path)?.set_len(surfels * AXIS_LIGHT_LEN as u64)
+    RecordFile::open(path)?.set_len(surfels * LIGHT32_LEN as u64)
 }
 
 /// Surfels per chunk of an update.

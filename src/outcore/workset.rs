@@ -11,8 +11,8 @@
 
 use super::budget::MemoryPlan;
 use super::files::{
-    encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, AXIS_LIGHT_LEN,
-    GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
+    encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, GATHER_LEN,
+    LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use super::framed::{FrameSizer, FramedWriter};
 use super::scatter::Scatter;
@@ -116,7 +116,7 @@ impl WorkSet {
 pub fn solve_files_per_surfel(extrapolate: bool, direct: bool) -> u64 {
     let previous = if extrapolate { RADIOSITY_LEN } else { 0 };
     let direct = if direct {
-        GATHER_LEN + RADIOSITY_LEN
+        LIGHT32_LEN + RADIOSITY_LEN
     } else {
         0
     };
@@ -293,7 +293,7 @@ pub fn build(
     RecordFile::create(&canonical_radiosity)?.set_len(count * RADIOSITY_LEN as u64)?;
     let gathered = [0, 1].map(|k| dir.path().join(format!("gathered-{k}.bin")));
     for path in &gathered {
-        RecordFile::create(path)?.set_len(count * AXIS_LIGHT_LEN as u64)?;
+        RecordFile::create(path)?.set_len(count * LIGHT32_LEN as u64)?;
     }
     let canonical_gathered = dir.path().join("gathered-canonical.bin");
     RecordFile::create(&canonical_gathered)?.set_len(count * GATHER_LEN as u64)?;
@@ -333,8 +333,8 @@ fn check_voxel(
 pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + 8)
     + 2 * RADIOSITY_LEN as u64
     + GATHER_LEN as u64
-    + AXIS_LIGHT_LEN as u64
-    + (8 + AXIS_LIGHT_LEN as u64);
+    + LIGHT32_LEN as u64
+    + (8 + LIGHT32_LEN as u64);
 
 /// Refuses to start when the work files of `surfels` surfels, with `also_per_surfel` bytes a
 /// surfel of the solve's own files, cannot fit on the disk of `parent`: a long solve must not
@@ -466,9 +466,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let free = free_bytes(dir.path()).expect("statvfs of a temporary directory");
         // Surfels whose work set fits in nine tenths of the free space, and whose tail
-        // extrapolation and direct-light files (96 bytes a surfel) make it a tenth too large.
+        // extrapolation and direct-light files (72 bytes a surfel) make it a tenth too large.
         let also = solve_files_per_surfel(true, true);
-        assert_eq!(also, 96);
+        assert_eq!(also, 72);
         let surfels = free / (DISK_BYTES_PER_SURFEL + also / 2);
         let unasked = || -> Result<u64, OocError> { panic!("the records' size asked for") };
         assert!(check_disk(dir.path(), surfels, 0, unasked).is_ok());

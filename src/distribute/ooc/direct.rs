@@ -13,7 +13,7 @@ use super::held::{self, Held};
 use super::route::Router;
 use super::Solver;
 use crate::geometry::directions::DirectionSet;
-use crate::outcore::files::{IoCounters, SeqReader, GATHER_LEN};
+use crate::outcore::files::{IoCounters, SeqReader, LIGHT32_LEN};
 use crate::outcore::OocError;
 use crate::solve::direct::DirectStats;
 
@@ -49,7 +49,7 @@ impl Solver<'_> {
         let read = |piece: &mut dyn FnMut(&[u8]) -> Result<(), OocError>| {
             let file = pass.expect("rank 0 ran the pass")?;
             stats = file.stats.clone();
-            let mut reader = SeqReader::<GATHER_LEN>::open(&file.path, plan.io_bytes)?;
+            let mut reader = SeqReader::<LIGHT32_LEN>::open(&file.path, plan.io_bytes)?;
             while let Some(record) = reader.next_record()? {
                 piece(&record)?;
             }
@@ -58,14 +58,14 @@ impl Solver<'_> {
         };
         let mut sent = IoCounters::default();
         let name = "the direct light's work file";
-        let mine = self.send_slices(None, first, GATHER_LEN, name, read, router, &mut sent)?;
+        let mine = self.send_slices(None, first, LIGHT32_LEN, name, read, router, &mut sent)?;
         let mine = mine.expect("every rank receives its slice");
         io.read += sent.read;
         io.written += sent.written;
         let info = self.source.info();
         let held =
-            self.place_slice::<GATHER_LEN>(held, &mine, generation, router, io, |w, d| {
-                w[held::DIRECT_AT..held::DIRECT_AT + GATHER_LEN].copy_from_slice(d);
+            self.place_slice::<LIGHT32_LEN>(held, &mine, generation, router, io, |w, d| {
+                w[held::DIRECT_AT..held::DIRECT_AT + LIGHT32_LEN].copy_from_slice(d);
                 carry(w, info, true);
             })?;
         // Rank 0's figures for every rank.

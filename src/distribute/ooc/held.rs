@@ -10,18 +10,19 @@
 //! another:
 //!
 //! ```text
-//! wire record (280 bytes)
+//! wire record (256 bytes)
 //!   0 static       72 bytes   outcore::files layout (voxel, ..., canonical id at 68)
 //!  72 carried      24 bytes   f32 x 6, what the lines carry: B, or B - E with the direct pass
 //!  96 gathered     24 bytes   f32 x 6, this axis's directions so far (an axis light record,
-//!                             rounded after each direction as `outcore::files` says)
+//!                             summed in f32 as `outcore::files` says)
 //! 120 earlier      48 bytes   f64 x 6, the earlier axes of this iteration
 //! 168 normal id    u32
 //! 172 area         f32
 //! 176 materials    u32 x 2    front, back
 //! 184 radiosity    24 bytes   f32 x 6, B
-//! 208 direct       48 bytes   f64 x 6, the direct light H_dense / S_dense (0 without the pass)
-//! 256 older        24 bytes   f32 x 6, the radiosity the last update replaced (the tail
+//! 208 direct       24 bytes   f32 x 6, the direct light H_dense / S_dense (0 without the pass),
+//!                             as the one-process out-of-core pass writes it
+//! 232 older        24 bytes   f32 x 6, the radiosity the last update replaced (the tail
 //!                             extrapolation's, and the Chebyshev semi-iteration's `B_{k-1}`)
 //! ```
 //!
@@ -30,7 +31,7 @@
 //! and the answer stays that solver's bit for bit.
 
 use crate::outcore::files::{
-    IoCounters, RecordFile, SeqReader, SeqWriter, AXIS_LIGHT_LEN, GATHER_LEN, RADIOSITY_LEN,
+    IoCounters, RecordFile, SeqReader, SeqWriter, GATHER_LEN, LIGHT32_LEN, RADIOSITY_LEN,
     STATIC_LEN,
 };
 use crate::outcore::OocError;
@@ -40,22 +41,22 @@ use std::path::{Path, PathBuf};
 
 /// Bytes of the fourth file's record: earlier axes' light, the update's scene data, `B`, the
 /// direct light and the radiosity the last update replaced.
-pub const REST_LEN: usize = GATHER_LEN + 16 + RADIOSITY_LEN + GATHER_LEN + RADIOSITY_LEN;
-pub const WIRE_LEN: usize = STATIC_LEN + RADIOSITY_LEN + AXIS_LIGHT_LEN + REST_LEN;
+pub const REST_LEN: usize = GATHER_LEN + 16 + RADIOSITY_LEN + LIGHT32_LEN + RADIOSITY_LEN;
+pub const WIRE_LEN: usize = STATIC_LEN + RADIOSITY_LEN + LIGHT32_LEN + REST_LEN;
 pub type Wire = [u8; WIRE_LEN];
 
 /// What the lines carry (the file the bands read).
 pub const CARRIED_AT: usize = STATIC_LEN;
 pub const GATHERED_AT: usize = CARRIED_AT + RADIOSITY_LEN;
-pub const EARLIER_AT: usize = GATHERED_AT + AXIS_LIGHT_LEN;
+pub const EARLIER_AT: usize = GATHERED_AT + LIGHT32_LEN;
 pub const SCENE_AT: usize = EARLIER_AT + GATHER_LEN;
 /// The radiosity `B`.
 pub const RADIOSITY_AT: usize = SCENE_AT + 16;
 pub const DIRECT_AT: usize = RADIOSITY_AT + RADIOSITY_LEN;
 /// The radiosity the last update replaced.
-pub const OLDER_AT: usize = DIRECT_AT + GATHER_LEN;
+pub const OLDER_AT: usize = DIRECT_AT + LIGHT32_LEN;
 const _: () = assert!(OLDER_AT + RADIOSITY_LEN == WIRE_LEN);
-const LENGTHS: [usize; 4] = [STATIC_LEN, RADIOSITY_LEN, AXIS_LIGHT_LEN, REST_LEN];
+const LENGTHS: [usize; 4] = [STATIC_LEN, RADIOSITY_LEN, LIGHT32_LEN, REST_LEN];
 const OFFSETS: [usize; 4] = [0, CARRIED_AT, GATHERED_AT, EARLIER_AT];
 
 fn word(w: &[u8], at: usize) -> [u8; 4] {
@@ -313,7 +314,7 @@ impl HeldReader {
         Ok(HeldReader::Whole([
             reader::<STATIC_LEN>(&paths[0], b)?,
             reader::<RADIOSITY_LEN>(&paths[1], b)?,
-            reader::<AXIS_LIGHT_LEN>(&paths[2], b)?,
+            reader::<LIGHT32_LEN>(&paths[2], b)?,
             reader::<REST_LEN>(&paths[3], b)?,
         ]))
     }
@@ -830,25 +831,25 @@ mod tests {
         // Positioned reads across the pieces, and a write in place: records 1..4 of `b` are
         // 11 (its own files) and 3, 4 (in `a`'s).
         let opened = b.open_files().unwrap();
-        let mut gathered = vec![0u8; 3 * AXIS_LIGHT_LEN];
+        let mut gathered = vec![0u8; 3 * LIGHT32_LEN];
         opened[2]
-            .read_at(AXIS_LIGHT_LEN as u64, &mut gathered, &mut io)
+            .read_at(LIGHT32_LEN as u64, &mut gathered, &mut io)
             .unwrap();
         let expected_gathered: Vec<u8> = [11, 3, 4]
             .iter()
-            .flat_map(|&k| records[k][GATHERED_AT..GATHERED_AT + AXIS_LIGHT_LEN].to_vec())
+            .flat_map(|&k| records[k][GATHERED_AT..GATHERED_AT + LIGHT32_LEN].to_vec())
             .collect();
         assert_eq!(gathered, expected_gathered);
-        let light = vec![7u8; 3 * AXIS_LIGHT_LEN];
+        let light = vec![7u8; 3 * LIGHT32_LEN];
         opened[2]
-            .write_at(AXIS_LIGHT_LEN as u64, &light, &mut io)
+            .write_at(LIGHT32_LEN as u64, &light, &mut io)
             .unwrap();
         drop(opened);
         let after = read_all(&b);
         for (k, w) in after.iter().enumerate() {
-            let slot = &w[GATHERED_AT..GATHERED_AT + AXIS_LIGHT_LEN];
+            let slot = &w[GATHERED_AT..GATHERED_AT + LIGHT32_LEN];
             assert_eq!(
-                slot == &light[..AXIS_LIGHT_LEN],
+                slot == &light[..LIGHT32_LEN],
                 (1..4).contains(&k),
                 "record {k}"
             );

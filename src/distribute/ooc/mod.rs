@@ -79,7 +79,7 @@ use crate::geometry::lines::LineFrame;
 use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass, StaticFile};
 use crate::outcore::budget::MemoryPlan;
 use crate::outcore::files::{
-    decode_axis_light, decode_gathered, decode_radiosity, encode_gathered, encode_radiosity,
+    decode_gathered, decode_light32, decode_radiosity, encode_gathered, encode_radiosity,
     IoCounters, SeqReader, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use crate::outcore::links::LinkStore;
@@ -725,9 +725,7 @@ impl Solver<'_> {
                     decode_gathered(&w[EARLIER_AT..]),
                     cosine_sum[normal_id as usize],
                 );
-                let direct = self
-                    .direct()
-                    .then(|| decode_gathered(&w[held::DIRECT_AT..]));
+                let direct = self.direct().then(|| decode_light32(&w[held::DIRECT_AT..]));
                 // The Chebyshev semi-iteration's radiosity before last.
                 let older = (omega != 1.0).then(|| decode_radiosity(&w[held::OLDER_AT..]));
                 let b_new = crate::solve::update::update_surfel(
@@ -801,9 +799,7 @@ impl Solver<'_> {
             }
             let emission = material.map(|m| info.materials[m as usize].emission.map(|e| e as f32));
             let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
-            let direct = self
-                .direct()
-                .then(|| decode_gathered(&w[held::DIRECT_AT..]));
+            let direct = self.direct().then(|| decode_light32(&w[held::DIRECT_AT..]));
             sums.add(
                 &emission,
                 &crate::solve::update::carried(&previous, &emission, self.direct()),
@@ -1310,7 +1306,7 @@ fn cut_at(runs: &mut [usize], starts: &[bool]) {
 /// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
 /// were none; the sum starts with this axis), as `outcore::solver` folds its axes.
 fn fold_axis(w: &mut Wire, first: bool) {
-    let mut sum = decode_axis_light(&w[GATHERED_AT..]);
+    let mut sum = decode_light32(&w[GATHERED_AT..]);
     if !first {
         let before = decode_gathered(&w[EARLIER_AT..]);
         for (t, b) in sum.iter_mut().flatten().zip(before.iter().flatten()) {
@@ -1357,7 +1353,7 @@ fn imbalance_of(load: &[f64], cuts: &[u64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::outcore::files::encode_axis_light;
+    use crate::outcore::files::encode_light32;
     use held::WIRE_LEN;
 
     #[test]
@@ -1431,10 +1427,10 @@ mod tests {
     #[test]
     fn axes_fold_as_the_single_process_solver_folds_them() {
         let mut w = [0u8; WIRE_LEN];
-        encode_axis_light(&[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], &mut w[GATHERED_AT..]);
+        encode_light32(&[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], &mut w[GATHERED_AT..]);
         fold_axis(&mut w, true);
         assert_eq!(decode_gathered(&w[EARLIER_AT..])[1], [4.0, 5.0, 6.0]);
-        encode_axis_light(&[[0.5; 3], [0.25; 3]], &mut w[GATHERED_AT..]);
+        encode_light32(&[[0.5; 3], [0.25; 3]], &mut w[GATHERED_AT..]);
         fold_axis(&mut w, false);
         assert_eq!(
             decode_gathered(&w[EARLIER_AT..]),

@@ -17,7 +17,7 @@ use super::route::Router;
 use super::{fold_axis, DataOocSweep, Solver, WalkStep};
 use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
 use crate::outcore::files::{
-    decode_axis_light, decode_gathered, encode_axis_light, encode_gathered, IoCounters, GATHER_LEN,
+    decode_gathered, decode_light32, encode_gathered, encode_light32, IoCounters, GATHER_LEN,
     RADIOSITY_LEN,
 };
 use crate::outcore::OocError;
@@ -53,7 +53,7 @@ impl Position {
     fn axis(self, w: &Wire) -> [u8; GATHER_LEN] {
         let mut value = [0; GATHER_LEN];
         if self.in_axis {
-            encode_gathered(&decode_axis_light(&w[GATHERED_AT..]), &mut value);
+            encode_gathered(&decode_light32(&w[GATHERED_AT..]), &mut value);
         }
         value
     }
@@ -208,7 +208,7 @@ impl Solver<'_> {
                     if at == GATHERED_AT {
                         // The axis in progress: its light in f64, as the band rounded it, which
                         // the axis light record holds exactly.
-                        encode_axis_light(&decode_gathered(v), &mut w[at..]);
+                        encode_light32(&decode_gathered(v), &mut w[at..]);
                     } else {
                         w[at..at + GATHER_LEN].copy_from_slice(v)
                     }
