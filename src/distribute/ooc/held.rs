@@ -172,8 +172,11 @@ pub struct HeldRun {
 
 /// Sets of files a rank's held records may lie in before they are copied into one again (also
 /// when the sets hold more than twice the records in use, so that the disk holds at most about
-/// twice the rank's share).
-pub const MOST_SETS: usize = 4;
+/// twice the rank's share). At 4 sets, the copies were two thirds of what the steps inside an
+/// axis read and wrote: the Cornell box at resolution 64, 589 directions, one iteration on 2
+/// ranks moved 45 MB a rank that way, and 15 MB at 16 sets (a rank's largest reads fell from
+/// 1.35 to 1.17 times one process's share), in the same time (`docs/cluster.md`).
+pub const MOST_SETS: usize = 16;
 
 impl Held {
     /// The records of one set of four files, in their order.
