@@ -185,17 +185,14 @@ pub fn decode_gathered(bytes: &[u8]) -> Gathered {
     [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
 }
 
-/// Writes a light record in f32 (an axis light record, or the direct light): `h` rounded to
-/// f32, exactly where `h` came from such a record.
+/// Writes a light record in f32 (an axis light record, or the direct light), laid out as a
+/// radiosity record: `h` rounded to f32, exactly where `h` came from such a record.
 pub fn encode_light32(h: &Gathered, out: &mut [u8]) {
-    for (k, v) in h.iter().flatten().enumerate() {
-        out[4 * k..4 * k + 4].copy_from_slice(&(*v as f32).to_le_bytes());
-    }
+    encode_radiosity(&h.map(|side| side.map(|v| v as f32)), out);
 }
 
 pub fn decode_light32(bytes: &[u8]) -> Gathered {
-    let f = |k: usize| f32::from_le_bytes(word(bytes, k)) as f64;
-    [[f(0), f(1), f(2)], [f(3), f(4), f(5)]]
+    decode_radiosity(bytes).map(|side| side.map(f64::from))
 }
 
 /// Bytes moved through work files, for the report.
