@@ -891,6 +891,23 @@ impl AxisSpans {
 }
 
 /// Copies the `LEN`-byte records of a work file into a checkpoint being written.
+/// Writes the f32 light records of `path` to `w` as f64 records, the checkpoint's layout of
+/// light (exactly the same values).
+fn copy_light_as_f64(
+    path: &Path,
+    plan: &MemoryPlan,
+    w: &mut dyn std::io::Write,
+) -> std::io::Result<()> {
+    let mut reader =
+        SeqReader::<LIGHT32_LEN>::open(path, plan.io_bytes).map_err(std::io::Error::other)?;
+    let mut wide = [0u8; GATHER_LEN];
+    while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
+        encode_gathered(&decode_light32(&record), &mut wide);
+        w.write_all(&wide)?;
+    }
+    Ok(())
+}
+
 fn copy_records<const LEN: usize>(
     path: &Path,
     plan: &MemoryPlan,
@@ -947,7 +964,7 @@ fn save_between_axes(
     state.within = Some(done);
     saver.save(state, plan.io_bytes, |w| {
         copy_radiosity(older, work, plan, w)?;
-        copy_records::<GATHER_LEN>(&work.canonical_gathered, plan, w)
+        copy_light_as_f64(&work.canonical_gathered, plan, w)
     })
 }
 
@@ -973,7 +990,7 @@ fn save_in_axis(
     saver.save(state, plan.io_bytes, |w| {
         copy_radiosity(older, work, plan, w)?;
         if summed {
-            copy_records::<GATHER_LEN>(&work.canonical_gathered, plan, w)?;
+            copy_light_as_f64(&work.canonical_gathered, plan, w)?;
         } else {
             let zeros = vec![0u8; plan.io_bytes.max(GATHER_LEN) / GATHER_LEN * GATHER_LEN];
             let mut left = work.count * GATHER_LEN as u64;
@@ -1106,7 +1123,15 @@ fn restore(
             None => Ok(()),
         },
         |piece| match sums.as_mut() {
-            Some(s) => s.write(piece),
+            // f64 in the checkpoint, f32 in the sum file, which held these values.
+            Some(s) => {
+                let mut record = [0u8; LIGHT32_LEN];
+                for value in piece.chunks_exact(GATHER_LEN) {
+                    encode_light32(&decode_gathered(value), &mut record);
+                    s.write(&record)?;
+                }
+                Ok(())
+            }
             None => Ok(()),
         },
         |piece| {
@@ -1257,22 +1282,22 @@ fn fold_gathered(
     // With the chunk's values, what a permutation chunk may hold (`CHUNK_BYTES_PER_SURFEL`).
     let mut bytes = Vec::new();
     while let Some((start, values)) = canonical.next_chunk()? {
-        bytes.resize(values.len() * GATHER_LEN, 0);
+        bytes.resize(values.len() * LIGHT32_LEN, 0);
         if !first {
-            sum_file.read_at(start * GATHER_LEN as u64, &mut bytes, io)?;
+            sum_file.read_at(start * LIGHT32_LEN as u64, &mut bytes, io)?;
         }
-        for (h, slot) in values.iter().zip(bytes.chunks_exact_mut(GATHER_LEN)) {
+        for (h, slot) in values.iter().zip(bytes.chunks_exact_mut(LIGHT32_LEN)) {
             let mut total = *h;
             if !first {
-                let before = decode_gathered(slot);
+                let before = decode_light32(slot);
                 for (t, b) in total.iter_mut().flatten().zip(before.iter().flatten()) {
                     // This axis's light plus the earlier axes' sum: a fixed order.
                     *t += *b;
                 }
             }
-            encode_gathered(&total, slot);
+            encode_light32(&total, slot);
         }
-        sum_file.write_at(start * GATHER_LEN as u64, &bytes, io)?;
+        sum_file.write_at(start * LIGHT32_LEN as u64, &bytes, io)?;
     }
     canonical.finish(io);
     Ok(())
@@ -1326,7 +1351,7 @@ fn update(
     let mut stream = source.stream(plan.io_bytes as u64)?;
     let area_unit = info.grid.voxel_size * info.grid.voxel_size;
     let mut result = Update::default();
-    let mut h_bytes = vec![0u8; chunk as usize * GATHER_LEN];
+    let mut h_bytes = vec![0u8; chunk as usize * LIGHT32_LEN];
     let mut bytes = vec![0u8; chunk as usize * RADIOSITY_LEN];
     // The replaced radiosity of a chunk, when it is kept.
     let mut old = Vec::with_capacity(if kept.is_some() { bytes.len() } else { 0 });
@@ -1341,9 +1366,9 @@ fn update(
     let mut start = 0u64;
     while start < n {
         let len = chunk.min(n - start);
-        let h_slots = &mut h_bytes[..len as usize * GATHER_LEN];
+        let h_slots = &mut h_bytes[..len as usize * LIGHT32_LEN];
         if gathered {
-            canonical_gathered.read_at(start * GATHER_LEN as u64, h_slots, io)?;
+            canonical_gathered.read_at(start * LIGHT32_LEN as u64, h_slots, io)?;
         } else {
             h_slots.fill(0);
         }
@@ -1369,7 +1394,7 @@ fn update(
         let mut older_slots = older_slots.chunks_exact(RADIOSITY_LEN);
         for (slot, h_slot) in prev
             .chunks_exact_mut(RADIOSITY_LEN)
-            .zip(h_slots.chunks_exact(GATHER_LEN))
+            .zip(h_slots.chunks_exact(LIGHT32_LEN))
         {
             let before_last = older_slots.next().map(decode_radiosity);
             let s = stream.next().ok_or_else(|| OocError::BadData {
@@ -1385,7 +1410,7 @@ fn update(
             result.emitting += crate::solve::direct::emits(&emission) as u64;
             let d = d_slots.next().map(decode_light32);
             let sides = s.material.map(|m| &info.materials[m as usize]);
-            let (h, norm) = (decode_gathered(h_slot), cosine_sum[s.normal_id as usize]);
+            let (h, norm) = (decode_light32(h_slot), cosine_sum[s.normal_id as usize]);
             let scales = match &mut pass {
                 UpdatePass::Update(scales) => *scales,
                 UpdatePass::Closure(sums) => {

@@ -11,8 +11,8 @@
 
 use super::budget::MemoryPlan;
 use super::files::{
-    encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, GATHER_LEN,
-    LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
+    encode_static, IoCounters, RecordFile, SeqReader, SeqWriter, StaticRecord, LIGHT32_LEN,
+    RADIOSITY_LEN, STATIC_LEN,
 };
 use super::framed::{FrameSizer, FramedWriter};
 use super::scatter::Scatter;
@@ -296,7 +296,7 @@ pub fn build(
         RecordFile::create(path)?.set_len(count * LIGHT32_LEN as u64)?;
     }
     let canonical_gathered = dir.path().join("gathered-canonical.bin");
-    RecordFile::create(&canonical_gathered)?.set_len(count * GATHER_LEN as u64)?;
+    RecordFile::create(&canonical_gathered)?.set_len(count * LIGHT32_LEN as u64)?;
     Ok(WorkSet {
         dir,
         copies,
@@ -332,7 +332,7 @@ fn check_voxel(
 /// `check_disk` counts them so only where the files would not fit otherwise.
 pub const DISK_BYTES_PER_SURFEL: u64 = 3 * (STATIC_LEN as u64 + 8)
     + 2 * RADIOSITY_LEN as u64
-    + GATHER_LEN as u64
+    + LIGHT32_LEN as u64
     + LIGHT32_LEN as u64
     + (8 + LIGHT32_LEN as u64);
 

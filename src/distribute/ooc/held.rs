@@ -10,19 +10,20 @@
 //! another:
 //!
 //! ```text
-//! wire record (256 bytes)
+//! wire record (232 bytes)
 //!   0 static       72 bytes   outcore::files layout (voxel, ..., canonical id at 68)
 //!  72 carried      24 bytes   f32 x 6, what the lines carry: B, or B - E with the direct pass
 //!  96 gathered     24 bytes   f32 x 6, this axis's directions so far (an axis light record,
 //!                             summed in f32 as `outcore::files` says)
-//! 120 earlier      48 bytes   f64 x 6, the earlier axes of this iteration
-//! 168 normal id    u32
-//! 172 area         f32
-//! 176 materials    u32 x 2    front, back
-//! 184 radiosity    24 bytes   f32 x 6, B
-//! 208 direct       24 bytes   f32 x 6, the direct light H_dense / S_dense (0 without the pass),
+//! 120 earlier      24 bytes   f32 x 6, the earlier axes of this iteration (rounded at each
+//!                             fold, as the one-process solver's canonical sum)
+//! 144 normal id    u32
+//! 148 area         f32
+//! 152 materials    u32 x 2    front, back
+//! 160 radiosity    24 bytes   f32 x 6, B
+//! 184 direct       24 bytes   f32 x 6, the direct light H_dense / S_dense (0 without the pass),
 //!                             as the one-process out-of-core pass writes it
-//! 232 older        24 bytes   f32 x 6, the radiosity the last update replaced (the tail
+//! 208 older        24 bytes   f32 x 6, the radiosity the last update replaced (the tail
 //!                             extrapolation's, and the Chebyshev semi-iteration's `B_{k-1}`)
 //! ```
 //!
@@ -31,8 +32,7 @@
 //! and the answer stays that solver's bit for bit.
 
 use crate::outcore::files::{
-    IoCounters, RecordFile, SeqReader, SeqWriter, GATHER_LEN, LIGHT32_LEN, RADIOSITY_LEN,
-    STATIC_LEN,
+    IoCounters, RecordFile, SeqReader, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use crate::outcore::OocError;
 use std::cmp::Reverse;
@@ -41,7 +41,7 @@ use std::path::{Path, PathBuf};
 
 /// Bytes of the fourth file's record: earlier axes' light, the update's scene data, `B`, the
 /// direct light and the radiosity the last update replaced.
-pub const REST_LEN: usize = GATHER_LEN + 16 + RADIOSITY_LEN + LIGHT32_LEN + RADIOSITY_LEN;
+pub const REST_LEN: usize = LIGHT32_LEN + 16 + RADIOSITY_LEN + LIGHT32_LEN + RADIOSITY_LEN;
 pub const WIRE_LEN: usize = STATIC_LEN + RADIOSITY_LEN + LIGHT32_LEN + REST_LEN;
 pub type Wire = [u8; WIRE_LEN];
 
@@ -49,7 +49,7 @@ pub type Wire = [u8; WIRE_LEN];
 pub const CARRIED_AT: usize = STATIC_LEN;
 pub const GATHERED_AT: usize = CARRIED_AT + RADIOSITY_LEN;
 pub const EARLIER_AT: usize = GATHERED_AT + LIGHT32_LEN;
-pub const SCENE_AT: usize = EARLIER_AT + GATHER_LEN;
+pub const SCENE_AT: usize = EARLIER_AT + LIGHT32_LEN;
 /// The radiosity `B`.
 pub const RADIOSITY_AT: usize = SCENE_AT + 16;
 pub const DIRECT_AT: usize = RADIOSITY_AT + RADIOSITY_LEN;

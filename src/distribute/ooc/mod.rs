@@ -79,8 +79,8 @@ use crate::geometry::lines::LineFrame;
 use crate::outcore::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass, StaticFile};
 use crate::outcore::budget::MemoryPlan;
 use crate::outcore::files::{
-    decode_gathered, decode_light32, decode_radiosity, encode_gathered, encode_radiosity,
-    IoCounters, SeqReader, GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
+    decode_light32, decode_radiosity, encode_light32, encode_radiosity, IoCounters, SeqReader,
+    GATHER_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use crate::outcore::links::LinkStore;
 use crate::outcore::solver::{gathered_together, v_slope, MOST_TOGETHER};
@@ -706,11 +706,11 @@ impl Solver<'_> {
                 light.extend(
                     records
                         .iter()
-                        .flat_map(|w| decode_gathered(&w[EARLIER_AT..]).into_iter().flatten()),
+                        .flat_map(|w| decode_light32(&w[EARLIER_AT..]).into_iter().flatten()),
                 );
                 self.peers.sum_in_place(&mut light);
                 for (w, h) in records.iter_mut().zip(light.chunks_exact(6)) {
-                    encode_gathered(
+                    encode_light32(
                         &[[h[0], h[1], h[2]], [h[3], h[4], h[5]]],
                         &mut w[EARLIER_AT..],
                     );
@@ -722,7 +722,7 @@ impl Solver<'_> {
                 // The update of every loop (`solve::update`), term by term.
                 let sides = material.map(|m| &info.materials[m as usize]);
                 let (h, norm) = (
-                    decode_gathered(&w[EARLIER_AT..]),
+                    decode_light32(&w[EARLIER_AT..]),
                     cosine_sum[normal_id as usize],
                 );
                 let direct = self.direct().then(|| decode_light32(&w[held::DIRECT_AT..]));
@@ -790,7 +790,7 @@ impl Solver<'_> {
             }
             let (normal_id, area, material) = held::scene_data(&w);
             let (h, norm) = (
-                decode_gathered(&w[EARLIER_AT..]),
+                decode_light32(&w[EARLIER_AT..]),
                 cosine_sum[normal_id as usize],
             );
             if self.group_index != 0 {
@@ -1308,12 +1308,12 @@ fn cut_at(runs: &mut [usize], starts: &[bool]) {
 fn fold_axis(w: &mut Wire, first: bool) {
     let mut sum = decode_light32(&w[GATHERED_AT..]);
     if !first {
-        let before = decode_gathered(&w[EARLIER_AT..]);
+        let before = decode_light32(&w[EARLIER_AT..]);
         for (t, b) in sum.iter_mut().flatten().zip(before.iter().flatten()) {
             *t += *b;
         }
     }
-    encode_gathered(&sum, &mut w[EARLIER_AT..]);
+    encode_light32(&sum, &mut w[EARLIER_AT..]);
 }
 
 /// Cuts columns into `ranks` contiguous ranges of about equal `load`: `ranks + 1` bounds, rank
@@ -1353,7 +1353,6 @@ fn imbalance_of(load: &[f64], cuts: &[u64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::outcore::files::encode_light32;
     use held::WIRE_LEN;
 
     #[test]
@@ -1429,11 +1428,11 @@ mod tests {
         let mut w = [0u8; WIRE_LEN];
         encode_light32(&[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], &mut w[GATHERED_AT..]);
         fold_axis(&mut w, true);
-        assert_eq!(decode_gathered(&w[EARLIER_AT..])[1], [4.0, 5.0, 6.0]);
+        assert_eq!(decode_light32(&w[EARLIER_AT..])[1], [4.0, 5.0, 6.0]);
         encode_light32(&[[0.5; 3], [0.25; 3]], &mut w[GATHERED_AT..]);
         fold_axis(&mut w, false);
         assert_eq!(
-            decode_gathered(&w[EARLIER_AT..]),
+            decode_light32(&w[EARLIER_AT..]),
             [[1.5, 2.5, 3.5], [4.25, 5.25, 6.25]]
         );
     }

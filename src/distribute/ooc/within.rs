@@ -37,7 +37,8 @@ struct Position {
 }
 
 impl Position {
-    /// The canonical sum of the light of the axes done (zeros before the first).
+    /// The canonical sum of the light of the axes done (zeros before the first), in f64 as a
+    /// checkpoint holds it.
     fn sum(self, w: &Wire) -> [u8; GATHER_LEN] {
         let mut record = *w;
         if self.pending {
@@ -45,22 +46,25 @@ impl Position {
         } else if !self.earlier_any {
             return [0; GATHER_LEN];
         }
-        slot(&record, EARLIER_AT)
+        wide(&record, EARLIER_AT)
     }
 
     /// The light of the axis in progress (zeros between two axes), in f64 as a checkpoint
     /// holds it (the axis light record's f32 values, exactly).
     fn axis(self, w: &Wire) -> [u8; GATHER_LEN] {
-        let mut value = [0; GATHER_LEN];
         if self.in_axis {
-            encode_gathered(&decode_light32(&w[GATHERED_AT..]), &mut value);
+            wide(w, GATHERED_AT)
+        } else {
+            [0; GATHER_LEN]
         }
-        value
     }
 }
 
-fn slot(w: &Wire, at: usize) -> [u8; GATHER_LEN] {
-    w[at..at + GATHER_LEN].try_into().expect("a light slot")
+/// The f32 light slot at `at` as an f64 record (the same values).
+fn wide(w: &Wire, at: usize) -> [u8; GATHER_LEN] {
+    let mut value = [0; GATHER_LEN];
+    encode_gathered(&decode_light32(&w[at..]), &mut value);
+    value
 }
 
 /// Whether a group that has done the first `done` steps of `walk` has finished an axis.
@@ -205,13 +209,9 @@ impl Solver<'_> {
             *generation += 1;
             held =
                 self.place_slice::<GATHER_LEN>(held, &mine, *generation, router, io, |w, v| {
-                    if at == GATHERED_AT {
-                        // The axis in progress: its light in f64, as the band rounded it, which
-                        // the axis light record holds exactly.
-                        encode_light32(&decode_gathered(v), &mut w[at..]);
-                    } else {
-                        w[at..at + GATHER_LEN].copy_from_slice(v)
-                    }
+                    // In f64 in the checkpoint, as f32 sums made them: the slot holds them
+                    // exactly.
+                    encode_light32(&decode_gathered(v), &mut w[at..]);
                 })?;
         }
         Ok(held)
