@@ -22,9 +22,11 @@
 //!                          inside a closed solid (PropSurfel::inside_back)
 //!  68 id       u32         index of the surfel in the canonical (shard set) order
 //! radiosity (24 bytes): f32 x 6, side-major (front RGB, back RGB)
-//! gathered light (48 bytes): f64 x 6, side-major: the canonical sum of an iteration's axes
+//! gathered light (48 bytes): f64 x 6, side-major: light as a checkpoint holds it (the work
+//!                          files' f32 light is written there as f64 and read back exactly)
 //! light in f32 (24 bytes): f32 x 6, side-major: the light of a main axis's directions so far
-//!                          (an axis light record), and the direct light, rounded once
+//!                          (an axis light record), the canonical sum of an iteration's axes
+//!                          (rounded at each fold) and the direct light (rounded once)
 //! ```
 //!
 //! **The axis light in f32.** A band sums the light of its axis's directions in f32, each
@@ -35,7 +37,8 @@
 //! passes begin and end: the one-process solver and the data mode cut them differently and
 //! still agree to the bit. Over an axis's directions (a few hundred at most) the sum stays
 //! within about `links * 2^-24` of the f64 sum, relatively; the in-memory solver keeps f64
-//! throughout, and the sum of the axes (the canonical sum) is f64 here too.
+//! throughout. The canonical sum adds the axes in one order in every out-of-core path
+//! (`solver::fold_gathered`, `distribute::ooc::fold_axis`), rounded to f32 at each fold.
 
 use super::OocError;
 use crate::solve::propagate::PropSurfel;

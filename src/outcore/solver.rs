@@ -890,7 +890,6 @@ impl AxisSpans {
     }
 }
 
-/// Copies the `LEN`-byte records of a work file into a checkpoint being written.
 /// Writes the f32 light records of `path` to `w` as f64 records, the checkpoint's layout of
 /// light (exactly the same values).
 fn copy_light_as_f64(
@@ -908,6 +907,7 @@ fn copy_light_as_f64(
     Ok(())
 }
 
+/// Copies the `LEN`-byte records of a work file into a checkpoint being written.
 fn copy_records<const LEN: usize>(
     path: &Path,
     plan: &MemoryPlan,
