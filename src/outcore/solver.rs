@@ -28,11 +28,12 @@
 //! (`Saver::within`) a checkpoint can be written between any two passes, when one is due
 //! or on a stop signal ([`Position`]: the axes folded and the directions done of the next).
 //! Between two main axes it adds the canonical sum of the light gathered by the axes done (the
-//! same bytes the sum file holds). Inside an axis it also holds that axis's light so far,
+//! sum file's f32 values, written as f64). Inside an axis it also holds that axis's light so far,
 //! brought to canonical order into an array of its own (`State::axis_in_progress`): folded into
 //! the sum early, it would be added in another order than the uninterrupted run adds it. A
 //! resume puts the sum back, scatters the axis's light back into its copy's order and goes on
-//! with the next direction, adding to it; f64 values kept exactly give the same bits.
+//! with the next direction, adding to it; the f32 values, kept exactly through the checkpoint's
+//! f64, give the same bits.
 //!
 //! That light is whole on disk between any two passes because the two shared gathered files
 //! are used in turn (`WorkSet::gathered`): a pass reads the light of the directions before it
@@ -684,7 +685,7 @@ impl Sweep for OutOfCore<'_> {
         // Between passes only the file that holds the light is kept at its length: the other
         // is emptied after the pass that read it, and given its length back here, before the
         // pass that writes it. So a checkpoint or a fold between passes, whose buckets take
-        // about as much again, does not find both on the disk (48 bytes a surfel).
+        // about as much again, does not find both on the disk (24 bytes a surfel).
         resize_gathered(&self.work.gathered[write], self.work.count)?;
         let pass = DirectionPass {
             copy,
