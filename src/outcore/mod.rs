@@ -7,7 +7,8 @@
 //! `geometry::lines`). Every direction whose main axis is `m` has all its lines running through
 //! the layers of `x_m` in increasing order, one voxel per layer, so reading copy `m` layer by
 //! layer lists every line's surfels in order along the line. A copy's static records are kept in
-//! compressed frames ([`framed`]): alike neighbours make them about five times smaller.
+//! compressed frames ([`framed`]): alike neighbours make them about ten times smaller; its
+//! canonical ids and the canonical surfels' places in it likewise ([`packed_index`]).
 //!
 //! **A direction** ([`band`]) is solved band by band: a band is a range of line columns
 //! `j0 <= j < j1` (all `i`), cut so that its surfels fit the budget. In layer `x_m = z`, the
@@ -47,6 +48,7 @@ pub mod direct;
 pub mod files;
 pub mod framed;
 pub mod links;
+pub mod packed_index;
 pub mod scatter;
 pub mod solver;
 pub mod source;

@@ -51,6 +51,7 @@ use super::files::{
 };
 use super::framed::{FrameBuffers, FramedStatics};
 use super::links::LinkStore;
+use super::packed_index::IndexReader;
 use super::scatter::{ChunkReader, Scatter};
 use super::source::SurfelSource;
 use super::workset::{self, AxisCopy, WorkSet};
@@ -1099,7 +1100,7 @@ fn restore(
             let buffer = plan.bucket_buffer(n.div_ceil(chunk));
             let scatter =
                 Scatter::<LIGHT32_LEN>::new(work.dir.path(), "checkpoint-axis", n, chunk, buffer)?;
-            let positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
+            let positions = IndexReader::open(&copy.positions, plan.io_bytes)?;
             Some((scatter, positions))
         }
     };
@@ -1143,7 +1144,7 @@ fn restore(
             // light record holds it exactly.
             let mut record = [0u8; LIGHT32_LEN];
             for value in piece.chunks_exact(GATHER_LEN) {
-                let p = u32::from_le_bytes(positions.expect_record()?) as u64;
+                let p = positions.expect_value()? as u64;
                 encode_light32(&decode_gathered(value), &mut record);
                 scatter.push(p, &record)?;
             }
@@ -1233,13 +1234,14 @@ impl Canonical {
         let chunk = plan.chunk_surfels.min(n).max(1);
         let buffer = plan.bucket_buffer(n.div_ceil(chunk));
         let mut scatter = Scatter::<LIGHT32_LEN>::new(work.dir.path(), name, n, chunk, buffer)?;
-        let mut ids = SeqReader::<4>::open(&copy.ids, plan.io_bytes)?;
+        let mut ids = IndexReader::open(&copy.ids, plan.io_bytes)?;
         let mut values = SeqReader::<LIGHT32_LEN>::open(gathered, plan.io_bytes)?;
-        while let Some(id) = ids.next_record()? {
+        while let Some(id) = ids.next_value()? {
             let value = values.expect_record()?;
-            scatter.push(u32::from_le_bytes(id) as u64, &value)?;
+            scatter.push(id as u64, &value)?;
         }
-        io.read += n * (4 + LIGHT32_LEN as u64);
+        ids.count_into(io);
+        io.read += n * LIGHT32_LEN as u64;
         Ok(Canonical {
             chunks: scatter.into_chunks()?,
             values: Vec::new(),
@@ -1609,12 +1611,13 @@ fn send_to_copy(
         chunk,
         buffer,
     )?;
-    let mut positions = SeqReader::<4>::open(&copy.positions, plan.io_bytes)?;
+    let mut positions = IndexReader::open(&copy.positions, plan.io_bytes)?;
     let mut radiosity = SeqReader::<RADIOSITY_LEN>::open(from, plan.io_bytes)?;
-    while let Some(p) = positions.next_record()? {
-        scatter.push(u32::from_le_bytes(p) as u64, &radiosity.expect_record()?)?;
+    while let Some(p) = positions.next_value()? {
+        scatter.push(p as u64, &radiosity.expect_record()?)?;
     }
-    io.read += n * (4 + RADIOSITY_LEN as u64);
+    positions.count_into(io);
+    io.read += n * RADIOSITY_LEN as u64;
     let mut reader = scatter.into_chunks()?;
     let mut out = SeqWriter::create(&copy.radiosity, plan.io_bytes)?;
     let mut values: Vec<[u8; RADIOSITY_LEN]> = vec![[0u8; RADIOSITY_LEN]; chunk as usize];

@@ -15,6 +15,7 @@ use super::files::{
     RADIOSITY_LEN, STATIC_LEN,
 };
 use super::framed::{FrameSizer, FramedWriter};
+use super::packed_index::IndexWriter;
 use super::scatter::Scatter;
 use super::source::{SurfelSource, VoxelGroups};
 use super::OocError;
@@ -240,7 +241,7 @@ pub fn build(
         }
         // Sort each bucket, append it to the copy, and note where each surfel went.
         let mut statics = FramedWriter::create(&copy.statics, &copy.statics_index, plan.io_bytes)?;
-        let mut ids = SeqWriter::create(&copy.ids, plan.io_bytes)?;
+        let mut ids = IndexWriter::create(&copy.ids, plan.io_bytes)?;
         let chunks = count.div_ceil(plan.chunk_surfels.max(1));
         let mut positions = Scatter::<4>::new(
             dir.path(),
@@ -265,7 +266,7 @@ pub fn build(
             entries.sort_unstable_by_key(|e| (e.0, e.1));
             for (_, id, bytes) in &entries {
                 statics.write(bytes)?;
-                ids.write(&id.to_le_bytes())?;
+                ids.push(*id)?;
                 positions.push(*id as u64, &(position as u32).to_le_bytes())?;
                 position += 1;
             }
@@ -274,15 +275,15 @@ pub fn build(
         drop(entries);
         io.written += statics.finish()? + ids.finish()?;
         let mut chunks = positions.into_chunks()?;
-        let mut out = SeqWriter::create(&copy.positions, plan.io_bytes)?;
+        let mut out = IndexWriter::create(&copy.positions, plan.io_bytes)?;
         let mut chunk = Vec::new();
         while let Some((_, len)) = {
             chunk.clear();
             chunk.resize(plan.chunk_surfels.min(count) as usize, 0u32);
             chunks.next_chunk(|at, value| chunk[at] = u32::from_le_bytes(*value))?
         } {
-            for p in &chunk[..len as usize] {
-                out.write(&p.to_le_bytes())?;
+            for &p in &chunk[..len as usize] {
+                out.push(p)?;
             }
         }
         io.written += out.finish()? + chunks.written;
