@@ -502,6 +502,10 @@ fn run(cli: Cli) -> Result<(), AppError> {
                     "--checkpoint-every {seconds}: must be a number of seconds, 0 or more"
                 ))
             })?;
+            if memory.is_some() || scene.is_dir() {
+                // Before any thread starts (see the function).
+                voxrad::outcore::solver::one_malloc_arena();
+            }
             // From here SIGTERM and SIGINT stop the solve at the next direction, with a
             // checkpoint, instead of killing the process.
             if let Err(e) = voxrad::interrupt::install() {

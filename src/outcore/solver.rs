@@ -291,7 +291,13 @@ pub(crate) fn v_slope(vector: [i64; 3]) -> (i64, i64) {
 /// creating it fails, and glibc retries (an `mmap` that fails) on many later allocations. Under
 /// a 48 MiB limit that made a solve ten times slower, mostly in the kernel. The solver's hot
 /// loops do not allocate, so one arena costs nothing measurable.
-pub(crate) fn one_malloc_arena() {
+///
+/// glibc fixes the arena limit when a second thread first allocates, so this must come before
+/// any thread is started: `voxrad solve` calls it first thing for a solve out of core, and the
+/// solvers again (for library callers). Called only after the signal watchdog had started,
+/// it did not take on one build (the building of `tests/memory_limit.rs` under a 32 MiB limit
+/// spent 330 s instead of 12 in its set-up, in failed `mmap`s of new arenas).
+pub fn one_malloc_arena() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: `mallopt` only changes allocator settings; M_ARENA_MAX takes any positive count.
     unsafe {
