@@ -160,10 +160,14 @@ impl IndexReader {
     /// Decodes the next frame; `false` at the end of the file.
     fn next_frame(&mut self) -> Result<bool, OocError> {
         let mut header = [0u8; 8];
-        match self.input.read(&mut header[..1]) {
-            Ok(0) => return Ok(false),
-            Ok(_) => {}
-            Err(e) => return Err(OocError::io(&self.path, "read", e)),
+        // The file's end is where a frame would begin; a signal may interrupt the read.
+        loop {
+            match self.input.read(&mut header[..1]) {
+                Ok(0) => return Ok(false),
+                Ok(_) => break,
+                Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(OocError::io(&self.path, "read", e)),
+            }
         }
         let fail = |e| OocError::io(&self.path, "read", e);
         self.input.read_exact(&mut header[1..]).map_err(fail)?;
