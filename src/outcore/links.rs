@@ -6,20 +6,29 @@
 //! same order in every iteration (they are cut from the copy's row histogram and the budget,
 //! neither of which changes), so a band's links are numbered by place in its band, written down
 //! one band after the other by the direction's first pass and read back in that order, a
-//! sequential stream, by the later ones. Each band's links are preceded by its surfel count and
-//! byte length, checked when read back.
+//! sequential stream, by the later ones.
 //!
-//! The files take disk, not memory: at most an allowance (`--links-disk`; by default half of
-//! what is free once the work files are made). The directions are recorded in walk order while
-//! the allowance lasts; a direction that does not fit, or whose file could not be written (a full
-//! disk), is searched again in every iteration, as before. Directions gathered in one pass
-//! (`DirectionPass::run_together`) record side by side, each within an equal share of what is
-//! left of the allowance. A band holds its links in memory while it is gathered (counted in
-//! `budget::BAND_BYTES_PER_SURFEL`).
+//! ```text
+//! band after band:
+//!   surfels  u64 LE   the band's surfels, checked when read back
+//!   head     u64 LE   bytes of the links' head, then the head (DirectionLinks::encode_head:
+//!                     counts, factors, piece bounds)
+//!   blocks            the links, PLANE_BLOCK_LINKS at a time (the last block may hold fewer),
+//!                     each block's byte planes (DirectionLinks::encode_block) as
+//!                     u32 LE bytes of an LZ4 block, then the block
+//! ```
+//!
+//! **Compressed.** The links are most of what the iterations after the first read, and most of
+//! the disk a large solve takes: 8 bytes a link as words. As byte planes of differences and
+//! compressed with LZ4 (liblz4, as the static records' frames, `super::framed`), they take
+//! about 2.5 bytes a link (`docs/out-of-core.md`), so that about three times as many directions
+//! fit the disk allowance, and a replay reads less than a third of the bytes. A band is
+//! written and read a block at a time, so that what a reader holds beside the band's links is
+//! one block's planes, whatever the band.
 
 use super::files::IoCounters;
 use super::OocError;
-use crate::solve::links::DirectionLinks;
+use crate::solve::links::{DirectionLinks, PLANE_BLOCK_LINKS};
 use crate::solve::stats::LinkStats;
 use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Write};
@@ -42,7 +51,10 @@ pub enum BandLinks<'a> {
 /// replayed together, so that their memory is one band's links whatever their number.
 #[derive(Default)]
 pub struct LinkScratch {
+    /// A band's head, then each block of its links as read, compressed.
     buffer: Vec<u8>,
+    /// A block decompressed: its byte planes.
+    raw: Vec<u8>,
     links: DirectionLinks,
 }
 
@@ -55,6 +67,7 @@ pub struct Recording {
     allowance: u64,
     /// Given up: over the allowance, or a write failed (the direction is searched again).
     abandoned: bool,
+    /// A band's links compressed, with their head.
     buffer: Vec<u8>,
 }
 
@@ -72,9 +85,20 @@ impl Recording {
         self.buffer.clear();
         self.buffer
             .extend_from_slice(&(surfels as u64).to_le_bytes());
-        self.buffer
-            .extend_from_slice(&(links.encoded_len() as u64).to_le_bytes());
-        links.encode(&mut self.buffer);
+        let head_at = self.buffer.len();
+        self.buffer.extend_from_slice(&[0; 8]);
+        links.encode_head(&mut self.buffer);
+        let head = (self.buffer.len() - head_at - 8) as u64;
+        self.buffer[head_at..head_at + 8].copy_from_slice(&head.to_le_bytes());
+        // One block's planes at a time (directions recorded together each hold a recording:
+        // this room is not kept between bands).
+        let mut planes = Vec::new();
+        for block in 0..links.blocks() {
+            planes.clear();
+            links.encode_block(block, &mut planes);
+            compress_block(&planes, &mut self.buffer)
+                .map_err(|e| OocError::io(&self.path, "compress", e))?;
+        }
         if self.written + self.buffer.len() as u64 > self.allowance {
             self.abandoned = true;
             return Ok(());
@@ -98,6 +122,18 @@ impl Recording {
     }
 }
 
+/// Appends `raw` (a block's byte planes) to `out` compressed: the bytes of its LZ4 block
+/// (`u32` LE) and the block.
+fn compress_block(raw: &[u8], out: &mut Vec<u8>) -> std::io::Result<()> {
+    let bound = lz4::block::compress_bound(raw.len())?;
+    let at = out.len();
+    out.resize(at + 4 + bound, 0);
+    let packed = lz4::block::compress_to_buffer(raw, None, false, &mut out[at + 4..])?;
+    out[at..at + 4].copy_from_slice(&(packed as u32).to_le_bytes());
+    out.truncate(at + 4 + packed);
+    Ok(())
+}
+
 /// A direction's links being read back.
 pub struct Replaying {
     path: PathBuf,
@@ -112,13 +148,13 @@ impl Replaying {
         scratch: &'s mut LinkScratch,
         io: &mut IoCounters,
     ) -> Result<&'s DirectionLinks, OocError> {
-        let LinkScratch { buffer, links } = scratch;
+        let LinkScratch { buffer, raw, links } = scratch;
         let mut head = [0u8; 16];
         self.input
             .read_exact(&mut head)
             .map_err(|e| OocError::io(&self.path, "read", e))?;
         let word = |k: usize| u64::from_le_bytes(head[8 * k..8 * k + 8].try_into().expect("8"));
-        let (count, len) = (word(0), word(1));
+        let (count, head_len) = (word(0), word(1));
         // A work file of this solve that does not read back as written: not the user's input
         // (exit status 1, as any other failed read of a work file).
         let bad = |what: String| {
@@ -128,20 +164,44 @@ impl Replaying {
                 std::io::Error::new(std::io::ErrorKind::InvalidData, what),
             )
         };
-        if count != surfels as u64 || len > 1 << 40 {
+        if count != surfels as u64 || head_len > 1 << 32 {
             return Err(bad(format!(
                 "a band of the links file holds {count} surfels where the solve has {surfels}: \
                  the work files changed under the solve"
             )));
         }
-        buffer.resize(len as usize, 0);
-        self.input
-            .read_exact(buffer)
-            .map_err(|e| OocError::io(&self.path, "read", e))?;
-        io.read += 16 + len;
+        let mut read = |bytes: &mut [u8]| {
+            self.input
+                .read_exact(bytes)
+                .map_err(|e| OocError::io(&self.path, "read", e))
+        };
+        buffer.resize(head_len as usize, 0);
+        read(buffer)?;
+        io.read += 16 + head_len;
         links
-            .decode(buffer)
+            .decode_head(buffer)
             .ok_or_else(|| bad("a band's links are damaged".to_string()))?;
+        let bound = lz4::block::compress_bound(PLANE_BLOCK_LINKS * 12).unwrap_or(0);
+        while links.links_to_come() > 0 {
+            let mut size = [0u8; 4];
+            read(&mut size)?;
+            let packed = u32::from_le_bytes(size) as usize;
+            if packed > bound {
+                return Err(bad("a band's links are damaged".to_string()));
+            }
+            buffer.resize(packed, 0);
+            read(buffer)?;
+            io.read += 4 + packed as u64;
+            raw.resize(links.next_block_len(), 0);
+            let got = lz4::block::decompress_to_buffer(buffer, Some(raw.len() as i32), raw)
+                .map_err(|_| bad("a band's links do not decompress".to_string()))?;
+            if got != raw.len() {
+                return Err(bad("a band's links are short".to_string()));
+            }
+            links
+                .decode_block(raw)
+                .ok_or_else(|| bad("a band's links are damaged".to_string()))?;
+        }
         if links.surfels_named() > surfels {
             return Err(bad(
                 "a band's links name surfels beyond the band".to_string()
@@ -363,16 +423,39 @@ pub fn allowance(dir: &Path, asked: Option<u64>, still_needed: u64, sharers: u64
 mod tests {
     use super::*;
 
+    /// Bytes a band of `links` takes in a links file: its head and its compressed blocks.
+    fn band_bytes(links: &DirectionLinks) -> u64 {
+        let mut packed = Vec::new();
+        links.encode_head(&mut packed);
+        for block in 0..links.blocks() {
+            let mut raw = Vec::new();
+            links.encode_block(block, &mut raw);
+            compress_block(&raw, &mut packed).unwrap();
+        }
+        16 + packed.len() as u64
+    }
+
+    /// The links' head and blocks as bytes, to compare two sets of links.
+    fn bytes_of(links: &DirectionLinks) -> Vec<u8> {
+        let mut bytes = Vec::new();
+        links.encode_head(&mut bytes);
+        for block in 0..links.blocks() {
+            links.encode_block(block, &mut bytes);
+        }
+        bytes
+    }
+
     #[test]
     fn a_direction_over_its_allowance_is_not_kept_and_stops_the_recording() {
         let dir = tempfile::tempdir().unwrap();
-        let mut store = LinkStore::new(dir.path(), 2, 56, 10, 4096);
+        let links = DirectionLinks::default();
+        let band = band_bytes(&links);
+        let mut store = LinkStore::new(dir.path(), 2, band + band / 2, 10, 4096);
         let mut io = IoCounters::default();
         store.begin(0).unwrap();
-        let links = DirectionLinks::default();
         match store.band_links() {
             BandLinks::Record([r]) => {
-                // 16 bytes of head and 32 of empty links: fits; a second band does not.
+                // One band fits; a second does not.
                 r.band(5, &links, &mut io).unwrap();
                 r.band(5, &links, &mut io).unwrap();
             }
@@ -419,10 +502,11 @@ mod tests {
     fn directions_recorded_together_are_kept_and_read_back_together() {
         let empty = DirectionLinks::default();
         let mut io = IoCounters::default();
-        // 48 bytes a band (see above); an allowance of 200 bytes, 100 for each of two.
+        // An allowance of five bands, two and a half for each of two directions.
+        let band = band_bytes(&empty);
         let record = |bands: &[usize], io: &mut IoCounters| {
             let dir = tempfile::tempdir().unwrap();
-            let mut store = LinkStore::new(dir.path(), 2, 200, 10, 4096);
+            let mut store = LinkStore::new(dir.path(), 2, 5 * band, 10, 4096);
             store.begin_together(&[0, 1]).unwrap();
             let BandLinks::Record(recordings) = store.band_links() else {
                 panic!("directions not kept record")
@@ -436,7 +520,7 @@ mod tests {
             store.end(true);
             (dir, store)
         };
-        // Three bands (144 bytes) would fit the allowance alone, not a share of it.
+        // Three bands would fit the allowance alone, not a share of it.
         let (_dir, store) = record(&[5, 6, 7], &mut io);
         assert!(!store.is_kept(0) && !store.is_kept(1));
         let (_dir, mut store) = record(&[5, 6], &mut io);
@@ -448,6 +532,88 @@ mod tests {
         for n in [5, 6] {
             for r in readers.iter_mut() {
                 r.band(n, scratch, &mut io).unwrap();
+            }
+        }
+    }
+
+    /// Links as a line-by-line gather writes them: each side gathers from the next surfel of
+    /// its line, lines of surfels a few strides apart, a few factors.
+    fn line_links(count: u32) -> DirectionLinks {
+        let triples: Vec<(u32, u32, u32)> = (0..count)
+            .map(|k| {
+                let (line, place) = (k / 40, k % 40);
+                let surfel = line * 3 + place * (97 + line % 3);
+                let partner = surfel + 97 + line % 3;
+                (surfel << 1 | (k & 1), partner << 1 | (!k & 1), k % 3)
+            })
+            .collect();
+        DirectionLinks::from_triples(&triples, vec![0.25, 0.5, 0.125])
+    }
+
+    #[test]
+    fn links_come_back_from_their_compressed_blocks_and_take_less_than_words() {
+        let dir = tempfile::tempdir().unwrap();
+        // Enough links for several blocks in one band.
+        let big = line_links((PLANE_BLOCK_LINKS * 2 + 1000) as u32);
+        let small = line_links(5000);
+        let surfels = [big.surfels_named(), small.surfels_named()];
+        let mut store = LinkStore::new(dir.path(), 1, 1 << 30, 10, 4096);
+        let mut io = IoCounters::default();
+        store.begin(0).unwrap();
+        if let BandLinks::Record([r]) = store.band_links() {
+            r.band(surfels[0], &big, &mut io).unwrap();
+            r.band(surfels[1], &small, &mut io).unwrap();
+        }
+        store.end(true);
+        let file = std::fs::metadata(dir.path().join("links-0.bin"))
+            .unwrap()
+            .len();
+        let words = 8 * (big.len() + small.len()) as u64;
+        assert!(file * 2 < words, "{file} bytes for {words} bytes of words");
+        assert_eq!(store.stats(&crate::comm::SingleProcess).bytes, file);
+        store.begin(0).unwrap();
+        let BandLinks::Replay([r], scratch) = store.band_links() else {
+            panic!("a kept direction replays")
+        };
+        for (links, n) in [(&big, surfels[0]), (&small, surfels[1])] {
+            let back = r.band(n, scratch, &mut io).unwrap();
+            assert!(
+                bytes_of(back) == bytes_of(links),
+                "a band's links come back the same"
+            );
+        }
+    }
+
+    #[test]
+    fn a_damaged_links_file_is_an_error_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let links = line_links(3000);
+        let n = links.surfels_named();
+        let path = dir.path().join("links-0.bin");
+        let mut store = LinkStore::new(dir.path(), 1, 1 << 30, 10, 4096);
+        let mut io = IoCounters::default();
+        store.begin(0).unwrap();
+        if let BandLinks::Record([r]) = store.band_links() {
+            r.band(n, &links, &mut io).unwrap();
+        }
+        store.end(true);
+        let good = std::fs::read(&path).unwrap();
+        // A byte of a block changed, the file cut short, a block's size too large.
+        let mut changed = good.clone();
+        changed[good.len() / 2] ^= 0x5a;
+        let mut sized = good.clone();
+        sized[16..20].copy_from_slice(&u32::MAX.to_le_bytes());
+        for bytes in [changed, good[..good.len() - 7].to_vec(), sized] {
+            std::fs::write(&path, &bytes).unwrap();
+            store.begin(0).unwrap();
+            let BandLinks::Replay([r], scratch) = store.band_links() else {
+                panic!("a kept direction replays")
+            };
+            match r.band(n, scratch, &mut io) {
+                Err(e) => assert!(e.to_string().contains("links-0.bin"), "{e}"),
+                // A changed byte may still decode to links within the band (LZ4 blocks carry
+                // no checksum, as no work file does); they are then other links, not a panic.
+                Ok(back) => assert!(back.surfels_named() <= n),
             }
         }
     }

@@ -167,6 +167,21 @@ fn renumbered(link: &Link, table: &[u32]) -> Link {
     }
 }
 
+/// Links a block of byte planes holds ([`DirectionLinks::encode_block`]; the last of a
+/// direction's may hold fewer): a reader or writer needs room for one block's planes (72 KB
+/// narrow), not a band's. Under LZ4, blocks of 8,192 links took 2.46 bytes a link, 4,096 2.60
+/// and 65,536 2.34 (the Cornell box at resolution 256, 49 directions).
+pub const PLANE_BLOCK_LINKS: usize = 1 << 13;
+
+/// Bytes of a link's factor index in [`DirectionLinks::encode_block`]'s planes.
+fn factor_index_bytes(wide: bool) -> usize {
+    if wide {
+        4
+    } else {
+        1
+    }
+}
+
 /// A link as a narrow word (its numbers fit, see [`NARROW_SIDES`] and [`NARROW_FACTORS`]).
 fn narrow(link: &Link) -> u64 {
     link.to as u64 | (link.from as u64) << 28 | (link.factor as u64) << 56
@@ -180,6 +195,8 @@ pub struct DirectionLinks {
     factors: Vec<f64>,
     /// Piece `p` is links `pieces[p]..pieces[p + 1]`.
     pieces: Vec<usize>,
+    /// Links a head read back announced ([`Self::decode_head`]): its blocks add them.
+    expected_links: usize,
 }
 
 impl DirectionLinks {
@@ -200,6 +217,7 @@ impl DirectionLinks {
             packed,
             factors,
             pieces,
+            expected_links: 0,
         }
     }
 
@@ -216,6 +234,7 @@ impl DirectionLinks {
     }
 
     /// The links, in order.
+    #[cfg(test)]
     fn links(&self) -> Box<dyn Iterator<Item = Link> + '_> {
         match &self.packed {
             Packed::Narrow(v) => Box::new(v.iter().map(|&w| unpack(w))),
@@ -253,7 +272,7 @@ impl DirectionLinks {
 
     /// Links from `(to, from, factor index)` triples, in one piece (for tests elsewhere).
     #[cfg(test)]
-    pub(super) fn from_triples(links: &[(u32, u32, u32)], factors: Vec<f64>) -> Self {
+    pub(crate) fn from_triples(links: &[(u32, u32, u32)], factors: Vec<f64>) -> Self {
         let links = links
             .iter()
             .map(|&(to, from, factor)| Link { to, from, factor });
@@ -296,11 +315,11 @@ impl DirectionLinks {
         });
     }
 
-    /// Appends the links to `out` as bytes (little-endian counts and whether they are wide,
-    /// then the factors, the piece bounds and the links as held), for a file that
-    /// [`Self::decode`] reads back.
-    pub fn encode(&self, out: &mut Vec<u8>) {
-        out.reserve(self.encoded_len());
+    /// Appends the head of the links' bytes to `out`: little-endian counts (factors, pieces,
+    /// links) and whether they are wide, then the factors and the piece bounds. The links
+    /// follow in blocks of [`PLANE_BLOCK_LINKS`] ([`Self::encode_block`]); [`Self::decode_head`]
+    /// and [`Self::decode_block`] read them back.
+    pub fn encode_head(&self, out: &mut Vec<u8>) {
         let wide = matches!(self.packed, Packed::Wide(_));
         for count in [
             self.factors.len(),
@@ -316,42 +335,71 @@ impl DirectionLinks {
         for &bound in &self.pieces {
             out.extend_from_slice(&(bound as u64).to_le_bytes());
         }
+    }
+
+    /// Blocks of [`Self::encode_block`] the links take.
+    pub fn blocks(&self) -> usize {
+        self.packed.len().div_ceil(PLANE_BLOCK_LINKS)
+    }
+
+    /// Appends block `block` of the links (links `block * PLANE_BLOCK_LINKS` on, at most
+    /// [`PLANE_BLOCK_LINKS`] of them) to `out` as byte planes. A link is three numbers: its
+    /// receiving side less the one before it (wrapping; the block's first less 0), its sending
+    /// side less its receiving side (wrapping) and its factor's index (one byte where narrow,
+    /// four where wide). The planes are byte 0 of every link's first number, then byte 1, ...,
+    /// then the second number's, then the index's.
+    ///
+    /// Why planes of differences: a line's surfels follow one another at a few strides, and a
+    /// partner is the next surfel of its line, so the differences repeat and their high bytes
+    /// are nearly all 0 or 255. Whole words looked random to a compressor (LZ4 took 7.7 of
+    /// their 8 bytes); these planes take about 2.5 bytes a link under LZ4 (the Cornell box at
+    /// resolution 256, 49 directions), which the out-of-core links files use.
+    pub fn encode_block(&self, block: usize, out: &mut Vec<u8>) {
+        let wide = matches!(self.packed, Packed::Wide(_));
+        let first = block * PLANE_BLOCK_LINKS;
+        let n = PLANE_BLOCK_LINKS.min(self.packed.len() - first);
+        let mut numbers = [
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+            Vec::with_capacity(n),
+        ];
+        let mut before = 0u32;
+        let mut add = |l: Link| {
+            numbers[0].push(l.to.wrapping_sub(before));
+            numbers[1].push(l.from.wrapping_sub(l.to));
+            numbers[2].push(l.factor);
+            before = l.to;
+        };
         match &self.packed {
-            Packed::Narrow(v) => v
-                .iter()
-                .for_each(|w| out.extend_from_slice(&w.to_le_bytes())),
-            Packed::Wide(v) => {
-                for link in v {
-                    for word in [link.to, link.from, link.factor] {
-                        out.extend_from_slice(&word.to_le_bytes());
-                    }
-                }
+            Packed::Narrow(v) => v[first..first + n].iter().for_each(|&w| add(unpack(w))),
+            Packed::Wide(v) => v[first..first + n].iter().for_each(|&l| add(l)),
+        }
+        let widths = [4, 4, factor_index_bytes(wide)];
+        for (values, width) in numbers.iter().zip(widths) {
+            for b in 0..width {
+                out.extend(values.iter().map(|&v| (v >> (8 * b)) as u8));
             }
         }
     }
 
-    /// Bytes [`Self::encode`] appends.
-    pub fn encoded_len(&self) -> usize {
-        32 + 8 * (self.factors.len() + self.pieces.len())
-            + self.packed.len() * self.packed.link_bytes()
+    /// Bytes of block `block`'s planes ([`Self::encode_block`]) of links as held.
+    pub fn block_len(&self, block: usize) -> usize {
+        let wide = matches!(self.packed, Packed::Wide(_));
+        let n = PLANE_BLOCK_LINKS.min(self.packed.len() - block * PLANE_BLOCK_LINKS);
+        n * (8 + factor_index_bytes(wide))
     }
 
-    /// Reads back into `self` what [`Self::encode`] wrote (the arrays' memory reused); `None`
-    /// when `bytes` are not such links (a piece bound or a factor index out of range included).
-    pub fn decode(&mut self, bytes: &[u8]) -> Option<()> {
+    /// Reads back into `self` a head [`Self::encode_head`] wrote (the arrays' memory reused),
+    /// with no links yet: [`Self::decode_block`] adds them. `None` when `bytes` are not such a
+    /// head (a piece bound out of range included).
+    pub fn decode_head(&mut self, bytes: &[u8]) -> Option<()> {
         let word = |at: usize| -> Option<u64> {
             Some(u64::from_le_bytes(bytes.get(at..at + 8)?.try_into().ok()?))
         };
         let counts = [word(0)?, word(8)?, word(16)?, word(24)?].map(|c| c as usize);
         let [factors, pieces, links, wide] = counts;
-        if wide > 1 {
-            return None;
-        }
-        let link_bytes = if wide == 1 { 12 } else { 8 };
-        let expected = 8usize
-            .checked_mul(factors.checked_add(pieces)?.checked_add(4)?)?
-            .checked_add(links.checked_mul(link_bytes)?)?;
-        if bytes.len() != expected {
+        let expected = 8usize.checked_mul(factors.checked_add(pieces)?.checked_add(4)?)?;
+        if wide > 1 || bytes.len() != expected {
             return None;
         }
         let mut at = 32;
@@ -371,42 +419,102 @@ impl DirectionLinks {
         if !bounds_ok {
             return None;
         }
-        let chunks = bytes[at..].chunks_exact(link_bytes);
-        if wide == 1 {
-            let mut v = match std::mem::take(&mut self.packed) {
-                Packed::Wide(v) => v,
-                Packed::Narrow(_) => Vec::new(),
-            };
-            v.clear();
-            v.extend(chunks.map(|c| {
-                let w =
-                    |k: usize| u32::from_le_bytes(c[4 * k..4 * k + 4].try_into().expect("4 bytes"));
-                Link {
-                    to: w(0),
-                    from: w(1),
-                    factor: w(2),
-                }
-            }));
-            self.packed = Packed::Wide(v);
-        } else {
-            let mut v = match std::mem::take(&mut self.packed) {
-                Packed::Narrow(v) => v,
-                Packed::Wide(_) => Vec::new(),
-            };
-            v.clear();
-            v.extend(chunks.map(|c| u64::from_le_bytes(c.try_into().expect("8 bytes"))));
-            self.packed = Packed::Narrow(v);
+        self.expected_links = links;
+        self.packed = match (std::mem::take(&mut self.packed), wide) {
+            (Packed::Narrow(mut v), 0) => {
+                v.clear();
+                Packed::Narrow(v)
+            }
+            (Packed::Wide(mut v), 1) => {
+                v.clear();
+                Packed::Wide(v)
+            }
+            (_, 0) => Packed::Narrow(Vec::new()),
+            _ => Packed::Wide(Vec::new()),
+        };
+        Some(())
+    }
+
+    /// Links whose blocks are still to come after [`Self::decode_head`].
+    pub fn links_to_come(&self) -> usize {
+        self.expected_links - self.packed.len()
+    }
+
+    /// Bytes of the planes of the next block [`Self::decode_block`] takes.
+    pub fn next_block_len(&self) -> usize {
+        let wide = matches!(self.packed, Packed::Wide(_));
+        PLANE_BLOCK_LINKS.min(self.links_to_come()) * (8 + factor_index_bytes(wide))
+    }
+
+    /// Adds the links of the next block from its planes ([`Self::encode_block`]); `None` when
+    /// they are not such planes (a factor index beyond the table, or a narrow link naming a
+    /// side beyond narrow words, included).
+    pub fn decode_block(&mut self, planes: &[u8]) -> Option<()> {
+        let wide = matches!(self.packed, Packed::Wide(_));
+        let n = PLANE_BLOCK_LINKS.min(self.links_to_come());
+        let widths = [4, 4, factor_index_bytes(wide)];
+        if planes.len() != n * (8 + widths[2]) {
+            return None;
         }
-        let in_table = self.links().all(|l| (l.factor as usize) < factors);
-        in_table.then_some(())
+        // The numbers first, plane by plane (loops the compiler vectorises), then the sides,
+        // link by link, a part of the block at a time so that the numbers stay in the cache.
+        const PART: usize = 2048;
+        let mut numbers = [[0u32; PART]; 3];
+        let mut side = 0u32;
+        let mut largest_factor = 0u32;
+        // Both sides of narrow links below NARROW_SIDES, checked once at the end.
+        let mut beyond = 0u32;
+        for first in (0..n).step_by(PART) {
+            let len = PART.min(n - first);
+            let mut plane = 0;
+            for (values, width) in numbers.iter_mut().zip(widths) {
+                let values = &mut values[..len];
+                values.fill(0);
+                for b in 0..width {
+                    let bytes = &planes[plane * n + first..plane * n + first + len];
+                    for (v, &byte) in values.iter_mut().zip(bytes) {
+                        *v |= (byte as u32) << (8 * b);
+                    }
+                    plane += 1;
+                }
+            }
+            let [steps, reaches, indexes] = &numbers;
+            let part = steps[..len]
+                .iter()
+                .zip(&reaches[..len])
+                .zip(&indexes[..len]);
+            match &mut self.packed {
+                Packed::Wide(v) => {
+                    for ((&step, &reach), &factor) in part {
+                        side = side.wrapping_add(step);
+                        largest_factor = largest_factor.max(factor);
+                        v.push(Link {
+                            to: side,
+                            from: side.wrapping_add(reach),
+                            factor,
+                        });
+                    }
+                }
+                Packed::Narrow(v) => {
+                    for ((&step, &reach), &factor) in part {
+                        side = side.wrapping_add(step);
+                        let partner = side.wrapping_add(reach);
+                        beyond |= side | partner;
+                        largest_factor = largest_factor.max(factor);
+                        v.push(side as u64 | (partner as u64) << 28 | (factor as u64) << 56);
+                    }
+                }
+            }
+        }
+        let fits = beyond < NARROW_SIDES || wide;
+        (fits && (n == 0 || (largest_factor as usize) < self.factors.len())).then_some(())
     }
 
     /// The largest surfel number the links name, plus one (0 for none).
     pub fn surfels_named(&self) -> usize {
-        self.links()
-            .map(|l| (l.to.max(l.from) >> 1) as usize + 1)
-            .max()
-            .unwrap_or(0)
+        let mut largest = None;
+        self.for_each_link(|to, from, _| largest = largest.max(Some(to.max(from))));
+        largest.map_or(0, |side| (side >> 1) as usize + 1)
     }
 }
 
@@ -546,6 +654,7 @@ fn packed(pieces: Vec<PieceRecorder>, words: Vec<u64>) -> DirectionLinks {
             packed: Packed::Narrow(packed),
             factors,
             pieces: bounds,
+            expected_links: 0,
         };
     }
     let links = pieces
@@ -645,6 +754,52 @@ mod tests {
         assert!(budget > 0 && budget <= 4 << 30, "{budget}");
     }
 
+    /// The links' head and each block's planes.
+    fn encoded(links: &DirectionLinks) -> (Vec<u8>, Vec<Vec<u8>>) {
+        let mut head = Vec::new();
+        links.encode_head(&mut head);
+        let blocks = (0..links.blocks())
+            .map(|b| {
+                let mut planes = Vec::new();
+                links.encode_block(b, &mut planes);
+                planes
+            })
+            .collect();
+        (head, blocks)
+    }
+
+    /// Links read back from a head and blocks, `None` where any part is refused.
+    fn decoded(head: &[u8], blocks: &[Vec<u8>]) -> Option<DirectionLinks> {
+        let mut back = DirectionLinks::default();
+        back.decode_head(head)?;
+        for planes in blocks {
+            back.decode_block(planes)?;
+        }
+        (back.links_to_come() == 0).then_some(back)
+    }
+
+    #[test]
+    fn links_of_several_blocks_read_back_the_same() {
+        // Steps both ways across a block's edge, sides wrapping, many factors.
+        let count = 2 * PLANE_BLOCK_LINKS as u32 + 77;
+        let links: Vec<Link> = (0..count)
+            .map(|k| Link {
+                to: (k * 2654435761) >> 5,
+                from: (k * 40503) % 1000 + (k / 3),
+                factor: k % 200,
+            })
+            .collect();
+        let factors = (0..200).map(|k| k as f64 / 256.0).collect();
+        let packed =
+            DirectionLinks::pack(links.iter().copied(), factors, vec![0, 100, links.len()]);
+        assert!(matches!(packed.packed, Packed::Narrow(_)));
+        let (head, blocks) = encoded(&packed);
+        assert_eq!(blocks.len(), 3);
+        let back = decoded(&head, &blocks).expect("links read back");
+        assert_eq!(back.links().collect::<Vec<_>>(), links);
+        assert_eq!(back.pieces, packed.pieces);
+    }
+
     #[test]
     fn links_read_back_from_their_bytes_are_the_same_links() {
         let mut recorder = PieceRecorder::default();
@@ -658,21 +813,26 @@ mod tests {
         );
         assert!(matches!(links.packed, Packed::Narrow(_)));
         assert_eq!(links.links().collect::<Vec<_>>(), recorder.links);
-        let mut bytes = Vec::new();
-        links.encode(&mut bytes);
-        assert_eq!(bytes.len(), links.encoded_len());
-        let mut back = DirectionLinks::default();
-        assert_eq!(back.decode(&bytes), Some(()));
+        let (head, blocks) = encoded(&links);
+        assert_eq!(blocks.len(), 1);
+        assert_eq!(blocks[0].len(), links.block_len(0));
+        let back = decoded(&head, &blocks).expect("links read back");
         assert_eq!(back.links().collect::<Vec<_>>(), recorder.links);
         assert_eq!(back.factors, links.factors);
         assert_eq!(back.pieces, links.pieces);
         assert_eq!(back.surfels_named(), 10);
         // Cut short, or a factor index beyond the table: refused.
-        assert_eq!(back.decode(&bytes[..bytes.len() - 1]), None);
-        let mut wrong = bytes.clone();
-        let last = wrong.len() - 1;
-        wrong[last] = 2;
-        assert_eq!(back.decode(&wrong), None);
+        assert!(decoded(&head[..head.len() - 1], &blocks).is_none());
+        let short = vec![blocks[0][..blocks[0].len() - 1].to_vec()];
+        assert!(decoded(&head, &short).is_none());
+        let mut wrong = blocks.clone();
+        let last = wrong[0].len() - 1;
+        wrong[0][last] = 2;
+        assert!(decoded(&head, &wrong).is_none());
+        // A receiving side beyond narrow words (the high byte of the first link's difference).
+        let mut wide = blocks.clone();
+        wide[0][3 * links.len()] = 0x40;
+        assert!(decoded(&head, &wide).is_none());
     }
 
     #[test]
@@ -700,10 +860,8 @@ mod tests {
                 links,
                 "{largest} {factors}"
             );
-            let mut bytes = Vec::new();
-            packed.encode(&mut bytes);
-            let mut back = DirectionLinks::default();
-            assert_eq!(back.decode(&bytes), Some(()));
+            let (head, blocks) = encoded(&packed);
+            let back = decoded(&head, &blocks).expect("links read back");
             assert_eq!(back.links().collect::<Vec<_>>(), links);
         }
     }
