@@ -51,10 +51,10 @@ pub enum BandLinks<'a> {
 /// replayed together, so that their memory is one band's links whatever their number.
 #[derive(Default)]
 pub struct LinkScratch {
-    /// A band's head, then each block of its links as read, compressed.
+    /// A band's head, then its links' blocks as read, compressed.
     buffer: Vec<u8>,
-    /// A block decompressed: its byte planes.
-    raw: Vec<u8>,
+    /// Where each block lies in `buffer`.
+    places: Vec<std::ops::Range<usize>>,
     links: DirectionLinks,
 }
 
@@ -90,14 +90,15 @@ impl Recording {
         links.encode_head(&mut self.buffer);
         let head = (self.buffer.len() - head_at - 8) as u64;
         self.buffer[head_at..head_at + 8].copy_from_slice(&head.to_le_bytes());
-        // One block's planes at a time (directions recorded together each hold a recording:
-        // this room is not kept between bands).
-        let mut planes = Vec::new();
-        for block in 0..links.blocks() {
-            planes.clear();
-            links.encode_block(block, &mut planes);
-            compress_block(&planes, &mut self.buffer)
-                .map_err(|e| OocError::io(&self.path, "compress", e))?;
+        // The blocks are compressed on the threads, each with its own room for one block's
+        // planes (not kept between bands: directions recorded together each hold a recording).
+        let blocks = links.encode_blocks(|planes| {
+            let mut packed = Vec::new();
+            compress_block(planes, &mut packed).map(|()| packed)
+        });
+        for packed in blocks {
+            let packed = packed.map_err(|e| OocError::io(&self.path, "compress", e))?;
+            self.buffer.extend_from_slice(&packed);
         }
         if self.written + self.buffer.len() as u64 > self.allowance {
             self.abandoned = true;
@@ -148,7 +149,11 @@ impl Replaying {
         scratch: &'s mut LinkScratch,
         io: &mut IoCounters,
     ) -> Result<&'s DirectionLinks, OocError> {
-        let LinkScratch { buffer, raw, links } = scratch;
+        let LinkScratch {
+            buffer,
+            places,
+            links,
+        } = scratch;
         let mut head = [0u8; 16];
         self.input
             .read_exact(&mut head)
@@ -181,26 +186,33 @@ impl Replaying {
         links
             .decode_head(buffer)
             .ok_or_else(|| bad("a band's links are damaged".to_string()))?;
+        // The blocks are read one after the other, then decompressed and put back on the
+        // threads.
         let bound = lz4::block::compress_bound(PLANE_BLOCK_LINKS * 12).unwrap_or(0);
-        while links.links_to_come() > 0 {
+        buffer.clear();
+        places.clear();
+        for _ in 0..links.links_to_come().div_ceil(PLANE_BLOCK_LINKS) {
             let mut size = [0u8; 4];
             read(&mut size)?;
             let packed = u32::from_le_bytes(size) as usize;
             if packed > bound {
                 return Err(bad("a band's links are damaged".to_string()));
             }
-            buffer.resize(packed, 0);
-            read(buffer)?;
+            let at = buffer.len();
+            buffer.resize(at + packed, 0);
+            read(&mut buffer[at..])?;
+            places.push(at..at + packed);
             io.read += 4 + packed as u64;
-            raw.resize(links.next_block_len(), 0);
-            let got = lz4::block::decompress_to_buffer(buffer, Some(raw.len() as i32), raw)
-                .map_err(|_| bad("a band's links do not decompress".to_string()))?;
-            if got != raw.len() {
-                return Err(bad("a band's links are short".to_string()));
-            }
-            links
-                .decode_block(raw)
-                .ok_or_else(|| bad("a band's links are damaged".to_string()))?;
+        }
+        let unpacked = links.decode_blocks(|block, planes| {
+            let packed = &buffer[places[block].clone()];
+            lz4::block::decompress_to_buffer(packed, Some(planes.len() as i32), planes)
+                .is_ok_and(|got| got == planes.len())
+        });
+        if unpacked.is_none() {
+            return Err(bad(
+                "a band's links do not decompress or are damaged".to_string()
+            ));
         }
         if links.surfels_named() > surfels {
             return Err(bad(

@@ -35,7 +35,7 @@ const PREFETCH_AHEAD: usize = 16;
 /// One kept link: side `to & 1` of surfel `to >> 1` gathers side `from & 1` of surfel
 /// `from >> 1`, times factor `factor` of its table (its piece's while recorded, its
 /// direction's once kept).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Link {
     to: u32,
     from: u32,
@@ -180,6 +180,72 @@ fn factor_index_bytes(wide: bool) -> usize {
     } else {
         1
     }
+}
+
+/// Where a block's links are put back from its planes ([`DirectionLinks::encode_block`]).
+trait PlaneLink: Copy + Send {
+    /// Bytes of the factor index in the planes.
+    const FACTOR_BYTES: usize;
+    fn of(to: u32, from: u32, factor: u32) -> Self;
+}
+
+impl PlaneLink for u64 {
+    const FACTOR_BYTES: usize = 1;
+    #[inline(always)]
+    fn of(to: u32, from: u32, factor: u32) -> Self {
+        narrow(&Link { to, from, factor })
+    }
+}
+
+impl PlaneLink for Link {
+    const FACTOR_BYTES: usize = 4;
+    #[inline(always)]
+    fn of(to: u32, from: u32, factor: u32) -> Self {
+        Link { to, from, factor }
+    }
+}
+
+/// Puts a block's links back from its planes into `out` (as many links as it holds); false
+/// when a factor index is beyond a table of `factors`, or a narrow link names a side beyond
+/// narrow words.
+fn links_of_planes<L: PlaneLink>(planes: &[u8], factors: usize, out: &mut [L]) -> bool {
+    let n = out.len();
+    debug_assert_eq!(planes.len(), n * (8 + L::FACTOR_BYTES));
+    // The numbers first, plane by plane (loops the compiler vectorises), then the sides, link
+    // by link, a part of the block at a time so that the numbers stay in the cache.
+    const PART: usize = 2048;
+    let mut numbers = [[0u32; PART]; 3];
+    let widths = [4, 4, L::FACTOR_BYTES];
+    let mut side = 0u32;
+    let mut largest_factor = 0u32;
+    // Sides of narrow links below NARROW_SIDES, checked once at the end.
+    let mut beyond = 0u32;
+    for (part, first) in out.chunks_mut(PART).zip((0..n).step_by(PART)) {
+        let len = part.len();
+        let mut plane = 0;
+        for (values, width) in numbers.iter_mut().zip(widths) {
+            let values = &mut values[..len];
+            values.fill(0);
+            for b in 0..width {
+                let bytes = &planes[plane * n + first..plane * n + first + len];
+                for (v, &byte) in values.iter_mut().zip(bytes) {
+                    *v |= (byte as u32) << (8 * b);
+                }
+                plane += 1;
+            }
+        }
+        let [steps, reaches, indexes] = &numbers;
+        let numbers = steps.iter().zip(reaches).zip(indexes);
+        for (link, ((&step, &reach), &factor)) in part.iter_mut().zip(numbers) {
+            side = side.wrapping_add(step);
+            let partner = side.wrapping_add(reach);
+            beyond |= side | partner;
+            largest_factor = largest_factor.max(factor);
+            *link = L::of(side, partner, factor);
+        }
+    }
+    let fits = L::FACTOR_BYTES == 4 || beyond < NARROW_SIDES;
+    fits && (n == 0 || (largest_factor as usize) < factors)
 }
 
 /// A link as a narrow word (its numbers fit, see [`NARROW_SIDES`] and [`NARROW_FACTORS`]).
@@ -440,74 +506,57 @@ impl DirectionLinks {
         self.expected_links - self.packed.len()
     }
 
-    /// Bytes of the planes of the next block [`Self::decode_block`] takes.
-    pub fn next_block_len(&self) -> usize {
-        let wide = matches!(self.packed, Packed::Wide(_));
-        PLANE_BLOCK_LINKS.min(self.links_to_come()) * (8 + factor_index_bytes(wide))
+    /// Encodes every block ([`Self::encode_block`]) on the threads of the current pool and
+    /// hands each block's planes to `pack`; what it made of each block, in block order.
+    pub fn encode_blocks<T: Send>(&self, pack: impl Fn(&[u8]) -> T + Sync) -> Vec<T> {
+        (0..self.blocks())
+            .into_par_iter()
+            .map_init(Vec::new, |planes, block| {
+                planes.clear();
+                self.encode_block(block, planes);
+                pack(planes)
+            })
+            .collect()
     }
 
-    /// Adds the links of the next block from its planes ([`Self::encode_block`]); `None` when
-    /// they are not such planes (a factor index beyond the table, or a narrow link naming a
-    /// side beyond narrow words, included).
-    pub fn decode_block(&mut self, planes: &[u8]) -> Option<()> {
-        let wide = matches!(self.packed, Packed::Wide(_));
-        let n = PLANE_BLOCK_LINKS.min(self.links_to_come());
-        let widths = [4, 4, factor_index_bytes(wide)];
-        if planes.len() != n * (8 + widths[2]) {
-            return None;
-        }
-        // The numbers first, plane by plane (loops the compiler vectorises), then the sides,
-        // link by link, a part of the block at a time so that the numbers stay in the cache.
-        const PART: usize = 2048;
-        let mut numbers = [[0u32; PART]; 3];
-        let mut side = 0u32;
-        let mut largest_factor = 0u32;
-        // Both sides of narrow links below NARROW_SIDES, checked once at the end.
-        let mut beyond = 0u32;
-        for first in (0..n).step_by(PART) {
-            let len = PART.min(n - first);
-            let mut plane = 0;
-            for (values, width) in numbers.iter_mut().zip(widths) {
-                let values = &mut values[..len];
-                values.fill(0);
-                for b in 0..width {
-                    let bytes = &planes[plane * n + first..plane * n + first + len];
-                    for (v, &byte) in values.iter_mut().zip(bytes) {
-                        *v |= (byte as u32) << (8 * b);
-                    }
-                    plane += 1;
-                }
+    /// Adds every link the head read by [`Self::decode_head`] announced, block by block on the
+    /// threads of the current pool: `unpack(block, planes)` fills `planes`, sized to the
+    /// block's bytes, with that block's planes ([`Self::encode_block`]), or says it cannot
+    /// (false). `None` when a block cannot be unpacked or its planes are not links (a factor
+    /// index beyond the table, or a narrow link naming a side beyond narrow words).
+    pub fn decode_blocks(
+        &mut self,
+        unpack: impl Fn(usize, &mut [u8]) -> bool + Sync,
+    ) -> Option<()> {
+        let n = self.links_to_come();
+        let factors = self.factors.len();
+        let ok = match &mut self.packed {
+            Packed::Narrow(v) => {
+                let at = v.len();
+                v.resize(at + n, 0);
+                v[at..]
+                    .par_chunks_mut(PLANE_BLOCK_LINKS)
+                    .enumerate()
+                    .map_init(Vec::new, |planes, (block, out)| {
+                        planes.resize(out.len() * 9, 0);
+                        unpack(block, planes) && links_of_planes(planes, factors, out)
+                    })
+                    .all(|ok| ok)
             }
-            let [steps, reaches, indexes] = &numbers;
-            let part = steps[..len]
-                .iter()
-                .zip(&reaches[..len])
-                .zip(&indexes[..len]);
-            match &mut self.packed {
-                Packed::Wide(v) => {
-                    for ((&step, &reach), &factor) in part {
-                        side = side.wrapping_add(step);
-                        largest_factor = largest_factor.max(factor);
-                        v.push(Link {
-                            to: side,
-                            from: side.wrapping_add(reach),
-                            factor,
-                        });
-                    }
-                }
-                Packed::Narrow(v) => {
-                    for ((&step, &reach), &factor) in part {
-                        side = side.wrapping_add(step);
-                        let partner = side.wrapping_add(reach);
-                        beyond |= side | partner;
-                        largest_factor = largest_factor.max(factor);
-                        v.push(side as u64 | (partner as u64) << 28 | (factor as u64) << 56);
-                    }
-                }
+            Packed::Wide(v) => {
+                let at = v.len();
+                v.resize(at + n, Link::default());
+                v[at..]
+                    .par_chunks_mut(PLANE_BLOCK_LINKS)
+                    .enumerate()
+                    .map_init(Vec::new, |planes, (block, out)| {
+                        planes.resize(out.len() * 12, 0);
+                        unpack(block, planes) && links_of_planes(planes, factors, out)
+                    })
+                    .all(|ok| ok)
             }
-        }
-        let fits = beyond < NARROW_SIDES || wide;
-        (fits && (n == 0 || (largest_factor as usize) < self.factors.len())).then_some(())
+        };
+        ok.then_some(())
     }
 
     /// The largest surfel number the links name, plus one (0 for none).
@@ -772,9 +821,13 @@ mod tests {
     fn decoded(head: &[u8], blocks: &[Vec<u8>]) -> Option<DirectionLinks> {
         let mut back = DirectionLinks::default();
         back.decode_head(head)?;
-        for planes in blocks {
-            back.decode_block(planes)?;
-        }
+        back.decode_blocks(|b, planes| {
+            let same = blocks.get(b).is_some_and(|p| p.len() == planes.len());
+            if same {
+                planes.copy_from_slice(&blocks[b]);
+            }
+            same
+        })?;
         (back.links_to_come() == 0).then_some(back)
     }
 
