@@ -67,8 +67,9 @@ pub fn format_bytes(bytes: u64) -> String {
 /// entry, list slot, line (`dispatch` finds it once) and canonical index, plus the per-line
 /// scratch of propagation (about one more record per surfel of the longest line being
 /// processed, bounded by this margin), plus its partner links while they are recorded (the
-/// threads' pieces, the direction's copy and their bytes for the file: three times about 13.5
-/// bytes, `super::links`).
+/// threads' pieces, the direction's copy and their compressed bytes for the file: about 13.5
+/// bytes each; the compressed bytes are about a third of that, at worst 9/8 of it,
+/// `super::links`).
 pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
     + std::mem::size_of::<Radiosity>()
     + std::mem::size_of::<AxisLight>()
@@ -84,9 +85,10 @@ pub const BAND_BYTES_PER_SURFEL: u64 = (std::mem::size_of::<PropSurfel>()
 pub const REPLAY_BYTES_PER_SURFEL: u64 =
     (std::mem::size_of::<Radiosity>() + std::mem::size_of::<AxisLight>()) as u64;
 
-/// Bytes a replay holds per surfel of the one band whose links it replays: its links read and
-/// decoded (twice about 20 bytes in a building, whose surfels have more links than those of a
-/// plain room), and a margin.
+/// Bytes a replay holds per surfel of the one band whose links it replays: its links read
+/// (compressed: about a third of the 20 bytes of the decoded links in a building, whose
+/// surfels have more links than those of a plain room, at worst 9/8 of them) and decoded, and
+/// a margin.
 pub const REPLAY_BAND_BYTES_PER_SURFEL: u64 = 40 + 4;
 
 /// Bytes a sort bucket holds per record: key, canonical index and the encoded record.

@@ -22,9 +22,10 @@
 //! the disk a large solve takes: 8 bytes a link as words. As byte planes of differences and
 //! compressed with LZ4 (liblz4, as the static records' frames, `super::framed`), they take
 //! about 2.5 bytes a link (`docs/out-of-core.md`), so that about three times as many directions
-//! fit the disk allowance, and a replay reads less than a third of the bytes. A band is
-//! written and read a block at a time, so that what a reader holds beside the band's links is
-//! one block's planes, whatever the band.
+//! fit the disk allowance, and a replay reads less than a third of the bytes. Each block
+//! stands alone: a band's blocks are compressed, and decompressed and put back, on the threads,
+//! each thread holding one block's planes beside the band's links (and the band's compressed
+//! bytes), not a band's planes.
 
 use super::files::IoCounters;
 use super::OocError;
