@@ -205,6 +205,27 @@ impl PlaneLink for Link {
     }
 }
 
+/// Appends `n` links to `links`, block after block on the threads: `unpack(block, planes)`
+/// fills a block's planes, which are then put back ([`links_of_planes`]); false where a block
+/// cannot be unpacked or its planes are not links.
+fn links_of_blocks<L: PlaneLink + Default>(
+    links: &mut Vec<L>,
+    n: usize,
+    factors: usize,
+    unpack: &(impl Fn(usize, &mut [u8]) -> bool + Sync),
+) -> bool {
+    let at = links.len();
+    links.resize(at + n, L::default());
+    links[at..]
+        .par_chunks_mut(PLANE_BLOCK_LINKS)
+        .enumerate()
+        .map_init(Vec::new, |planes, (block, out)| {
+            planes.resize(out.len() * (8 + L::FACTOR_BYTES), 0);
+            unpack(block, planes) && links_of_planes(planes, factors, out)
+        })
+        .all(|ok| ok)
+}
+
 /// Puts a block's links back from its planes into `out` (as many links as it holds); false
 /// when a factor index is beyond a table of `factors`, or a narrow link names a side beyond
 /// narrow words.
@@ -531,30 +552,8 @@ impl DirectionLinks {
         let n = self.links_to_come();
         let factors = self.factors.len();
         let ok = match &mut self.packed {
-            Packed::Narrow(v) => {
-                let at = v.len();
-                v.resize(at + n, 0);
-                v[at..]
-                    .par_chunks_mut(PLANE_BLOCK_LINKS)
-                    .enumerate()
-                    .map_init(Vec::new, |planes, (block, out)| {
-                        planes.resize(out.len() * 9, 0);
-                        unpack(block, planes) && links_of_planes(planes, factors, out)
-                    })
-                    .all(|ok| ok)
-            }
-            Packed::Wide(v) => {
-                let at = v.len();
-                v.resize(at + n, Link::default());
-                v[at..]
-                    .par_chunks_mut(PLANE_BLOCK_LINKS)
-                    .enumerate()
-                    .map_init(Vec::new, |planes, (block, out)| {
-                        planes.resize(out.len() * 12, 0);
-                        unpack(block, planes) && links_of_planes(planes, factors, out)
-                    })
-                    .all(|ok| ok)
-            }
+            Packed::Narrow(v) => links_of_blocks(v, n, factors, &unpack),
+            Packed::Wide(v) => links_of_blocks(v, n, factors, &unpack),
         };
         ok.then_some(())
     }
