@@ -11,7 +11,7 @@ use super::files::{
     decode_static, AxisLight, IoCounters, Radiosity, RecordFile, LIGHT32_LEN, RADIOSITY_LEN,
     STATIC_LEN,
 };
-use super::framed::FramedStatics;
+use super::framed::{FramedRuns, FramedStatics};
 use super::links::BandLinks;
 use super::workset::AxisCopy;
 use super::OocError;
@@ -24,11 +24,11 @@ use crate::solve::propagate::{DirectionInput, PropSurfel};
 use std::time::Instant;
 
 /// Where a pass reads its copy's static records: an axis copy's compressed frames (the
-/// one-process solver, `super::framed`), or a rank's held files, whose records lie end to end
-/// (the data mode, `distribute::ooc`).
+/// one-process solver, `super::framed`), or a rank's held files, whose framed records lie end
+/// to end in runs of several files (the data mode, `distribute::ooc`).
 pub enum StaticFile {
     Framed(std::sync::Arc<FramedStatics>),
-    Records(RecordFile),
+    Runs(std::sync::Arc<FramedRuns>),
 }
 
 impl StaticFile {
@@ -36,7 +36,7 @@ impl StaticFile {
     fn read(&self, start: u64, out: &mut [u8], io: &mut IoCounters) -> Result<(), OocError> {
         match self {
             StaticFile::Framed(frames) => frames.read(start, out, io),
-            StaticFile::Records(file) => file.read_at(start * STATIC_LEN as u64, out, io),
+            StaticFile::Runs(runs) => runs.read(start, out, io),
         }
     }
 }

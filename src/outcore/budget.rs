@@ -120,8 +120,8 @@ pub struct MemoryPlan {
 
 impl MemoryPlan {
     /// Splits `budget` for a grid of `dims` solved with `threads` threads, holding the readers
-    /// of three axis copies of `framed` surfels in compressed frames (0: none, as in the data
-    /// mode).
+    /// of three axis copies of `framed` surfels in compressed frames (the data mode counts a
+    /// rank's held files so, with its share).
     pub fn new(budget: u64, dims: [u32; 3], threads: usize, framed: u64) -> Result<Self, OocError> {
         let io_bytes = (budget / 64).clamp(4 << 10, 1 << 20) as usize;
         let d = dims.map(u64::from);

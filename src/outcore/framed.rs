@@ -352,6 +352,65 @@ impl FramedStatics {
     }
 }
 
+/// Static records laid end to end from runs of records of several framed files (a rank's held
+/// files in the data mode out of core, `distribute::ooc::held`): run `k` is records
+/// `first..first + count` of file `set`.
+pub struct FramedRuns {
+    files: Vec<FramedStatics>,
+    /// Per run: its file, its first record there, and its first record in the whole.
+    runs: Vec<(usize, u64, u64)>,
+    records: u64,
+}
+
+impl FramedRuns {
+    /// `files` (each read through `buffers`) and the runs `(file, first, count)` in order.
+    pub fn new(files: Vec<FramedStatics>, runs: &[(usize, u64, u64)]) -> Self {
+        let mut at = 0;
+        let runs = runs
+            .iter()
+            .map(|&(set, first, count)| {
+                let run = (set, first, at);
+                at += count;
+                run
+            })
+            .collect();
+        FramedRuns {
+            files,
+            runs,
+            records: at,
+        }
+    }
+
+    /// Fills `out` (a whole number of records) with the records from `start` on.
+    pub fn read(&self, start: u64, out: &mut [u8], io: &mut IoCounters) -> Result<(), OocError> {
+        let count = (out.len() / STATIC_LEN) as u64;
+        if start + count > self.records {
+            let path = self
+                .files
+                .first()
+                .map_or(Path::new(""), |f| f.path.as_path());
+            return Err(FramedStatics::damaged(path));
+        }
+        // The run holding `start`: the last that begins at or before it.
+        let mut k = self
+            .runs
+            .partition_point(|r| r.2 <= start)
+            .saturating_sub(1);
+        let (mut at, end) = (start, start + count);
+        while at < end {
+            let (set, first, begins) = self.runs[k];
+            let run_end = self.runs.get(k + 1).map_or(self.records, |r| r.2);
+            let take = run_end.min(end) - at;
+            let from = (at - start) as usize * STATIC_LEN;
+            let part = &mut out[from..from + take as usize * STATIC_LEN];
+            self.files[set].read(first + (at - begins), part, io)?;
+            at += take;
+            k += 1;
+        }
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -363,6 +422,54 @@ mod tests {
         r[4..8].copy_from_slice(&(k / 7).to_le_bytes());
         r[68..].copy_from_slice(&(k ^ 0x5a5a).to_le_bytes());
         r
+    }
+
+    /// Runs of records of two framed files, read as one: any range, across runs.
+    #[test]
+    fn runs_of_several_files_read_back_in_their_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let buffers = FrameBuffers::shared();
+        let counts = [3 * FRAME_RECORDS + 5, 2 * FRAME_RECORDS];
+        let files: Vec<FramedStatics> = counts
+            .iter()
+            .enumerate()
+            .map(|(f, &n)| {
+                let path = dir.path().join(format!("s{f}.bin"));
+                let index = dir.path().join(format!("i{f}.bin"));
+                let mut w = FramedWriter::create(&path, &index, 4096).unwrap();
+                for k in 0..n as u32 {
+                    w.write(&record(k + 1_000_000 * f as u32)).unwrap();
+                }
+                w.finish().unwrap();
+                FramedStatics::open(&path, &index, n, &buffers).unwrap()
+            })
+            .collect();
+        // File 1's records 7..200, file 0's 100..389, an empty run, file 1's 0..7.
+        let runs = [(1, 7, 193), (0, 100, 289), (0, 5, 0), (1, 0, 7)];
+        let expected: Vec<u8> = runs
+            .iter()
+            .flat_map(|&(f, first, n)| {
+                (first..first + n).flat_map(move |k| record(k as u32 + 1_000_000 * f as u32))
+            })
+            .collect();
+        let whole = FramedRuns::new(files, &runs);
+        let total = (expected.len() / STATIC_LEN) as u64;
+        let mut io = IoCounters::default();
+        for (start, n) in [
+            (0, total),
+            (190, 10),
+            (192, 1),
+            (482, 7),
+            (5, 300),
+            (total - 1, 1),
+        ] {
+            let mut out = vec![0u8; n as usize * STATIC_LEN];
+            whole.read(start, &mut out, &mut io).unwrap();
+            let at = start as usize * STATIC_LEN;
+            assert!(out == expected[at..at + out.len()], "{start} {n}");
+        }
+        let mut beyond = vec![0u8; 2 * STATIC_LEN];
+        assert!(whole.read(total - 1, &mut beyond, &mut io).is_err());
     }
 
     #[test]

@@ -30,14 +30,23 @@
 //! `B` travels beside what the lines carry, as the one-process out-of-core solver keeps its
 //! canonical radiosity beside the axis copies' `B - E`: the update reads `B` and writes both,
 //! and the answer stays that solver's bit for bit.
+//!
+//! **The static records in frames.** A set's static records are written once, from start to
+//! end, and then only read (by ranges: a band's rows, the records that leave, a copy), so each
+//! set keeps them as the one-process solver keeps an axis copy's (`outcore::framed`: frames of
+//! byte planes under LZ4, with an index file beside, `held-G-static.index`). The held order
+//! is a copy order, whose neighbours are alike: 72 bytes a record become a few (see
+//! `docs/cluster.md`). In wire form, between ranks and in run files, they stay whole.
 
 use crate::outcore::files::{
     IoCounters, RecordFile, SeqReader, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
+use crate::outcore::framed::{FrameBuffers, FramedRuns, FramedStatics, FramedWriter};
 use crate::outcore::OocError;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Bytes of the fourth file's record: earlier axes' light, the update's scene data, `B`, the
 /// direct light and the radiosity the last update replaced.
@@ -192,9 +201,9 @@ impl Held {
         }
     }
 
-    /// The four files opened for positioned reads and writes, each as one file of records in
-    /// the held order.
-    pub fn open_files(&self) -> Result<[RecordFile; 4], OocError> {
+    /// The four files opened for positioned reads (and, but for the static records, writes),
+    /// each as one file of records in the held order.
+    pub fn open_files(&self) -> Result<HeldFiles, OocError> {
         let open = |k: usize| -> Result<RecordFile, OocError> {
             if self.sets.len() == 1 && self.runs.len() <= 1 && self.runs_from_start() {
                 return RecordFile::open(&self.sets[0][k]);
@@ -208,15 +217,33 @@ impl Held {
                 .collect();
             RecordFile::pieced(&paths, &pieces)
         };
-        Ok([open(0)?, open(1)?, open(2)?, open(3)?])
+        let buffers = FrameBuffers::shared();
+        let files = self
+            .sets
+            .iter()
+            .map(|set| {
+                let records = set_records(set)?;
+                FramedStatics::open(&set[0], &static_index(&set[0]), records, &buffers)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let runs: Vec<(usize, u64, u64)> = self
+            .runs
+            .iter()
+            .map(|r| (r.set, r.first, r.count))
+            .collect();
+        Ok(HeldFiles {
+            statics: Arc::new(FramedRuns::new(files, &runs)),
+            radiosity: open(1)?,
+            gathered: open(2)?,
+            rest: open(3)?,
+        })
     }
 
     /// Records the files of every set hold, those no run reads (they left the rank) included.
     pub fn stored_records(&self) -> Result<u64, OocError> {
         let mut records = 0;
         for set in &self.sets {
-            let meta = std::fs::metadata(&set[0]).map_err(|e| OocError::io(&set[0], "read", e))?;
-            records += meta.len() / STATIC_LEN as u64;
+            records += set_records(set)?;
         }
         Ok(records)
     }
@@ -247,8 +274,8 @@ impl Held {
     }
 
     pub fn remove(self) -> Result<(), OocError> {
-        for p in self.sets.iter().flatten() {
-            std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+        for set in &self.sets {
+            remove_set(set)?;
         }
         Ok(())
     }
@@ -268,9 +295,7 @@ impl Held {
                 renumber[k] = sets.len();
                 sets.push(set);
             } else {
-                for p in &set {
-                    std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
-                }
+                remove_set(&set)?;
             }
         }
         for r in &mut self.runs {
@@ -281,68 +306,76 @@ impl Held {
     }
 }
 
-/// Fills its argument with the next record of one file; false at the end.
-type RecordReader = Box<dyn FnMut(&mut [u8]) -> Result<bool, OocError>>;
-
-/// Reads held files record by record, in wire form.
-pub enum HeldReader {
-    /// One set of files, each read sequentially.
-    Whole([RecordReader; 4]),
-    /// Records in runs of several sets.
-    Runs(Box<HeldRangeReader>),
+/// The held files opened for reading ([`Held::open_files`]): the static records through their
+/// frames, the other three as files of records (the bands write the radiosity and gathered
+/// light in place).
+pub struct HeldFiles {
+    pub statics: Arc<FramedRuns>,
+    pub radiosity: RecordFile,
+    pub gathered: RecordFile,
+    pub rest: RecordFile,
 }
+
+impl HeldFiles {
+    /// Fills `out` with records of part `part` (0 static, 1 radiosity, 2 gathered light, 3 the
+    /// rest) from record `first` on.
+    pub fn read(
+        &self,
+        part: usize,
+        first: u64,
+        out: &mut [u8],
+        io: &mut IoCounters,
+    ) -> Result<(), OocError> {
+        let file = match part {
+            0 => return self.statics.read(first, out, io),
+            1 => &self.radiosity,
+            2 => &self.gathered,
+            _ => &self.rest,
+        };
+        file.read_at(first * LENGTHS[part] as u64, out, io)
+    }
+}
+
+/// The index of the frames of a set's static records (`outcore::framed`).
+fn static_index(statics: &Path) -> PathBuf {
+    statics.with_extension("index")
+}
+
+/// Records one set of held files holds: its radiosity file's records (the static records,
+/// in frames, do not say).
+fn set_records(set: &[PathBuf; 4]) -> Result<u64, OocError> {
+    let meta = std::fs::metadata(&set[1]).map_err(|e| OocError::io(&set[1], "read", e))?;
+    Ok(meta.len() / RADIOSITY_LEN as u64)
+}
+
+/// Removes one set of held files and the index of its frames.
+fn remove_set(set: &[PathBuf; 4]) -> Result<(), OocError> {
+    let index = static_index(&set[0]);
+    for p in set.iter().chain([&index]) {
+        std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
+    }
+    Ok(())
+}
+
+/// Reads held files record by record, in wire form, in the held order.
+pub struct HeldReader(HeldRangeReader);
 
 impl HeldReader {
     pub fn open(held: &Held, buffer_bytes: usize) -> Result<Self, OocError> {
-        if held.sets.len() != 1 || held.runs.len() > 1 || !held.runs_from_start() {
-            let all = vec![(0, held.count)];
-            return Ok(HeldReader::Runs(Box::new(HeldRangeReader::open(
-                held,
-                all,
-                buffer_bytes,
-            )?)));
-        }
-        let paths = &held.sets[0];
-        fn reader<const L: usize>(path: &Path, buffer: usize) -> Result<RecordReader, OocError> {
-            let mut r = SeqReader::<L>::open(path, buffer)?;
-            Ok(Box::new(move |out: &mut [u8]| match r.next_record()? {
-                Some(rec) => {
-                    out.copy_from_slice(&rec);
-                    Ok(true)
-                }
-                None => Ok(false),
-            }))
-        }
-        let b = buffer_bytes;
-        Ok(HeldReader::Whole([
-            reader::<STATIC_LEN>(&paths[0], b)?,
-            reader::<RADIOSITY_LEN>(&paths[1], b)?,
-            reader::<LIGHT32_LEN>(&paths[2], b)?,
-            reader::<REST_LEN>(&paths[3], b)?,
-        ]))
+        let all = vec![(0, held.count)];
+        Ok(HeldReader(HeldRangeReader::open(held, all, buffer_bytes)?))
     }
 
     /// The next record, or `None` at the end.
     pub fn next(&mut self, io: &mut IoCounters) -> Result<Option<Wire>, OocError> {
-        let readers = match self {
-            HeldReader::Whole(readers) => readers,
-            HeldReader::Runs(reader) => return reader.next(io),
-        };
-        let mut w = [0u8; WIRE_LEN];
-        for (k, r) in readers.iter_mut().enumerate() {
-            if !r(&mut w[OFFSETS[k]..OFFSETS[k] + LENGTHS[k]])? {
-                return Ok(None);
-            }
-        }
-        io.read += WIRE_LEN as u64;
-        Ok(Some(w))
+        self.0.next(io)
     }
 }
 
 /// Reads given ranges of records of held files, in wire form, in the order given: positioned
 /// reads of at most about `buffer_bytes` at a time from each of the four files.
 pub struct HeldRangeReader {
-    files: [RecordFile; 4],
+    files: HeldFiles,
     /// The ranges not read yet, as (first record, records), the next one last.
     ranges: Vec<(u64, u64)>,
     /// Records read ahead, in wire form, and how many of them were handed out.
@@ -383,9 +416,9 @@ impl HeldRangeReader {
             let records = count as usize;
             self.buffer.resize(records * WIRE_LEN, 0);
             let mut part = Vec::new();
-            for (k, file) in self.files.iter().enumerate() {
+            for k in 0..4 {
                 part.resize(records * LENGTHS[k], 0);
-                file.read_at(first * LENGTHS[k] as u64, &mut part, io)?;
+                self.files.read(k, first, &mut part, io)?;
                 for (r, bytes) in part.chunks_exact(LENGTHS[k]).enumerate() {
                     let at = r * WIRE_LEN + OFFSETS[k];
                     self.buffer[at..at + LENGTHS[k]].copy_from_slice(bytes);
@@ -404,7 +437,10 @@ impl HeldRangeReader {
 /// Writes held files (generation `generation` in `dir`), counting records per row of `key`'s
 /// copy order when given one.
 pub struct HeldWriter {
-    writers: [SeqWriter; 4],
+    /// The static records, in frames.
+    statics: FramedWriter,
+    /// The other three parts of the record.
+    writers: [SeqWriter; 3],
     paths: [PathBuf; 4],
     count: u64,
     histogram: Option<(AxisKey, Vec<u32>)>,
@@ -426,8 +462,8 @@ impl HeldWriter {
     ) -> Result<Self, OocError> {
         let paths = ["static", "radiosity", "gathered", "rest"]
             .map(|name| dir.join(format!("held-{generation}-{name}.bin")));
+        let statics = FramedWriter::create(&paths[0], &static_index(&paths[0]), buffer_bytes)?;
         let writers = [
-            SeqWriter::create(&paths[0], buffer_bytes)?,
             SeqWriter::create(&paths[1], buffer_bytes)?,
             SeqWriter::create(&paths[2], buffer_bytes)?,
             SeqWriter::create(&paths[3], buffer_bytes)?,
@@ -438,6 +474,7 @@ impl HeldWriter {
             (key, h)
         });
         Ok(HeldWriter {
+            statics,
             writers,
             paths,
             count: 0,
@@ -449,7 +486,9 @@ impl HeldWriter {
     }
 
     pub fn write(&mut self, w: &Wire) -> Result<(), OocError> {
-        for (k, out) in self.writers.iter_mut().enumerate() {
+        self.statics
+            .write(w[..STATIC_LEN].try_into().expect("a static record"))?;
+        for (k, out) in (1..4).zip(self.writers.iter_mut()) {
             out.write(&w[OFFSETS[k]..OFFSETS[k] + LENGTHS[k]])?;
         }
         if let Some((key, h)) = self.histogram.as_mut() {
@@ -500,7 +539,7 @@ impl HeldWriter {
     /// histogram (the caller keeps it).
     pub fn copy_records(
         &mut self,
-        from: &[RecordFile; 4],
+        from: &HeldFiles,
         (first, count): (u64, u64),
         chunk: u64,
         buffer: &mut Vec<u8>,
@@ -509,10 +548,17 @@ impl HeldWriter {
         let (mut at, end) = (first, first + count);
         while at < end {
             let records = (end - at).min(chunk.max(1));
-            for (k, (file, out)) in from.iter().zip(&mut self.writers).enumerate() {
-                buffer.resize(records as usize * LENGTHS[k], 0);
-                file.read_at(at * LENGTHS[k] as u64, buffer, io)?;
-                out.write(buffer)?;
+            for (k, &len) in LENGTHS.iter().enumerate() {
+                buffer.resize(records as usize * len, 0);
+                from.read(k, at, buffer, io)?;
+                if k == 0 {
+                    for record in buffer.chunks_exact(STATIC_LEN) {
+                        self.statics
+                            .write(record.try_into().expect("a static record"))?;
+                    }
+                } else {
+                    self.writers[k - 1].write(buffer)?;
+                }
             }
             at += records;
         }
@@ -529,6 +575,7 @@ impl HeldWriter {
 
     /// Closes the files; returns them and the row histogram.
     pub fn finish(self, io: &mut IoCounters) -> Result<(Held, Option<Vec<u32>>), OocError> {
+        io.written += self.statics.finish()?;
         for w in self.writers {
             io.written += w.finish()?;
         }
@@ -821,7 +868,8 @@ mod tests {
         let (b, _) = b.finish(&mut io).unwrap();
         let expected: Vec<Wire> = [10, 11, 3, 4, 5, 6, 12].map(|k| records[k]).to_vec();
         assert_eq!((b.count, b.sets.len(), b.runs.len()), (7, 2, 3));
-        assert_eq!(files(), 8);
+        // Four files a set and the index of its static frames.
+        assert_eq!(files(), 10);
         let read_all = |held: &Held| {
             let mut reader = HeldReader::open(held, 64).unwrap();
             let mut got = Vec::new();
@@ -835,7 +883,8 @@ mod tests {
         // 11 (its own files) and 3, 4 (in `a`'s).
         let opened = b.open_files().unwrap();
         let mut gathered = vec![0u8; 3 * LIGHT32_LEN];
-        opened[2]
+        opened
+            .gathered
             .read_at(LIGHT32_LEN as u64, &mut gathered, &mut io)
             .unwrap();
         let expected_gathered: Vec<u8> = [11, 3, 4]
@@ -844,7 +893,8 @@ mod tests {
             .collect();
         assert_eq!(gathered, expected_gathered);
         let light = vec![7u8; 3 * LIGHT32_LEN];
-        opened[2]
+        opened
+            .gathered
             .write_at(LIGHT32_LEN as u64, &light, &mut io)
             .unwrap();
         drop(opened);
@@ -866,7 +916,8 @@ mod tests {
         assert!(read_all(&c) == after[..2]);
         assert!(a.sets[0].iter().all(|p| !p.exists()));
         assert!(c.sets[1] == b.sets[0] && b.sets[0].iter().all(|p| p.exists()));
-        assert_eq!(files(), 8);
+        assert!(!static_index(&a.sets[0][0]).exists());
+        assert_eq!(files(), 10);
         c.remove().unwrap();
         assert_eq!(files(), 0);
     }

@@ -246,7 +246,11 @@ impl Solver<'_> {
         let info = self.source.info();
         let dims = info.grid.dims;
         let (ranks, me) = (self.group.size(), self.comm.rank());
-        let plan = MemoryPlan::new(budget, dims, self.threads, 0)?;
+        // The readers of the held static records' frames: the index of each set (at most twice
+        // a rank's records, `held::MOST_SETS`), counted as the one-process solver's three
+        // copies of a rank's share, and their buffers.
+        let framed = info.count.div_ceil(ranks as u64);
+        let plan = MemoryPlan::new(budget, dims, self.threads, framed)?;
         // At a merge a rank holds its old and new held files and the received runs, about three
         // times its share; rank 0 also the canonical radiosity.
         let share = info.count.div_ceil(ranks as u64) * held::WIRE_LEN as u64;
@@ -558,14 +562,14 @@ impl Solver<'_> {
             self.group.sum_in_place(&mut load);
             return Ok(load);
         }
-        let [statics, ..] = held.open_files()?;
+        let statics = held.open_files()?.statics;
         let chunk = (plan.io_bytes / STATIC_LEN).max(1) as u64;
         let mut bytes = Vec::new();
         let mut at = 0u64;
         while at < held.count {
             let records = chunk.min(held.count - at);
             bytes.resize(records as usize * STATIC_LEN, 0);
-            statics.read_at(at * STATIC_LEN as u64, &mut bytes, io)?;
+            statics.read(at, &mut bytes, io)?;
             for r in bytes.chunks_exact(STATIC_LEN) {
                 let v = held::voxel(r);
                 let j = v[frame.v] as u64 + frame.layer_shift(v[frame.main] as usize).1;
@@ -618,9 +622,14 @@ impl Solver<'_> {
             histogram: PathBuf::new(),
             layer_start,
         };
-        let [statics, radiosity, gathered, _] = held.open_files()?;
+        let held::HeldFiles {
+            statics,
+            radiosity,
+            gathered,
+            ..
+        } = held.open_files()?;
         let files = CopyFiles {
-            statics: StaticFile::Records(statics),
+            statics: StaticFile::Runs(statics),
             radiosity,
             gathered,
             previous: None,
