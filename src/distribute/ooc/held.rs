@@ -39,7 +39,7 @@
 //! `docs/cluster.md`). In wire form, between ranks and in run files, they stay whole.
 
 use crate::outcore::files::{
-    IoCounters, RecordFile, SeqReader, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
+    IoCounters, RecordFile, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
 use crate::outcore::framed::{FrameBuffers, FramedRuns, FramedStatics, FramedWriter};
 use crate::outcore::OocError;
@@ -590,27 +590,84 @@ impl HeldWriter {
     }
 }
 
-/// Appends wire records to a run file.
+/// Records a frame of a run file holds (the last may hold fewer).
+const RUN_FRAME_RECORDS: usize = 128;
+const RUN_FRAME_BYTES: usize = RUN_FRAME_RECORDS * WIRE_LEN;
+
+/// Appends wire records to a run file, in frames: each frame is `u32` LE records, `u32` LE
+/// bytes of the LZ4 block that follows, and the block, the frame's records as byte planes
+/// (byte 0 of every record, then byte 1, ...). Records of a run are in key order, neighbours in
+/// a copy's order, whose static parts are alike (as `outcore::framed` keeps them). Run files
+/// are read only from start to end, and the files of the exchange go between ranks as they are
+/// (their receiver appends them whole, [`RunWriter::append_frames`]).
 pub struct RunWriter {
     out: SeqWriter,
+    pending: Vec<u8>,
+    planes: Vec<u8>,
+    packed: Vec<u8>,
+    /// Records written through [`RunWriter::write`].
     pub count: u64,
+    /// Bytes of frames appended whole.
+    pub appended: u64,
 }
 
 impl RunWriter {
     pub fn create(path: &Path, buffer_bytes: usize) -> Result<Self, OocError> {
         Ok(RunWriter {
             out: SeqWriter::create(path, buffer_bytes)?,
+            pending: Vec::new(),
+            planes: Vec::new(),
+            packed: Vec::new(),
             count: 0,
+            appended: 0,
         })
     }
 
     /// Appends whole records (`bytes` holds a multiple of [`WIRE_LEN`]).
     pub fn write(&mut self, bytes: &[u8]) -> Result<(), OocError> {
         self.count += (bytes.len() / WIRE_LEN) as u64;
+        self.pending.extend_from_slice(bytes);
+        if self.pending.len() >= RUN_FRAME_BYTES {
+            let whole = self.pending.len() / RUN_FRAME_BYTES * RUN_FRAME_BYTES;
+            let pending = std::mem::take(&mut self.pending);
+            for frame in pending[..whole].chunks_exact(RUN_FRAME_BYTES) {
+                self.flush_frame(frame)?;
+            }
+            self.pending = pending;
+            self.pending.drain(..whole);
+        }
+        Ok(())
+    }
+
+    /// Appends frames another run file holds, as they are (part of them, in order).
+    pub fn append_frames(&mut self, bytes: &[u8]) -> Result<(), OocError> {
+        self.appended += bytes.len() as u64;
         self.out.write(bytes)
     }
 
-    pub fn finish(self, io: &mut IoCounters) -> Result<PathBuf, OocError> {
+    fn flush_frame(&mut self, records: &[u8]) -> Result<(), OocError> {
+        let n = records.len() / WIRE_LEN;
+        self.planes.resize(records.len(), 0);
+        for (r, record) in records.chunks_exact(WIRE_LEN).enumerate() {
+            for (b, &byte) in record.iter().enumerate() {
+                self.planes[b * n + r] = byte;
+            }
+        }
+        let fail = |e| OocError::io(self.out.path(), "compress", e);
+        let bound = lz4::block::compress_bound(records.len()).map_err(fail)?;
+        self.packed.resize(bound, 0);
+        let len = lz4::block::compress_to_buffer(&self.planes, None, false, &mut self.packed)
+            .map_err(|e| OocError::io(self.out.path(), "compress", e))?;
+        self.out.write(&(n as u32).to_le_bytes())?;
+        self.out.write(&(len as u32).to_le_bytes())?;
+        self.out.write(&self.packed[..len])
+    }
+
+    pub fn finish(mut self, io: &mut IoCounters) -> Result<PathBuf, OocError> {
+        if !self.pending.is_empty() {
+            let pending = std::mem::take(&mut self.pending);
+            self.flush_frame(&pending)?;
+        }
         let path = self.out.path().to_path_buf();
         io.written += self.out.finish()?;
         Ok(path)
@@ -620,10 +677,64 @@ impl RunWriter {
 /// A stream of wire records (a run file, or the held files read through a filter).
 pub type Source<'a> = Box<dyn FnMut() -> Result<Option<Wire>, OocError> + 'a>;
 
-/// A run file as a [`Source`].
+/// A run file ([`RunWriter`]) as a [`Source`].
 pub fn run_source<'a>(path: &Path, buffer_bytes: usize) -> Result<Source<'a>, OocError> {
-    let mut reader = SeqReader::<WIRE_LEN>::open(path, buffer_bytes)?;
-    Ok(Box::new(move || reader.next_record()))
+    let file = std::fs::File::open(path).map_err(|e| OocError::io(path, "open", e))?;
+    let mut input = std::io::BufReader::with_capacity(buffer_bytes.max(64), file);
+    let path = path.to_path_buf();
+    let (mut records, mut planes, mut packed) = (Vec::new(), Vec::new(), Vec::new());
+    let mut next = 0usize;
+    Ok(Box::new(move || {
+        use std::io::Read;
+        if next * WIRE_LEN >= records.len() {
+            let damaged = |what: &str| {
+                OocError::io(
+                    &path,
+                    "read",
+                    std::io::Error::new(std::io::ErrorKind::InvalidData, what.to_string()),
+                )
+            };
+            let mut head = [0u8; 8];
+            // The file's end is where a frame would begin; a signal may interrupt the read.
+            loop {
+                match input.read(&mut head[..1]) {
+                    Ok(0) => return Ok(None),
+                    Ok(_) => break,
+                    Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+                    Err(e) => return Err(OocError::io(&path, "read", e)),
+                }
+            }
+            let fail = |e| OocError::io(&path, "read", e);
+            input.read_exact(&mut head[1..]).map_err(fail)?;
+            let word = |k: usize| u32::from_le_bytes(head[4 * k..4 * k + 4].try_into().expect("4"));
+            let (n, len) = (word(0) as usize, word(1) as usize);
+            let bound = lz4::block::compress_bound(RUN_FRAME_BYTES).unwrap_or(0);
+            if n == 0 || n > RUN_FRAME_RECORDS || len > bound {
+                return Err(damaged("a frame of a run file has a wrong header"));
+            }
+            packed.resize(len, 0);
+            input.read_exact(&mut packed).map_err(fail)?;
+            planes.resize(n * WIRE_LEN, 0);
+            let got =
+                lz4::block::decompress_to_buffer(&packed, Some(planes.len() as i32), &mut planes)
+                    .map_err(|_| damaged("a frame of a run file does not decompress"))?;
+            if got != planes.len() {
+                return Err(damaged("a frame of a run file is short"));
+            }
+            records.resize(n * WIRE_LEN, 0);
+            for (b, plane) in planes.chunks_exact(n).enumerate() {
+                for (r, &byte) in plane.iter().enumerate() {
+                    records[r * WIRE_LEN + b] = byte;
+                }
+            }
+            next = 0;
+        }
+        let at = next * WIRE_LEN;
+        next += 1;
+        Ok(Some(
+            records[at..at + WIRE_LEN].try_into().expect("a record"),
+        ))
+    }))
 }
 
 /// Merges `first` (if any) and the run files `runs`, each sorted by `key`, into `sink` in that
@@ -770,6 +881,49 @@ mod tests {
         w[68..72].copy_from_slice(&id.to_le_bytes());
         w[WIRE_LEN - 1] = id as u8;
         w
+    }
+
+    /// A run file of several frames reads back its records in order, takes fewer bytes than
+    /// they do, and a damaged frame is an error naming the file.
+    #[test]
+    fn run_files_read_back_from_their_frames() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.run");
+        let records: Vec<Wire> = (0..3 * RUN_FRAME_RECORDS as u32 + 9)
+            .map(|k| record([k as i32 / 5, 3, (k % 5) as i32], k))
+            .collect();
+        let mut out = RunWriter::create(&path, 4096).unwrap();
+        // Written in pieces that do not fall on frames.
+        for piece in records.chunks(50) {
+            out.write(&piece.concat()).unwrap();
+        }
+        let mut io = IoCounters::default();
+        out.finish(&mut io).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(io.written, bytes.len() as u64);
+        assert!(
+            bytes.len() * 4 < records.len() * WIRE_LEN,
+            "{} bytes",
+            bytes.len()
+        );
+        let mut source = run_source(&path, 100).unwrap();
+        for (k, w) in records.iter().enumerate() {
+            assert!(source().unwrap().as_ref() == Some(w), "record {k}");
+        }
+        assert!(source().unwrap().is_none());
+        // Appended whole elsewhere (as the exchange does, in pieces), the same records.
+        let copy = dir.path().join("c.run");
+        let mut appended = RunWriter::create(&copy, 64).unwrap();
+        for piece in bytes.chunks(1000) {
+            appended.append_frames(piece).unwrap();
+        }
+        appended.finish(&mut io).unwrap();
+        assert_eq!(std::fs::read(&copy).unwrap(), bytes);
+        let mut damaged = bytes.clone();
+        damaged[0] = 0;
+        std::fs::write(&path, &damaged).unwrap();
+        let e = run_source(&path, 100).unwrap()().unwrap_err();
+        assert!(e.to_string().contains("r.run"), "{e}");
     }
 
     #[test]

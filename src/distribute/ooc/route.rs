@@ -135,14 +135,15 @@ impl Router<'_> {
             self.round_bytes(),
             io,
             &mut |source, bytes| match incoming[source].as_mut() {
-                Some(run) => run.write(bytes),
+                // The sender's run file, compressed as it was written.
+                Some(run) => run.append_frames(bytes),
                 None => Ok(()),
             },
         )?;
         for path in outgoing.iter().flatten() {
             std::fs::remove_file(path).map_err(|e| OocError::io(path, "remove", e))?;
         }
-        let received: u64 = incoming.iter().flatten().map(|r| r.count).sum();
+        let received: u64 = incoming.iter().flatten().map(|r| r.appended).sum();
         let mut runs = Vec::new();
         for run in incoming.into_iter().flatten() {
             runs.push(run.finish(io)?);
