@@ -36,7 +36,8 @@
 //! set keeps them as the one-process solver keeps an axis copy's (`outcore::framed`: frames of
 //! byte planes under LZ4, with an index file beside, `held-G-static.index`). The held order
 //! is a copy order, whose neighbours are alike: 72 bytes a record become a few (see
-//! `docs/cluster.md`). In wire form, between ranks and in run files, they stay whole.
+//! `docs/cluster.md`). Run files ([`RunWriter`]), which also go between ranks as they are,
+//! keep whole wire records in frames of their own.
 
 use crate::outcore::files::{
     IoCounters, RecordFile, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
