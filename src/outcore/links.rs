@@ -92,10 +92,14 @@ impl Recording {
         let head = (self.buffer.len() - head_at - 8) as u64;
         self.buffer[head_at..head_at + 8].copy_from_slice(&head.to_le_bytes());
         // The blocks are compressed on the threads, each with its own room for one block's
-        // planes (not kept between bands: directions recorded together each hold a recording).
+        // planes (not kept between bands: directions recorded together each hold a recording),
+        // and each kept at its compressed size until it is copied into the band's bytes.
         let blocks = links.encode_blocks(|planes| {
             let mut packed = Vec::new();
-            compress_block(planes, &mut packed).map(|()| packed)
+            compress_block(planes, &mut packed).map(|()| {
+                packed.shrink_to_fit();
+                packed
+            })
         });
         for packed in blocks {
             let packed = packed.map_err(|e| OocError::io(&self.path, "compress", e))?;
