@@ -118,14 +118,32 @@ fn packed_bound(bytes: usize) -> usize {
 /// Compresses one frame's records, as byte planes (`planes`, of a frame's length, is scratch),
 /// into `packed` (of LZ4's bound for a frame); returns its length.
 fn compress_frame(records: &[u8], planes: &mut [u8], packed: &mut [u8]) -> std::io::Result<usize> {
-    let n = records.len() / STATIC_LEN;
     let planes = &mut planes[..records.len()];
-    for (r, record) in records.chunks_exact(STATIC_LEN).enumerate() {
+    planes_of_records(records, STATIC_LEN, planes);
+    lz4::block::compress_to_buffer(planes, None, false, packed)
+}
+
+/// Records of `record_len` bytes as byte planes (byte 0 of every record, then byte 1, ...):
+/// `planes` is as long as `records`. Also the run files of the data mode
+/// (`distribute::ooc::held`), whose records are longer.
+pub fn planes_of_records(records: &[u8], record_len: usize, planes: &mut [u8]) {
+    let n = records.len() / record_len;
+    for (r, record) in records.chunks_exact(record_len).enumerate() {
         for (b, &byte) in record.iter().enumerate() {
             planes[b * n + r] = byte;
         }
     }
-    lz4::block::compress_to_buffer(planes, None, false, packed)
+}
+
+/// The inverse of [`planes_of_records`], a byte at a time (the frames of static records are
+/// read back faster, eight records at a time, by `records_of_planes`).
+pub fn records_of_byte_planes(planes: &[u8], record_len: usize, records: &mut [u8]) {
+    let n = planes.len() / record_len;
+    for (b, plane) in planes.chunks_exact(n.max(1)).enumerate().take(record_len) {
+        for (r, &byte) in plane.iter().enumerate() {
+            records[r * record_len + b] = byte;
+        }
+    }
 }
 
 /// Records `lo..hi` of a frame of `n` records held as byte planes, into `out` as records.

@@ -42,7 +42,10 @@
 use crate::outcore::files::{
     IoCounters, RecordFile, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
 };
-use crate::outcore::framed::{FrameBuffers, FramedRuns, FramedStatics, FramedWriter};
+use crate::outcore::framed::{
+    planes_of_records, records_of_byte_planes, FrameBuffers, FramedRuns, FramedStatics,
+    FramedWriter,
+};
 use crate::outcore::OocError;
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -649,11 +652,7 @@ impl RunWriter {
     fn flush_frame(&mut self, records: &[u8]) -> Result<(), OocError> {
         let n = records.len() / WIRE_LEN;
         self.planes.resize(records.len(), 0);
-        for (r, record) in records.chunks_exact(WIRE_LEN).enumerate() {
-            for (b, &byte) in record.iter().enumerate() {
-                self.planes[b * n + r] = byte;
-            }
-        }
+        planes_of_records(records, WIRE_LEN, &mut self.planes);
         let fail = |e| OocError::io(self.out.path(), "compress", e);
         let bound = lz4::block::compress_bound(records.len()).map_err(fail)?;
         self.packed.resize(bound, 0);
@@ -723,11 +722,7 @@ pub fn run_source<'a>(path: &Path, buffer_bytes: usize) -> Result<Source<'a>, Oo
                 return Err(damaged("a frame of a run file is short"));
             }
             records.resize(n * WIRE_LEN, 0);
-            for (b, plane) in planes.chunks_exact(n).enumerate() {
-                for (r, &byte) in plane.iter().enumerate() {
-                    records[r * WIRE_LEN + b] = byte;
-                }
-            }
+            records_of_byte_planes(&planes, WIRE_LEN, &mut records);
             next = 0;
         }
         let at = next * WIRE_LEN;
