@@ -2,7 +2,9 @@
 //! run stored as byte planes (byte `b` of every record of the frame, then byte `b + 1` ...)
 //! and compressed on its own as an LZ4 block, and the byte offset of every frame kept in an index
 //! file beside, so that a band reads any range of records by reading and decompressing only the
-//! frames that hold it.
+//! frames that hold it. The data mode's held files keep their static records the same way, in
+//! several files whose runs of records [`FramedRuns`] reads as one; its run files use the same
+//! byte planes ([`planes_of_records`]) for their longer records.
 //!
 //! Why: the static records are three of the largest work files (72 bytes a surfel in each of the
 //! three copies), and neighbours in a copy's order are alike (the same plane, normal, material

@@ -20,6 +20,11 @@
 //!
 //! What is kept is bounded by a budget ([`LinkBudget`]): a direction whose links do not fit is
 //! searched again in every iteration, as before.
+//!
+//! **As bytes** ([`DirectionLinks::encode_head`], [`DirectionLinks::encode_block`]): a head and
+//! blocks of byte planes of differences, which compress well; the out-of-core links files
+//! (`outcore::links`) compress them with LZ4. This module writes and reads the planes, not the
+//! files.
 
 use super::dispatch::Lines;
 use super::jacobi::AccPtr;
@@ -405,7 +410,7 @@ impl DirectionLinks {
     /// Appends the head of the links' bytes to `out`: little-endian counts (factors, pieces,
     /// links) and whether they are wide, then the factors and the piece bounds. The links
     /// follow in blocks of [`PLANE_BLOCK_LINKS`] ([`Self::encode_block`]); [`Self::decode_head`]
-    /// and [`Self::decode_block`] read them back.
+    /// and [`Self::decode_blocks`] read them back.
     pub fn encode_head(&self, out: &mut Vec<u8>) {
         let wide = matches!(self.packed, Packed::Wide(_));
         for count in [
@@ -477,7 +482,7 @@ impl DirectionLinks {
     }
 
     /// Reads back into `self` a head [`Self::encode_head`] wrote (the arrays' memory reused),
-    /// with no links yet: [`Self::decode_block`] adds them. `None` when `bytes` are not such a
+    /// with no links yet: [`Self::decode_blocks`] adds them. `None` when `bytes` are not such a
     /// head (a piece bound out of range included).
     pub fn decode_head(&mut self, bytes: &[u8]) -> Option<()> {
         let word = |at: usize| -> Option<u64> {
