@@ -172,46 +172,47 @@ fn a_budget_too_small_is_refused_with_what_it_needs() {
     assert_eq!(out.status.code(), Some(2));
 }
 
-/// A budget that holds the bands but not one group of the direct-light pass's lines is refused
-/// up front with what the pass needs and how to turn it off, exit status 2; turned off, the same
-/// budget solves.
+/// A budget that holds the bands but not one group of the direct-light pass's lines takes the
+/// group in pieces of its lines (`outcore::direct`) and gives the bytes a roomy budget gives;
+/// the report says how many groups were split.
 #[test]
-fn a_budget_too_small_for_the_direct_light_pass_is_refused_with_what_it_needs() {
+fn a_budget_too_small_for_one_group_of_the_direct_light_pass_splits_it() {
     let tmp = tempfile::tempdir().unwrap();
     let set = voxelize(&voxrad::gen::cornell_box(), GridSpec::Resolution(48)).unwrap();
     let shards = tmp.path().join("cornell.shards");
     common::write_shard_set(&set, &shards, 1);
-    let solve = |extra: &[&str], out: &str| {
-        let out = s(&tmp.path().join(out));
-        let mut args = vec![
+    let solve = |memory: &str, out: &str| {
+        let out = tmp.path().join(out);
+        let args = [
             "solve",
             shards.to_str().unwrap(),
             "--out",
-            &out,
+            &s(&out),
             "--directions",
             "49",
             "--iterations",
             "1",
             "--memory",
-            "512KiB",
+            memory,
         ];
-        args.extend_from_slice(extra);
-        voxrad(&args)
+        ok(&voxrad(&args), memory);
+        let report: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+        let split = report["out_of_core"]["direct_light_split_groups"]
+            .as_u64()
+            .expect("direct_light_split_groups in the report");
+        (std::fs::read(out.join("surfels.bin")).unwrap(), split)
     };
-    let out = solve(&[], "refused");
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "{err}");
+    let (roomy, roomy_split) = solve("64MiB", "roomy");
+    let (small, small_split) = solve("512KiB", "small");
+    assert_eq!(roomy_split, 0, "a roomy budget holds whole groups");
     assert!(
-        err.contains("too small")
-            && err.contains("direct-light pass")
-            && err.contains("--direct-directions 0")
-            && err.contains("give --memory"),
-        "{err}"
+        small_split > 0,
+        "512 KiB holds no whole group of this box's lines"
     );
-    assert!(!err.contains("panicked"), "{err}");
-    ok(
-        &solve(&["--direct-directions", "0"], "plain"),
-        "without the pass",
+    assert!(
+        roomy == small,
+        "the pieces of a group add what the whole group adds"
     );
 }
 

@@ -13,7 +13,14 @@
 //!    walked through the occupancy map and the voxels of occupied bricks on them listed; a part
 //!    takes as many groups as the budget holds the surfels of those voxels for (estimated from
 //!    the scene's surfels per brick voxel; a part whose surfels turn out too many is taken again
-//!    with half its groups).
+//!    with half its groups). A group that does not fit a part alone (in a building, a lamp's
+//!    lines cross every floor: one direction's lines held a seventh of a building's surfels) is
+//!    *split*: its directions' lines are taken in order, as many as a part holds, a part ending
+//!    inside a direction and the next one going on from there with the senders' sums so far
+//!    (`solve::direct::Piece`). The light each piece gathers is kept in a work file, unscaled,
+//!    until the group is complete; then its senders' balance is settled and the kept light,
+//!    scaled, added to the sums in the order it was gathered: what the whole group adds, bit
+//!    for bit.
 //! 3. One pass over the source picks these surfels, in canonical order: a small scene of its
 //!    own, on which `solve::direct::gather_groups` runs unchanged. Every line it walks is whole
 //!    there, so it finds the links the whole scene gives.
@@ -27,7 +34,8 @@
 //!
 //! **Memory.** The occupancy map and the emitters' voxels stay for the whole pass; a part holds
 //! its voxels' keys and its surfels (about [`PART_BYTES_PER_SURFEL`] each with the tables the
-//! gathering builds). A single group that does not fit is refused with what it needs.
+//! gathering builds). A split group's pieces are held the same way; the refusal is left for a
+//! budget that cannot hold the surfels of a single line.
 
 use super::budget::{format_bytes, MemoryPlan};
 use super::files::{encode_light32, IoCounters, RecordFile, SeqReader, SeqWriter, LIGHT32_LEN};
@@ -36,11 +44,14 @@ use super::OocError;
 use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::solve::direct::{
-    emits, emitting, for_each_voxel_on_line, gather_groups, DirectStats, SenderBalance, Sums,
+    add_scaled, emits, emitting, for_each_voxel_on_line, gather_groups, gather_pieces,
+    group_scales, sender_key, sender_of_key, DirectStats, Piece, Sender, SenderBalance, Sums,
     DIRECTIONS_PER_GROUP,
 };
+use crate::solve::mix_hash::MixMap;
 use crate::solve::normalize::cosine_sums;
 use crate::solve::propagate::prop_surfels;
+use crate::solve::propagate::PropSurfel;
 use crate::voxel::SurfelSet;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -133,9 +144,503 @@ fn too_small(
     }
 }
 
-/// A voxel as one sortable number: the key of the in-memory pass's voxel table.
+/// A voxel as one sortable number, in `(z, y, x)` order: the order of a shard set's surfels, so
+/// that a part's sorted keys are met in order along its stream.
 fn voxel_key(voxel: [i32; 3]) -> u64 {
     crate::solve::direct::VoxelTable::key(voxel)
+}
+
+/// What the pass's parts share: the source, the plan and what the first pass over the source
+/// found.
+struct Pass<'a> {
+    source: &'a dyn SurfelSource,
+    dense: &'a DirectionSet,
+    plan: &'a MemoryPlan,
+    pool: &'a rayon::ThreadPool,
+    occupancy: Occupancy,
+    emitter_voxels: Vec<[i32; 3]>,
+    /// Surfels per listed voxel, as estimated: the scene's mean over the marked bricks at
+    /// first, raised to what a part found (lines through lamps cross floors and walls, where
+    /// the surfels are denser than the mean).
+    density: std::cell::Cell<f64>,
+    /// Bytes a part may take.
+    room: u64,
+    /// Whether a part's voxel table keeps a bit per voxel of the grid.
+    bitmap: bool,
+    cosine_sum: Vec<f64>,
+    sums_file: RecordFile,
+}
+
+/// A part whose surfels were more than its room holds, and the surfels per listed voxel met
+/// before the room was full (more than the scene's mean, which the estimate took).
+struct Overflow {
+    density: f64,
+}
+
+/// The surfels of a part, in canonical order, and their canonical indices.
+struct Part {
+    set: SurfelSet,
+    ids: Vec<u64>,
+}
+
+impl Pass<'_> {
+    fn emission_of(&self, material: [u32; 2]) -> [[f32; 3]; 2] {
+        let materials = &self.source.info().materials;
+        material.map(|m| materials[m as usize].emission.map(|e| e as f32))
+    }
+
+    /// Raises the estimate of surfels per listed voxel to `seen`, what a part met.
+    fn learn(&self, seen: f64) {
+        self.density.set(self.density.get().max(seen));
+    }
+
+    /// Bytes a part takes: its listed voxels' keys (8 bytes each) and its surfels.
+    fn part_bytes(&self, keys: usize, surfels: f64) -> u64 {
+        keys as u64 * 8 + (surfels * PART_BYTES_PER_SURFEL as f64) as u64
+    }
+
+    /// The occupied voxels on the emitters' lines of the dense directions `which`, and the bytes
+    /// a part holding their surfels is estimated to take.
+    fn listed(&self, which: &[usize]) -> (Vec<u64>, u64) {
+        let keys = line_voxels(
+            which,
+            self.dense,
+            self.source.info().grid.dims,
+            &self.emitter_voxels,
+            &self.occupancy,
+            self.pool,
+        );
+        let needed = self.part_bytes(keys.len(), keys.len() as f64 * self.density.get());
+        (keys, needed)
+    }
+
+    /// The refusal of a part of `directions` directions that needs `needed` bytes for the
+    /// surfels of `voxels` voxels. The budget it names is enough whether or not the larger
+    /// budget's part gets an occupancy bitmap (which takes from the part's room).
+    fn too_small(&self, needed: u64, voxels: usize, directions: usize) -> OocError {
+        let grid = self.source.info().grid.dims;
+        let voxels_of_grid: u64 = grid.iter().map(|&d| d as u64).product();
+        let bitmap_room = if self.bitmap || voxels_of_grid > crate::solve::direct::MAX_BITMAP_VOXELS
+        {
+            0
+        } else {
+            crate::solve::direct::bitmap_bytes(voxels_of_grid)
+        };
+        too_small(
+            self.plan,
+            self.room,
+            needed + bitmap_room,
+            voxels,
+            directions,
+        )
+    }
+
+    /// One pass over the source for the surfels of the voxels `keys` (sorted), in canonical
+    /// order; `None` if they are more than the part's room holds. A shard set comes in the
+    /// keys' order, so the keys are walked along with it, by steps that double (a search over
+    /// all of them only where the stream's order goes back, as a scene voxelized in memory,
+    /// stored in Morton order, does).
+    fn pick(&self, keys: &[u64], io: &mut IoCounters) -> Result<Result<Part, Overflow>, OocError> {
+        let info = self.source.info();
+        let cap =
+            (self.room.saturating_sub(keys.len() as u64 * 8) / PART_BYTES_PER_SURFEL) as usize;
+        let mut set = SurfelSet {
+            grid: info.grid,
+            surfels: Vec::new(),
+            normals: info.normals.clone(),
+            materials: info.materials.clone(),
+        };
+        let mut ids: Vec<u64> = Vec::new();
+        let (mut at, mut last) = (0, 0);
+        for (id, s) in self.source.stream(self.plan.io_bytes as u64)?.enumerate() {
+            let s = s?;
+            let key = voxel_key(s.voxel);
+            if key < last {
+                at = keys.partition_point(|&k| k < key);
+            } else {
+                at = gallop(keys, at, key);
+            }
+            last = key;
+            if keys.get(at) == Some(&key) {
+                if set.surfels.len() >= cap {
+                    io.read += (id as u64 + 1) * crate::storage::RECORD_LEN as u64;
+                    return Ok(Err(Overflow {
+                        density: cap as f64 / (at.max(1)) as f64,
+                    }));
+                }
+                set.surfels.push(s);
+                ids.push(id as u64);
+            }
+        }
+        io.read += info.count * crate::storage::RECORD_LEN as u64;
+        Ok(Ok(Part { set, ids }))
+    }
+
+    /// Whole groups `which` on `part`: their light added to the running sums of its surfels.
+    fn gather_whole(
+        &self,
+        part: &Part,
+        which: &[usize],
+        first: bool,
+        progress: &indicatif::ProgressBar,
+        stats: &mut DirectStats,
+        io: &mut IoCounters,
+    ) -> Result<(), OocError> {
+        let mut light = vec![[[0f64; 3]; 2]; part.ids.len()];
+        let mut rescaled = vec![[0f64; 2]; part.ids.len()];
+        let mut bytes = [0u8; SUM_LEN];
+        if !first {
+            for (k, &id) in part.ids.iter().enumerate() {
+                self.sums_file
+                    .read_at(id * SUM_LEN as u64, &mut bytes, io)?;
+                (light[k], rescaled[k]) = decode_sum(&bytes);
+            }
+        }
+        let sums = Sums {
+            light: &mut light,
+            rescaled: &mut rescaled,
+            stats,
+        };
+        let (emission, emitters, surfels) = self.part_tables(part);
+        gather_groups(
+            &part.set,
+            &surfels,
+            &emission,
+            &emitters,
+            &self.cosine_sum,
+            self.dense,
+            which,
+            SenderBalance::PerDirection,
+            self.pool,
+            self.bitmap,
+            progress,
+            sums,
+        );
+        for (k, &id) in part.ids.iter().enumerate() {
+            encode_sum(&light[k], &rescaled[k], &mut bytes);
+            self.sums_file.write_at(id * SUM_LEN as u64, &bytes, io)?;
+        }
+        Ok(())
+    }
+
+    /// What the gathering reads of a part besides its surfels: their emission, the emitting
+    /// ones, their propagation records.
+    fn part_tables(&self, part: &Part) -> (Vec<[[f32; 3]; 2]>, Vec<u32>, Vec<PropSurfel>) {
+        let emission: Vec<[[f32; 3]; 2]> = part
+            .set
+            .surfels
+            .iter()
+            .map(|s| self.emission_of(s.material))
+            .collect();
+        let emitters = emitting(&emission);
+        (emission, emitters, prop_surfels(&part.set))
+    }
+
+    /// The emitters' lines of `frame`, sorted, each once.
+    fn lines_of(&self, frame: &LineFrame) -> Vec<u64> {
+        let mut lines: Vec<u64> = self
+            .emitter_voxels
+            .iter()
+            .map(|&v| frame.line_index(v))
+            .collect();
+        lines.sort_unstable();
+        lines.dedup();
+        lines
+    }
+
+    /// The frame of dense direction `k`'s lines.
+    fn frame(&self, k: usize) -> LineFrame {
+        LineFrame::new(
+            self.dense.directions[k].vector,
+            self.source.info().grid.dims,
+        )
+    }
+
+    /// The occupied voxels on `lines` of dense direction `k` (`frame` its frame), in the
+    /// order met.
+    fn voxels_on(&self, k: usize, frame: &LineFrame, lines: &[u64], out: &mut Vec<u64>) {
+        let dims = self.source.info().grid.dims;
+        let vector = self.dense.directions[k].vector;
+        for &line in lines {
+            for_each_voxel_on_line(frame, dims, vector, line, |voxel| {
+                if self.occupancy.contains(voxel) {
+                    out.push(voxel_key(voxel));
+                }
+            });
+        }
+    }
+
+    /// One group whose emitters' lines do not fit a part (a building's lamps are crossed by
+    /// lines through every floor: one direction's lines can hold a seventh of its surfels). Its
+    /// directions' lines are taken in order, as many consecutive ones as a part holds (a part may
+    /// end inside a direction and the next go on from there, carrying the senders' sums so
+    /// far), each piece's light kept in a work file ([`TERM_LEN`] bytes a contribution) and
+    /// each direction's senders in memory. Once the group is complete its senders' balance is
+    /// settled, and the kept light, scaled, is added to the running sums in direction order:
+    /// what the whole group adds. Returns the parts taken.
+    fn gather_split(
+        &self,
+        group: &[usize],
+        dir: &Path,
+        stats: &mut DirectStats,
+        io: &mut IoCounters,
+    ) -> Result<u64, OocError> {
+        let kept_path = dir.join("direct-group.bin");
+        let mut split = Split {
+            kept: SeqWriter::create(&kept_path, self.plan.io_bytes)?,
+            senders: vec![Vec::new(); group.len()],
+            counts: vec![0; group.len()],
+            parts: 0,
+        };
+        self.pack(group, |pieces, keys| {
+            self.split_part(group, pieces, Some(keys), &mut split, stats, io)
+        })?;
+        io.written += split.kept.finish()?;
+        let refs: Vec<&[((u32, usize), Sender)]> =
+            split.senders.iter().map(Vec::as_slice).collect();
+        let scales = group_scales(&refs, SenderBalance::PerDirection);
+        // The kept light in runs as large as the room holds, each run's terms applied by
+        // surfel (a stable sort keeps each surfel's terms in the order gathered) with one read
+        // and one write of its sums.
+        let run = (self.room / std::mem::size_of::<Term>() as u64).max(1) as usize;
+        let mut terms: Vec<Term> = Vec::with_capacity(run.min(1 << 20));
+        let mut reader = SeqReader::<TERM_LEN>::open(&kept_path, self.plan.io_bytes)?;
+        let damaged = || {
+            OocError::io(
+                &kept_path,
+                "read",
+                std::io::Error::new(
+                    std::io::ErrorKind::InvalidData,
+                    "a kept contribution names a sender its direction does not have",
+                ),
+            )
+        };
+        for (j, &count) in split.counts.iter().enumerate() {
+            for _ in 0..count {
+                let (id, side, sender, light, weight) = decode_term(&reader.expect_record()?);
+                let at = split.senders[j]
+                    .binary_search_by_key(&sender_of_key(sender), |s| s.0)
+                    .map_err(|_| damaged())?;
+                terms.push(Term {
+                    id,
+                    side,
+                    light,
+                    weight,
+                    scale: scales[j][at],
+                });
+                if terms.len() >= run {
+                    self.apply(&mut terms, io)?;
+                }
+            }
+        }
+        self.apply(&mut terms, io)?;
+        io.read += split.counts.iter().sum::<u64>() * TERM_LEN as u64;
+        drop(reader);
+        std::fs::remove_file(&kept_path).map_err(|e| OocError::io(&kept_path, "remove", e))?;
+        tracing::debug!(
+            parts = split.parts,
+            contributions = split.counts.iter().sum::<u64>(),
+            "direct-light pass: a split group gathered"
+        );
+        Ok(split.parts)
+    }
+
+    /// Packs the lines of `group`'s directions, in order, into parts greedily, by the distinct
+    /// voxels they cross (lines of neighbouring directions through one lamp share most of
+    /// their voxels near it), and hands each part to `part`: its pieces (the lines of
+    /// directions `group[j]`) and its voxels' keys, sorted.
+    fn pack(
+        &self,
+        group: &[usize],
+        mut part: impl FnMut(Vec<(usize, Vec<u64>)>, Vec<u64>) -> Result<(), OocError>,
+    ) -> Result<(), OocError> {
+        let mut pending: Vec<(usize, Vec<u64>)> = Vec::new();
+        let mut distinct: MixMap<()> = MixMap::default();
+        let mut voxels = Vec::new();
+        let mut flush = |pending: &mut Vec<(usize, Vec<u64>)>, distinct: &mut MixMap<()>| {
+            let mut keys: Vec<u64> = distinct.drain().map(|(key, ())| key).collect();
+            keys.sort_unstable();
+            part(std::mem::take(pending), keys)
+        };
+        for (j, &k) in group.iter().enumerate() {
+            let frame = self.frame(k);
+            for line in self.lines_of(&frame) {
+                voxels.clear();
+                self.voxels_on(k, &frame, &[line], &mut voxels);
+                let new = voxels.iter().filter(|v| !distinct.contains_key(v)).count();
+                let per_voxel = 8.0 + self.density.get() * PART_BYTES_PER_SURFEL as f64;
+                let most = (self.room as f64 / per_voxel) as usize;
+                if distinct.len() + new > most && !pending.is_empty() {
+                    flush(&mut pending, &mut distinct)?;
+                }
+                distinct.extend(voxels.iter().map(|&v| (v, ())));
+                match pending.last_mut() {
+                    Some((last, lines)) if *last == j => lines.push(line),
+                    _ => pending.push((j, vec![line])),
+                }
+            }
+        }
+        if !pending.is_empty() {
+            flush(&mut pending, &mut distinct)?;
+        }
+        Ok(())
+    }
+
+    /// Gathers `pieces` (the lines of directions `group[j]`, in order) as one part, or, where
+    /// their surfels are more than a part holds, as two halves one after the other. `keys` are
+    /// the occupied voxels on their lines, sorted, each once, if known.
+    fn split_part(
+        &self,
+        group: &[usize],
+        pieces: Vec<(usize, Vec<u64>)>,
+        keys: Option<Vec<u64>>,
+        split: &mut Split,
+        stats: &mut DirectStats,
+        io: &mut IoCounters,
+    ) -> Result<(), OocError> {
+        let keys = keys.unwrap_or_else(|| {
+            let mut keys = Vec::new();
+            for (j, lines) in &pieces {
+                let k = group[*j];
+                self.voxels_on(k, &self.frame(k), lines, &mut keys);
+            }
+            keys.sort_unstable();
+            keys.dedup();
+            keys
+        });
+        let mut needed = self.part_bytes(keys.len(), keys.len() as f64 * self.density.get());
+        let part = if needed > self.room {
+            None
+        } else {
+            match self.pick(&keys, io)? {
+                Ok(part) => Some(part),
+                Err(overflow) => {
+                    self.learn(overflow.density);
+                    // More surfels than the estimate: at least twice what the room holds.
+                    needed = needed.max(2 * self.room);
+                    None
+                }
+            }
+        };
+        let Some(part) = part else {
+            let lines: usize = pieces.iter().map(|(_, lines)| lines.len()).sum();
+            if lines <= 1 {
+                return Err(self.too_small(needed, keys.len(), 1));
+            }
+            drop(keys);
+            // Halves of about equal lines, in order.
+            let (mut first, mut second) = (Vec::new(), Vec::new());
+            let mut left = lines / 2;
+            for (j, lines) in pieces {
+                if left >= lines.len() {
+                    left -= lines.len();
+                    first.push((j, lines));
+                } else if left > 0 {
+                    first.push((j, lines[..left].to_vec()));
+                    second.push((j, lines[left..].to_vec()));
+                    left = 0;
+                } else {
+                    second.push((j, lines));
+                }
+            }
+            self.split_part(group, first, None, split, stats, io)?;
+            return self.split_part(group, second, None, split, stats, io);
+        };
+        self.learn(part.ids.len() as f64 / keys.len().max(1) as f64);
+        drop(keys);
+        let (emission, emitters, surfels) = self.part_tables(&part);
+        let gathered = {
+            let pieces: Vec<Piece> = pieces
+                .iter()
+                .map(|(j, lines)| Piece {
+                    direction: group[*j],
+                    lines: lines[0]..lines[lines.len() - 1] + 1,
+                    carried: &split.senders[*j],
+                })
+                .collect();
+            gather_pieces(
+                &part.set,
+                &surfels,
+                &emission,
+                &emitters,
+                &self.cosine_sum,
+                self.dense,
+                &pieces,
+                self.pool,
+                self.bitmap,
+            )
+        };
+        let mut term = [0u8; TERM_LEN];
+        for ((j, _), light) in pieces.iter().zip(gathered) {
+            stats.lines += light.lines;
+            stats.line_surfels += light.line_surfels;
+            split.counts[*j] += light.contributions.len() as u64;
+            for &(member, side, sender, value, weight) in &light.contributions {
+                let (group_id, sender_side) = light.senders[sender as usize].0;
+                encode_term(
+                    part.ids[member as usize],
+                    side,
+                    sender_key(group_id, sender_side),
+                    &value,
+                    weight,
+                    &mut term,
+                );
+                split.kept.write(&term)?;
+            }
+            split.senders[*j] = light.senders;
+        }
+        split.parts += 1;
+        tracing::debug!(
+            pieces = pieces.len(),
+            surfels = part.ids.len(),
+            "direct-light pass: a part of a split group gathered"
+        );
+        Ok(())
+    }
+
+    /// Adds `terms` (in the order they were gathered) to the running sums and empties it.
+    fn apply(&self, terms: &mut Vec<Term>, io: &mut IoCounters) -> Result<(), OocError> {
+        terms.sort_by_key(|t| t.id);
+        let mut bytes = [0u8; SUM_LEN];
+        for same in terms.chunk_by(|a, b| a.id == b.id) {
+            let id = same[0].id;
+            self.sums_file
+                .read_at(id * SUM_LEN as u64, &mut bytes, io)?;
+            let (mut light, mut rescaled) = decode_sum(&bytes);
+            for t in same {
+                let side = t.side as usize;
+                add_scaled(
+                    &mut light[side],
+                    &mut rescaled[side],
+                    &t.light,
+                    t.weight,
+                    t.scale,
+                );
+            }
+            encode_sum(&light, &rescaled, &mut bytes);
+            self.sums_file.write_at(id * SUM_LEN as u64, &bytes, io)?;
+        }
+        terms.clear();
+        Ok(())
+    }
+}
+
+/// A split group under way: its kept light, each direction's senders' sums so far and
+/// contributions kept, and the parts taken.
+struct Split {
+    kept: SeqWriter,
+    senders: Vec<Vec<((u32, usize), Sender)>>,
+    counts: Vec<u64>,
+    parts: u64,
+}
+
+/// One kept contribution of a split group, its sender's scale known.
+struct Term {
+    id: u64,
+    side: u8,
+    light: [f64; 3],
+    weight: f64,
+    scale: f64,
 }
 
 /// Runs the pass over `source` along `dense` within `plan`, writing its files into `dir`.
@@ -164,7 +669,6 @@ pub fn gather_direct_out_of_core(
         }
     }
     io.read += n * crate::storage::RECORD_LEN as u64;
-    // Surfels per voxel of the marked bricks: what a part's listed voxels hold on average.
     let density = n as f64 / occupancy.voxels_marked().max(1) as f64;
     let fixed = occupancy.bytes() + emitter_voxels.len() as u64 * 12;
     let voxels: u64 = info.grid.dims.iter().map(|&d| d as u64).product();
@@ -175,12 +679,13 @@ pub fn gather_direct_out_of_core(
     let bitmap_bytes = crate::solve::direct::bitmap_bytes(voxels);
     let bitmap = voxels <= crate::solve::direct::MAX_BITMAP_VOXELS && bitmap_bytes <= room / 8;
     let room = room - if bitmap { bitmap_bytes } else { 0 };
-    // A part's surfels and its listed voxels' keys (8 bytes each).
-    let part_bytes = |keys: usize, surfels: f64| {
-        keys as u64 * 8 + (surfels * PART_BYTES_PER_SURFEL as f64) as u64
-    };
-    let cosine_sum = cosine_sums(&info.normals, dense);
 
+    tracing::info!(
+        directions = dense.len(),
+        emitting_surfels = emitter_voxels.len(),
+        room = format_bytes(room),
+        "direct-light pass out of core"
+    );
     let sum_path = dir.join("direct-sums.bin");
     let sums_file = RecordFile::create(&sum_path)?;
     sums_file.set_len(n * SUM_LEN as u64)?;
@@ -189,39 +694,43 @@ pub fn gather_direct_out_of_core(
         emitting_surfels: emitter_voxels.len(),
         ..Default::default()
     };
+    let pass = Pass {
+        source,
+        dense,
+        plan,
+        pool,
+        occupancy,
+        emitter_voxels,
+        density: std::cell::Cell::new(density),
+        room,
+        bitmap,
+        cosine_sum: cosine_sums(&info.normals, dense),
+        sums_file,
+    };
     let groups: Vec<Vec<usize>> = (0..dense.len())
         .collect::<Vec<_>>()
         .chunks(DIRECTIONS_PER_GROUP)
         .map(<[usize]>::to_vec)
         .collect();
+    warn_of_many_passes(&pass, &groups);
     let progress = crate::progress::bar(dense.len() as u64, "direct light");
     let mut parts = 0u64;
     let mut next = 0;
     // At most this many groups per part (halved when a part's surfels did not fit).
     let mut most = groups.len();
     while next < groups.len() {
-        // 2. The groups of this part and the voxels of occupied bricks on their emitters' lines.
+        // 2. The groups of this part and the voxels of occupied bricks on their emitters' lines;
+        // a group that does not fit a part alone is taken in parts of its directions.
         let mut keys: Vec<u64> = Vec::new();
         let mut which: Vec<usize> = Vec::new();
         let mut taken = 0;
         while next + taken < groups.len() && taken < most {
             let group = &groups[next + taken];
-            let mut merged = line_voxels(
-                group,
-                dense,
-                info.grid.dims,
-                &emitter_voxels,
-                &occupancy,
-                pool,
-            );
+            let (mut merged, _) = pass.listed(group);
             merged.extend_from_slice(&keys);
             merged.sort_unstable();
             merged.dedup();
-            let needed = part_bytes(merged.len(), merged.len() as f64 * density);
-            if needed > room {
-                if taken == 0 {
-                    return Err(too_small(plan, room, needed, merged.len(), group.len()));
-                }
+            if pass.part_bytes(merged.len(), merged.len() as f64 * pass.density.get()) > room {
                 break;
             }
             keys = merged;
@@ -229,89 +738,54 @@ pub fn gather_direct_out_of_core(
             taken += 1;
         }
         // 3. The part's surfels, in canonical order; too many for the estimate: fewer groups.
-        let cap = (room.saturating_sub(keys.len() as u64 * 8) / PART_BYTES_PER_SURFEL) as usize;
-        let mut part = SurfelSet {
-            grid: info.grid,
-            surfels: Vec::new(),
-            normals: info.normals.clone(),
-            materials: info.materials.clone(),
-        };
-        let mut ids: Vec<u64> = Vec::new();
-        let mut overflow = false;
-        for (id, s) in source.stream(plan.io_bytes as u64)?.enumerate() {
-            let s = s?;
-            if keys.binary_search(&voxel_key(s.voxel)).is_ok() {
-                if part.surfels.len() >= cap {
-                    overflow = true;
-                    break;
+        let part = if taken == 0 {
+            None
+        } else {
+            match pass.pick(&keys, io)? {
+                Ok(part) => {
+                    pass.learn(part.ids.len() as f64 / keys.len().max(1) as f64);
+                    Some(part)
                 }
-                part.surfels.push(s);
-                ids.push(id as u64);
+                Err(overflow) => {
+                    pass.learn(overflow.density);
+                    None
+                }
             }
-        }
-        io.read += n * crate::storage::RECORD_LEN as u64;
-        if overflow {
-            if taken == 1 {
-                let needed = part_bytes(keys.len(), cap as f64 * 2.0);
-                return Err(too_small(plan, room, needed, keys.len(), which.len()));
-            }
-            most = taken / 2;
-            tracing::debug!(
-                groups = most,
-                "direct-light pass: a part's surfels did not fit, fewer groups"
-            );
-            continue;
-        }
+        };
         drop(keys);
-        next += taken;
-        // 4. Its sums so far, the part's light added, written back.
-        let mut light = vec![[[0f64; 3]; 2]; ids.len()];
-        let mut rescaled = vec![[0f64; 2]; ids.len()];
-        let mut bytes = [0u8; SUM_LEN];
-        if parts > 0 {
-            for (k, &id) in ids.iter().enumerate() {
-                sums_file.read_at(id * SUM_LEN as u64, &mut bytes, io)?;
-                (light[k], rescaled[k]) = decode_sum(&bytes);
+        let Some(part) = part else {
+            if taken <= 1 {
+                parts += pass.gather_split(&groups[next], dir, &mut stats, io)?;
+                progress.inc(groups[next].len() as u64);
+                stats.split_groups += 1;
+                next += 1;
+            } else {
+                most = taken / 2;
+                tracing::debug!(
+                    groups = most,
+                    "direct-light pass: a part's surfels did not fit, fewer groups"
+                );
             }
-        }
-        let emission: Vec<[[f32; 3]; 2]> = part
-            .surfels
-            .iter()
-            .map(|s| emission_of(s.material))
-            .collect();
-        let emitters = emitting(&emission);
-        let surfels = prop_surfels(&part);
-        gather_groups(
-            &part,
-            &surfels,
-            &emission,
-            &emitters,
-            &cosine_sum,
-            dense,
-            &which,
-            SenderBalance::PerDirection,
-            pool,
-            bitmap,
-            &progress,
-            Sums {
-                light: &mut light,
-                rescaled: &mut rescaled,
-                stats: &mut stats,
-            },
-        );
-        for (k, &id) in ids.iter().enumerate() {
-            encode_sum(&light[k], &rescaled[k], &mut bytes);
-            sums_file.write_at(id * SUM_LEN as u64, &bytes, io)?;
-        }
+            continue;
+        };
+        // 4. Its sums so far, the part's light added, written back.
+        pass.gather_whole(&part, &which, next == 0, &progress, &mut stats, io)?;
+        next += taken;
         parts += 1;
         tracing::debug!(
             part = parts,
             directions = which.len(),
-            surfels = ids.len(),
+            surfels = part.ids.len(),
             "direct-light pass: part gathered"
         );
     }
     progress.finish_and_clear();
+    let Pass {
+        cosine_sum,
+        sums_file,
+        ..
+    } = pass;
+    drop(sums_file);
     // 5. Each side's light over `S + shift`, in canonical order.
     let path = dir.join("direct.bin");
     let mut out = SeqWriter::create(&path, plan.io_bytes)?;
@@ -338,11 +812,76 @@ pub fn gather_direct_out_of_core(
     tracing::info!(
         directions = dense.len(),
         parts,
+        split_groups = stats.split_groups,
         map = format_bytes(fixed),
         seconds = format!("{:.1}", stats.seconds),
         "direct-light pass done out of core"
     );
     Ok(DirectFile { path, stats })
+}
+
+/// Passes over the scene above which the pass warns that it will be long.
+const MANY_PASSES: f64 = 100.0;
+
+/// Warns when the parts of the pass, each a pass over the whole scene, will be many: estimated
+/// from the first group's lines against the room of a part. The answer does not depend on the
+/// budget, so the pass is not cut short; the user is told what shortens it.
+fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
+    if groups.is_empty() {
+        return;
+    }
+    // Three groups spread over the set (the first alone can mislead: the set's first
+    // directions lie near one pole). A part holds whole groups where they fit, else the
+    // lines of a group's directions in order, packed as the pass packs them.
+    let room = pass.room.max(1) as f64;
+    let sample: Vec<&Vec<usize>> = [0, groups.len() / 2, groups.len() - 1]
+        .into_iter()
+        .map(|g| &groups[g])
+        .collect();
+    let mut per_group = 0.0;
+    let mut largest = 0;
+    for group in &sample {
+        let (_, needed) = pass.listed(group);
+        largest = largest.max(needed);
+        per_group += if needed as f64 <= room {
+            needed as f64 / room
+        } else {
+            let mut parts = 0u64;
+            // Counting only: nothing is read or gathered.
+            let _ = pass.pack(group, |_, _| {
+                parts += 1;
+                Ok(())
+            });
+            parts as f64
+        };
+    }
+    let passes = groups.len() as f64 * per_group / sample.len() as f64;
+    if passes > MANY_PASSES {
+        tracing::warn!(
+            "the direct-light pass will take at least about {passes:.0} passes over the scene's {} \
+             surfels: the lines of a group of {} dense directions through its emitters hold up \
+             to about {} against the {} a part of --memory holds; a larger --memory or fewer \
+             --direct-directions (now {}) shortens it",
+            pass.source.info().count,
+            DIRECTIONS_PER_GROUP,
+            format_bytes(largest),
+            format_bytes(pass.room),
+            pass.dense.len()
+        );
+    }
+}
+
+/// The first place at or after `from` in `keys` (sorted) whose key is not below `key`, found by
+/// steps that double from `from` and then halve: a few steps when it is near.
+fn gallop(keys: &[u64], from: usize, key: u64) -> usize {
+    let mut step = 1;
+    let mut low = from;
+    while low + step <= keys.len() && keys[low + step - 1] < key {
+        low += step;
+        step *= 2;
+    }
+    let high = (low + step).min(keys.len());
+    low + keys[low..high].partition_point(|&k| k < key)
 }
 
 /// The occupied voxels on the lines through the emitters (at `emitter_voxels`) along the dense
@@ -400,4 +939,78 @@ fn decode_sum(bytes: &[u8; SUM_LEN]) -> ([[f64; 3]; 2], [f64; 2]) {
         f64::from_le_bytes(b)
     };
     ([[v(0), v(1), v(2)], [v(3), v(4), v(5)]], [v(6), v(7)])
+}
+
+/// Bytes of one kept contribution of a split group: the receiver's canonical index (u64), its
+/// side (u8), the sender's plane group and side ([`sender_key`], u64), the light (f64 x 3) and
+/// the weight (f64), little-endian.
+const TERM_LEN: usize = 49;
+
+fn encode_term(
+    id: u64,
+    side: u8,
+    sender: u64,
+    light: &[f64; 3],
+    weight: f64,
+    out: &mut [u8; TERM_LEN],
+) {
+    out[..8].copy_from_slice(&id.to_le_bytes());
+    out[8] = side;
+    out[9..17].copy_from_slice(&sender.to_le_bytes());
+    for (slot, v) in out[17..]
+        .chunks_exact_mut(8)
+        .zip(light.iter().chain([&weight]))
+    {
+        slot.copy_from_slice(&v.to_le_bytes());
+    }
+}
+
+fn decode_term(bytes: &[u8; TERM_LEN]) -> (u64, u8, u64, [f64; 3], f64) {
+    let word = |at: usize| -> [u8; 8] { bytes[at..at + 8].try_into().expect("8 bytes") };
+    let f = |at: usize| f64::from_le_bytes(word(at));
+    (
+        u64::from_le_bytes(word(0)),
+        bytes[8],
+        u64::from_le_bytes(word(9)),
+        [f(17), f(25), f(33)],
+        f(41),
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gallop_finds_what_a_search_over_the_rest_finds() {
+        let keys: Vec<u64> = (0..200u64).map(|k| k * 7 + k % 5).collect();
+        assert!(keys.is_sorted());
+        for from in [0, 1, 5, 63, 64, 150, 199, 200] {
+            for key in 0..1450 {
+                let want = from + keys[from..].partition_point(|&k| k < key);
+                assert_eq!(gallop(&keys, from, key), want, "from {from}, key {key}");
+            }
+        }
+    }
+
+    #[test]
+    fn kept_contributions_round_trip() {
+        let mut bytes = [0u8; TERM_LEN];
+        let light = [1.5, -2.25e-300, f64::MAX];
+        encode_term(
+            u64::MAX - 3,
+            1,
+            sender_key(77, 1),
+            &light,
+            0.125,
+            &mut bytes,
+        );
+        let (id, side, sender, back, weight) = decode_term(&bytes);
+        assert_eq!(
+            (id, side, sender_of_key(sender)),
+            (u64::MAX - 3, 1, (77, 1))
+        );
+        assert_eq!(back.map(f64::to_bits), light.map(f64::to_bits));
+        assert_eq!(weight, 0.125);
+    }
 }

@@ -140,9 +140,13 @@ pub struct OutOfCoreReport {
     /// Bands the directions were cut into, over all iterations.
     pub bands: u64,
     /// The direct-light pass's parts: groups of dense directions whose lines' surfels were held
-    /// at once (one pass over the scene each; 0 without the pass).
+    /// at once, or pieces of a group's lines (one pass over the scene each; 0 without the pass).
     #[serde(default)]
     pub direct_light_parts: u64,
+    /// Groups of dense directions whose lines' surfels did not fit the budget at once, taken in
+    /// parts of their lines (`outcore::direct`).
+    #[serde(default)]
+    pub direct_light_split_groups: u64,
 }
 
 impl OutOfCoreReport {
@@ -158,6 +162,7 @@ impl OutOfCoreReport {
             bytes_written_per_voxel_direction: bytes_written as f64 / updates,
             bands,
             direct_light_parts: 0,
+            direct_light_split_groups: 0,
         }
     }
 }
@@ -181,6 +186,7 @@ impl Report {
         let updates = surfels * stats.directions as u64 * stats.iterations as u64;
         let mut ooc = OutOfCoreReport::new(budget, bytes_read, bytes_written, bands, updates);
         ooc.direct_light_parts = stats.direct.as_ref().map_or(0, |d| d.parts);
+        ooc.direct_light_split_groups = stats.direct.as_ref().map_or(0, |d| d.split_groups);
         self.out_of_core = Some(ooc);
         self.effects.push(Effect::new("out of core", true, held));
     }

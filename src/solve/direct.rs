@@ -94,6 +94,9 @@ pub struct DirectStats {
     /// Out of core: the parts the dense directions were taken in (`outcore::direct`); 0 in
     /// memory.
     pub parts: u64,
+    /// Out of core: the groups of dense directions whose emitters' lines did not fit one part,
+    /// taken a few directions at a time (`outcore::direct`); 0 in memory.
+    pub split_groups: u64,
 }
 
 /// The direct light of every surfel side: `H_dense(E) / S_dense(n)`.
@@ -144,16 +147,20 @@ const BLOCK: usize = 2 * GROUP;
 
 /// Each sender's scale in each direction of a group: the power its own rays carry over what its
 /// receivers gathered from it, times the group's share of its power that no receiver gathered
-/// (1 without the balance). Indexed like each direction's `senders`.
-fn group_scales(group: &[DirectionLight], balance: SenderBalance) -> Vec<Vec<f64>> {
+/// (1 without the balance). `senders` are the group's directions' senders, in order; the scales
+/// are indexed like them.
+pub(crate) fn group_scales(
+    senders: &[&[((u32, usize), Sender)]],
+    balance: SenderBalance,
+) -> Vec<Vec<f64>> {
     if balance == SenderBalance::Off {
-        return group.iter().map(|d| vec![1.0; d.senders.len()]).collect();
+        return senders.iter().map(|d| vec![1.0; d.len()]).collect();
     }
     // By sender: its power over the group, and the part of it along directions where some
     // receiver gathered from it.
     let mut power: HashMap<(u32, usize), (f64, f64)> = HashMap::new();
-    for direction in group {
-        for (key, sender) in &direction.senders {
+    for direction in senders {
+        for (key, sender) in direction.iter() {
             let sum = power.entry(*key).or_default();
             sum.0 += sender.own;
             if sender.sent > 0.0 {
@@ -161,11 +168,10 @@ fn group_scales(group: &[DirectionLight], balance: SenderBalance) -> Vec<Vec<f64
             }
         }
     }
-    group
+    senders
         .iter()
         .map(|direction| {
             direction
-                .senders
                 .iter()
                 .map(|(key, sender)| {
                     let (all, caught) = power[key];
@@ -177,6 +183,22 @@ fn group_scales(group: &[DirectionLight], balance: SenderBalance) -> Vec<Vec<f64
                 .collect()
         })
         .collect()
+}
+
+/// Adds one contribution (`light` gathered with `weight` from a sender whose scale is `scale`)
+/// to a receiver side's running sums: every way of taking the pass adds its terms so.
+#[inline]
+pub(crate) fn add_scaled(
+    sum: &mut [f64; 3],
+    shift: &mut f64,
+    light: &[f64; 3],
+    weight: f64,
+    scale: f64,
+) {
+    for (t, l) in sum.iter_mut().zip(light) {
+        *t += l * scale;
+    }
+    *shift += weight * (scale - 1.0);
 }
 
 /// Gathers the direct light of `set` along `directions`, this rank's share of the directions
@@ -269,8 +291,9 @@ pub(crate) struct Sums<'a> {
     pub stats: &'a mut DirectStats,
 }
 
-/// Dense directions per group (a sender's scale is settled over a group): a partial pass must
-/// take whole groups to add what the whole pass adds, in the same order.
+/// Dense directions per group (a sender's scale is settled over a group): a partial pass adds
+/// what the whole pass adds, in the same order, when it takes whole groups, or when it keeps the
+/// light of a group's pieces ([`gather_pieces`]) until the group is complete.
 pub(crate) const DIRECTIONS_PER_GROUP: usize = GROUP;
 
 /// Adds to `sums` the direct light of the dense directions `which` (whole groups, in order) on
@@ -293,41 +316,13 @@ pub(crate) fn gather_groups(
     pool: &rayon::ThreadPool,
     bitmap: bool,
     progress: &indicatif::ProgressBar,
-    sums: Sums,
+    mut sums: Sums,
 ) {
-    let table = VoxelTable::new(set, bitmap);
-    // One bit per surfel: whether it emits on either side. A line through a lamp may hold
-    // thousands of surfels, scattered over the set; the bits stay in the cache.
-    let mut emitting_bits = vec![0u64; emission.len().div_ceil(64)];
-    for &e in emitters {
-        emitting_bits[e as usize / 64] |= 1 << (e % 64);
-    }
-    // What the senders' balance reads of a receiver, 8 bytes a surfel instead of its 80-byte
-    // record: receivers lie scattered over the set, and this table stays in the caches far
-    // more often.
-    let receivers: Vec<ReceiverWeight> = set
-        .surfels
-        .iter()
-        .map(|s| ReceiverWeight {
-            area: s.area,
-            normal_id: s.normal_id,
-        })
-        .collect();
-    let context = Context {
-        dims: set.grid.dims,
-        receivers: &receivers,
-        surfels,
-        emission,
-        emitters,
-        emitting: &emitting_bits,
-        table: &table,
-        set,
-        cosine_sum,
-    };
+    let tables = Tables::new(set, emitters, emission.len(), bitmap);
+    let context = tables.context(set, surfels, emission, emitters, cosine_sum);
     // Each block's light is added up, in direction order, while the next block's directions
     // run: the adding is one thread's, and it left the other threads idle (0.25 s of the 5.8 s
     // pass of the Cornell setting on two threads).
-    let mut sums = sums;
     let mut waiting: Option<Vec<DirectionLight>> = None;
     for block in which.chunks(BLOCK) {
         let done = waiting.take();
@@ -338,7 +333,7 @@ pub(crate) fn gather_groups(
                     block
                         .par_iter()
                         .map_init(Buffers::default, |buffers, &k| {
-                            context.direction(&directions.directions[k], buffers)
+                            context.direction(&directions.directions[k], None, &[], buffers)
                         })
                         .collect::<Vec<_>>()
                 },
@@ -352,21 +347,122 @@ pub(crate) fn gather_groups(
     }
 }
 
+/// What [`Context`] reads beside the scene: the voxel table, a bit per emitting surfel and the
+/// receivers' weights.
+struct Tables {
+    table: VoxelTable,
+    /// Bit `m`: surfel `m` emits on either side. A line through a lamp may hold thousands of
+    /// surfels, scattered over the set; the bits stay in the cache.
+    emitting: Vec<u64>,
+    /// What the senders' balance reads of a receiver, 8 bytes a surfel instead of its 80-byte
+    /// record: receivers lie scattered over the set, and this table stays in the caches far
+    /// more often.
+    receivers: Vec<ReceiverWeight>,
+}
+
+impl Tables {
+    fn new(set: &SurfelSet, emitters: &[u32], surfel_count: usize, bitmap: bool) -> Self {
+        let mut emitting = vec![0u64; surfel_count.div_ceil(64)];
+        for &e in emitters {
+            emitting[e as usize / 64] |= 1 << (e % 64);
+        }
+        Tables {
+            table: VoxelTable::new(set, bitmap),
+            emitting,
+            receivers: set
+                .surfels
+                .iter()
+                .map(|s| ReceiverWeight {
+                    area: s.area,
+                    normal_id: s.normal_id,
+                })
+                .collect(),
+        }
+    }
+
+    fn context<'a>(
+        &'a self,
+        set: &'a SurfelSet,
+        surfels: &'a [PropSurfel],
+        emission: &'a [[[f32; 3]; 2]],
+        emitters: &'a [u32],
+        cosine_sum: &'a [f64],
+    ) -> Context<'a> {
+        Context {
+            dims: set.grid.dims,
+            receivers: &self.receivers,
+            surfels,
+            emission,
+            emitters,
+            emitting: &self.emitting,
+            table: &self.table,
+            set,
+            cosine_sum,
+        }
+    }
+}
+
+/// A piece of a dense direction, for a part of a scene that cannot hold all of the direction's
+/// emitters' lines (`outcore::direct`): its lines numbered `lines` (in its [`LineFrame`]), every
+/// surfel on them in the part, and the senders' sums over the direction's lines before them.
+pub(crate) struct Piece<'a> {
+    pub direction: usize,
+    pub lines: std::ops::Range<u64>,
+    pub carried: &'a [((u32, usize), Sender)],
+}
+
+/// The light of each of `pieces` (in order) on the surfels of `set`, as [`gather_groups`] finds
+/// it (arguments alike). A piece's senders are its direction's sums up to its last line: the
+/// pieces of a direction, taken in order, each carrying the sums of the one before, add the same
+/// terms in the same order as the whole direction.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn gather_pieces(
+    set: &SurfelSet,
+    surfels: &[PropSurfel],
+    emission: &[[[f32; 3]; 2]],
+    emitters: &[u32],
+    cosine_sum: &[f64],
+    directions: &DirectionSet,
+    pieces: &[Piece],
+    pool: &rayon::ThreadPool,
+    bitmap: bool,
+) -> Vec<DirectionLight> {
+    let tables = Tables::new(set, emitters, emission.len(), bitmap);
+    let context = tables.context(set, surfels, emission, emitters, cosine_sum);
+    pool.install(|| {
+        pieces
+            .par_iter()
+            .map_init(Buffers::default, |buffers, piece| {
+                context.direction(
+                    &directions.directions[piece.direction],
+                    Some(piece.lines.clone()),
+                    piece.carried,
+                    buffers,
+                )
+            })
+            .collect()
+    })
+}
+
 /// Adds the light of one block's directions (in order) to `sums`, each sender's scaled as its
 /// group's balance says. A block starts a group and holds whole groups (but for the last one).
 fn add_block(gathered: &[DirectionLight], balance: SenderBalance, sums: &mut Sums) {
     for group in gathered.chunks(GROUP) {
-        let scales = group_scales(group, balance);
+        let senders: Vec<&[((u32, usize), Sender)]> =
+            group.iter().map(|d| d.senders.as_slice()).collect();
+        let scales = group_scales(&senders, balance);
         for (direction, scales) in group.iter().zip(&scales) {
             sums.stats.lines += direction.lines;
             sums.stats.line_surfels += direction.line_surfels;
             for &(member, side, sender, light, weight) in &direction.contributions {
-                let scale = scales[sender as usize];
                 let (member, side) = (member as usize, side as usize);
-                for (t, l) in sums.light[member][side].iter_mut().zip(light) {
-                    *t += l * scale;
-                }
-                sums.rescaled[member][side] += weight * (scale - 1.0);
+                add_scaled(
+                    &mut sums.light[member][side],
+                    &mut sums.rescaled[member][side],
+                    &light,
+                    weight,
+                    scales[sender as usize],
+                );
             }
         }
     }
@@ -420,14 +516,14 @@ pub(crate) fn emitting(emission: &[[[f32; 3]; 2]]) -> Vec<u32> {
 
 /// What one direction's emitter lines gave.
 #[derive(Default)]
-struct DirectionLight {
-    lines: u64,
-    line_surfels: u64,
+pub(crate) struct DirectionLight {
+    pub lines: u64,
+    pub line_surfels: u64,
     /// The emitting plane sides met, by (plane group, side), in that order.
-    senders: Vec<((u32, usize), Sender)>,
+    pub senders: Vec<((u32, usize), Sender)>,
     /// Light from emitters: (receiver, its side, index in `senders`, light before the sender's
     /// scale, the weight it was gathered with).
-    contributions: Vec<(u32, u8, u32, [f64; 3], f64)>,
+    pub contributions: Vec<(u32, u8, u32, [f64; 3], f64)>,
 }
 
 /// Lines of a direction up to which [`emitter_lines`] lists them through a bit per line (4 MiB a
@@ -506,19 +602,19 @@ struct Buffers {
 }
 
 /// A sender's key in [`Buffers::sender_at`]: its plane group and side in one `u64`.
-fn sender_key(group: u32, side: usize) -> u64 {
+pub(crate) fn sender_key(group: u32, side: usize) -> u64 {
     (group as u64) << 1 | side as u64
 }
 
 /// The plane group and side of a [`sender_key`].
-fn sender_of_key(key: u64) -> (u32, usize) {
+pub(crate) fn sender_of_key(key: u64) -> (u32, usize) {
     ((key >> 1) as u32, (key & 1) as usize)
 }
 
 /// One side of an emitting plane in one direction: the power its receivers gathered from it and
 /// the power its own rays carry (both in `A W |n.s| / S(n)`, without the emission).
 #[derive(Clone, Copy, Default)]
-struct Sender {
+pub(crate) struct Sender {
     sent: f64,
     own: f64,
 }
@@ -556,7 +652,15 @@ impl Context<'_> {
         self.emitting[m as usize / 64] >> (m % 64) & 1 == 1
     }
 
-    fn direction(&self, d: &Direction, b: &mut Buffers) -> DirectionLight {
+    /// The light of direction `d` over its emitters' lines, or over those numbered `lines` only
+    /// with the senders' sums so far `carried` (a [`Piece`]).
+    fn direction(
+        &self,
+        d: &Direction,
+        lines: Option<std::ops::Range<u64>>,
+        carried: &[((u32, usize), Sender)],
+        b: &mut Buffers,
+    ) -> DirectionLight {
         let frame = LineFrame::new(d.vector, self.dims);
         emitter_lines(
             &frame,
@@ -567,11 +671,19 @@ impl Context<'_> {
             &mut b.line_bits,
             &mut b.line_ids,
         );
+        if let Some(lines) = lines {
+            b.line_ids.retain(|line| lines.contains(line));
+        }
         let mut out = DirectionLight::default();
         let weight = d.solid_angle / std::f64::consts::PI;
         b.senders.clear();
         b.sender_at.clear();
         b.contributions.clear();
+        for &(key, sender) in carried {
+            b.sender_at
+                .insert(sender_key(key.0, key.1), b.senders.len());
+            b.senders.push(sender);
+        }
         let mut at = 0;
         while at < b.line_ids.len() {
             let bundle = self.table.bundle_len(&frame, &b.line_ids[at..]);

@@ -76,9 +76,11 @@ impl Solver<'_> {
             stats.line_surfels as f64,
             stats.seconds,
             stats.parts as f64,
+            stats.split_groups as f64,
         ];
         self.comm.sum_in_place(&mut figures);
-        let [directions, emitting_surfels, lines, line_surfels, seconds, parts] = figures;
+        let [directions, emitting_surfels, lines, line_surfels, seconds, parts, split_groups] =
+            figures;
         let stats = DirectStats {
             directions: directions as usize,
             emitting_surfels: emitting_surfels as usize,
@@ -86,6 +88,7 @@ impl Solver<'_> {
             line_surfels: line_surfels as u64,
             seconds,
             parts: parts as u64,
+            split_groups: split_groups as u64,
         };
         Ok((held, stats))
     }
