@@ -420,13 +420,30 @@ fn run(
         })
         .collect::<Result<_, OocError>>()?;
     let axes = AxisSpans::new(&by_axis);
+    // The checkpoints, where they share the work files' disk, take their room before the links
+    // do: a building of 1.2 x 10^8 surfels wrote 14 GB checkpoints, and with the links they
+    // filled the disk.
+    let checkpoint_growth = checkpoints.as_ref().map_or(0, |c| {
+        workset::checkpoint_growth(c.saver.path(), work.dir.path(), work.count)
+    });
+    if let Some(free) = workset::free_bytes(work.dir.path()) {
+        let needed = work.disk_still_needed(also) + checkpoint_growth;
+        if checkpoint_growth > 0 && free < needed {
+            tracing::warn!(
+                free = super::budget::format_bytes(free),
+                needed = super::budget::format_bytes(needed),
+                "the work files and two checkpoints do not fit on the disk: checkpoints that \
+                 do not fit are not written, and the solve goes on without them"
+            );
+        }
+    }
     let links = LinkStore::new(
         work.dir.path(),
         directions.len(),
         super::links::allowance(
             work.dir.path(),
             options.links_disk,
-            work.disk_still_needed(also),
+            work.disk_still_needed(also) + checkpoint_growth,
             1,
         ),
         work.count,

@@ -400,6 +400,28 @@ fn for_each_static_record(
     Ok(id as u64)
 }
 
+/// Bytes a checkpoint of one out-of-core process takes per surfel at most: its radiosity and
+/// the one before (Chebyshev), the light gathered so far and that of the axis in progress
+/// (`checkpoint::file`).
+const CHECKPOINT_BYTES_PER_SURFEL: u64 =
+    (2 * crate::checkpoint::file::RADIOSITY_LEN + 2 * crate::checkpoint::file::PARTIAL_LEN) as u64;
+
+/// The disk that the checkpoints at `checkpoint` of a solve of `count` surfels may still take on
+/// the file system of `work_dir`: two copies (the new one is written beside the old, then
+/// renamed over it) less the one already there; 0 where they lie on another file system.
+pub(crate) fn checkpoint_growth(checkpoint: &Path, work_dir: &Path, count: u64) -> u64 {
+    use std::os::unix::fs::MetadataExt;
+    let device = |p: &Path| std::fs::metadata(p).ok().map(|m| m.dev());
+    let out = checkpoint.parent().unwrap_or(Path::new("."));
+    match (device(out), device(work_dir)) {
+        (Some(a), Some(b)) if a == b => {
+            let there = std::fs::metadata(checkpoint).map_or(0, |m| m.len());
+            (2 * count * CHECKPOINT_BYTES_PER_SURFEL).saturating_sub(there)
+        }
+        _ => 0,
+    }
+}
+
 /// Refuses to start when `needed` bytes of work files cannot fit on the disk of `parent`.
 pub(crate) fn check_free_space(parent: &Path, needed: u64) -> Result<(), OocError> {
     match free_bytes(parent) {
@@ -428,6 +450,23 @@ pub(crate) fn free_bytes(dir: &Path) -> Option<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn checkpoints_on_the_work_disk_take_two_copies_less_the_one_there() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let work = dir.path().join("work");
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::create_dir_all(&work).unwrap();
+        let checkpoint = out.join("checkpoint.bin");
+        let two = 2 * 1000 * CHECKPOINT_BYTES_PER_SURFEL;
+        assert_eq!(checkpoint_growth(&checkpoint, &work, 1000), two);
+        std::fs::write(&checkpoint, vec![0u8; 5000]).unwrap();
+        assert_eq!(checkpoint_growth(&checkpoint, &work, 1000), two - 5000);
+        // Where the file system cannot be told, nothing is set aside.
+        let gone = dir.path().join("nowhere").join("checkpoint.bin");
+        assert_eq!(checkpoint_growth(&gone, &work, 1000), 0);
+    }
 
     #[test]
     fn work_files_that_cannot_fit_are_refused_up_front() {
