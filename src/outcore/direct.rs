@@ -45,8 +45,8 @@ use crate::geometry::directions::DirectionSet;
 use crate::geometry::lines::LineFrame;
 use crate::solve::direct::{
     add_scaled, emits, emitting, for_each_voxel_on_line, gather_groups, gather_pieces,
-    group_scales, sender_key, sender_of_key, DirectStats, Piece, Sender, SenderBalance, Sums,
-    DIRECTIONS_PER_GROUP,
+    group_scales, sender_key, sender_of_key, DirectStats, GatherOn, Piece, Sender, SenderBalance,
+    Sums, DIRECTIONS_PER_GROUP,
 };
 use crate::solve::mix_hash::MixMap;
 use crate::solve::normalize::cosine_sums;
@@ -302,20 +302,8 @@ impl Pass<'_> {
             stats,
         };
         let (emission, emitters, surfels) = self.part_tables(part);
-        gather_groups(
-            &part.set,
-            &surfels,
-            &emission,
-            &emitters,
-            &self.cosine_sum,
-            self.dense,
-            which,
-            SenderBalance::PerDirection,
-            self.pool,
-            self.bitmap,
-            progress,
-            sums,
-        );
+        let on = self.gather_on(part, &emission, &emitters, &surfels);
+        gather_groups(&on, which, SenderBalance::PerDirection, progress, sums);
         for (k, &id) in part.ids.iter().enumerate() {
             encode_sum(&light[k], &rescaled[k], &mut bytes);
             self.sums_file.write_at(id * SUM_LEN as u64, &bytes, io)?;
@@ -334,6 +322,26 @@ impl Pass<'_> {
             .collect();
         let emitters = emitting(&emission);
         (emission, emitters, prop_surfels(&part.set))
+    }
+
+    /// What the gathering reads of `part`, with its tables.
+    fn gather_on<'b>(
+        &'b self,
+        part: &'b Part,
+        emission: &'b [[[f32; 3]; 2]],
+        emitters: &'b [u32],
+        surfels: &'b [PropSurfel],
+    ) -> GatherOn<'b> {
+        GatherOn {
+            set: &part.set,
+            surfels,
+            emission,
+            emitters,
+            cosine_sum: &self.cosine_sum,
+            directions: self.dense,
+            pool: self.pool,
+            bitmap: self.bitmap,
+        }
     }
 
     /// The emitters' lines of `frame`, sorted, each once.
@@ -559,15 +567,8 @@ impl Pass<'_> {
                 })
                 .collect();
             gather_pieces(
-                &part.set,
-                &surfels,
-                &emission,
-                &emitters,
-                &self.cosine_sum,
-                self.dense,
+                &self.gather_on(&part, &emission, &emitters, &surfels),
                 &pieces,
-                self.pool,
-                self.bitmap,
             )
         };
         let mut term = [0u8; TERM_LEN];

@@ -238,20 +238,17 @@ pub fn gather_direct(
     };
     // The pass can take as long as several iterations: a bar of its own.
     let progress = crate::progress::bar(mine.len() as u64, "direct light");
-    gather_groups(
+    let on = GatherOn {
         set,
         surfels,
         emission,
-        &emitters,
-        &cosine_sum,
+        emitters: &emitters,
+        cosine_sum: &cosine_sum,
         directions,
-        &mine,
-        balance,
         pool,
-        true,
-        &progress,
-        sums,
-    );
+        bitmap: true,
+    };
+    gather_groups(&on, &mine, balance, &progress, sums);
     progress.finish_and_clear();
     if comm.size() > 1 {
         let mut flat: Vec<f64> = acc.iter().flatten().flatten().copied().collect();
@@ -296,30 +293,52 @@ pub(crate) struct Sums<'a> {
 /// light of a group's pieces ([`gather_pieces`]) until the group is complete.
 pub(crate) const DIRECTIONS_PER_GROUP: usize = GROUP;
 
-/// Adds to `sums` the direct light of the dense directions `which` (whole groups, in order) on
-/// the surfels of `set`: every receiver's light from its emitting partners, scaled by its
-/// sender's balance, in direction order. `emitters` are the emitting surfels, `cosine_sum`
-/// `S_dense(n)` by normal id. The out-of-core pass calls it on a part of a scene that holds every
-/// surfel on the emitters' lines of `which` (a line is walked through the surfels present only).
-/// `bitmap` lets the voxel table keep an occupancy bit per voxel of the grid (up to 32 MiB),
-/// which answers the empty voxels a line crosses faster.
-#[allow(clippy::too_many_arguments)]
+/// What the pass gathers on: a scene, or a part of one that holds every surfel on the
+/// emitters' lines it is asked for (`outcore::direct`; a line is walked through the surfels
+/// present only), with its propagation records, emission and emitting surfels, `S_dense(n)` by
+/// normal id, the dense directions and the threads. `bitmap` lets the voxel table keep an
+/// occupancy bit per voxel of the grid (up to 32 MiB), which answers the empty voxels a line
+/// crosses faster.
+pub(crate) struct GatherOn<'a> {
+    pub set: &'a SurfelSet,
+    pub surfels: &'a [PropSurfel],
+    pub emission: &'a [[[f32; 3]; 2]],
+    pub emitters: &'a [u32],
+    pub cosine_sum: &'a [f64],
+    pub directions: &'a DirectionSet,
+    pub pool: &'a rayon::ThreadPool,
+    pub bitmap: bool,
+}
+
+impl GatherOn<'_> {
+    fn tables(&self) -> Tables {
+        Tables::new(self.set, self.emitters, self.emission.len(), self.bitmap)
+    }
+
+    fn context<'b>(&'b self, tables: &'b Tables) -> Context<'b> {
+        tables.context(
+            self.set,
+            self.surfels,
+            self.emission,
+            self.emitters,
+            self.cosine_sum,
+        )
+    }
+}
+
+/// Adds to `sums` the direct light of the dense directions `which` (whole groups, in order)
+/// gathered `on` a scene: every receiver's light from its emitting partners, scaled by its
+/// sender's balance, in direction order.
 pub(crate) fn gather_groups(
-    set: &SurfelSet,
-    surfels: &[PropSurfel],
-    emission: &[[[f32; 3]; 2]],
-    emitters: &[u32],
-    cosine_sum: &[f64],
-    directions: &DirectionSet,
+    on: &GatherOn,
     which: &[usize],
     balance: SenderBalance,
-    pool: &rayon::ThreadPool,
-    bitmap: bool,
     progress: &indicatif::ProgressBar,
     mut sums: Sums,
 ) {
-    let tables = Tables::new(set, emitters, emission.len(), bitmap);
-    let context = tables.context(set, surfels, emission, emitters, cosine_sum);
+    let tables = on.tables();
+    let context = on.context(&tables);
+    let (pool, directions) = (on.pool, on.directions);
     // Each block's light is added up, in direction order, while the next block's directions
     // run: the adding is one thread's, and it left the other threads idle (0.25 s of the 5.8 s
     // pass of the Cornell setting on two threads).
@@ -411,25 +430,15 @@ pub(crate) struct Piece<'a> {
     pub carried: &'a [((u32, usize), Sender)],
 }
 
-/// The light of each of `pieces` (in order) on the surfels of `set`, as [`gather_groups`] finds
-/// it (arguments alike). A piece's senders are its direction's sums up to its last line: the
-/// pieces of a direction, taken in order, each carrying the sums of the one before, add the same
-/// terms in the same order as the whole direction.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn gather_pieces(
-    set: &SurfelSet,
-    surfels: &[PropSurfel],
-    emission: &[[[f32; 3]; 2]],
-    emitters: &[u32],
-    cosine_sum: &[f64],
-    directions: &DirectionSet,
-    pieces: &[Piece],
-    pool: &rayon::ThreadPool,
-    bitmap: bool,
-) -> Vec<DirectionLight> {
-    let tables = Tables::new(set, emitters, emission.len(), bitmap);
-    let context = tables.context(set, surfels, emission, emitters, cosine_sum);
-    pool.install(|| {
+/// The light of each of `pieces` (in order) gathered `on` a part of a scene, as
+/// [`gather_groups`] finds it. A piece's senders are its direction's sums up to its last line:
+/// the pieces of a direction, taken in order, each carrying the sums of the one before, add the
+/// same terms in the same order as the whole direction.
+pub(crate) fn gather_pieces(on: &GatherOn, pieces: &[Piece]) -> Vec<DirectionLight> {
+    let tables = on.tables();
+    let context = on.context(&tables);
+    let directions = on.directions;
+    on.pool.install(|| {
         pieces
             .par_iter()
             .map_init(Buffers::default, |buffers, piece| {
