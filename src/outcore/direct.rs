@@ -14,7 +14,7 @@
 //!    takes as many groups as the budget holds the surfels of those voxels for (estimated from
 //!    the scene's surfels per brick voxel; a part whose surfels turn out too many is taken again
 //!    with half its groups). A group that does not fit a part alone (in a building, a lamp's
-//!    lines cross every floor: one direction's lines held a seventh of a building's surfels) is
+//!    lines cross every floor: one direction's lines held a twentieth of a building's surfels) is
 //!    *split*: its directions' lines are taken in order, as many as a part holds, a part ending
 //!    inside a direction and the next one going on from there with the senders' sums so far
 //!    (`solve::direct::Piece`). The light each piece gathers is kept in a work file, unscaled,
@@ -379,7 +379,7 @@ impl Pass<'_> {
     }
 
     /// One group whose emitters' lines do not fit a part (a building's lamps are crossed by
-    /// lines through every floor: one direction's lines can hold a seventh of its surfels). Its
+    /// lines through every floor: one direction's lines can hold a twentieth of its surfels). Its
     /// directions' lines are taken in order, as many consecutive ones as a part holds (a part may
     /// end inside a direction and the next go on from there, carrying the senders' sums so
     /// far), each piece's light kept in a work file ([`TERM_LEN`] bytes a contribution) and
@@ -476,7 +476,10 @@ impl Pass<'_> {
                 voxels.clear();
                 self.voxels_on(k, &frame, &[line], &mut voxels);
                 let new = voxels.iter().filter(|v| !distinct.contains_key(v)).count();
-                let per_voxel = 8.0 + self.density.get() * PART_BYTES_PER_SURFEL as f64;
+                // A listed voxel's key, its entry in `distinct` (kept while the part is held)
+                // and its surfels.
+                let per_voxel =
+                    8.0 + DISTINCT_ENTRY_BYTES + self.density.get() * PART_BYTES_PER_SURFEL as f64;
                 let most = (self.room as f64 / per_voxel) as usize;
                 if distinct.len() + new > most && !pending.is_empty() {
                     flush(&mut pending, &mut distinct)?;
@@ -941,6 +944,10 @@ fn decode_sum(bytes: &[u8; SUM_LEN]) -> ([[f64; 3]; 2], [f64; 2]) {
     };
     ([[v(0), v(1), v(2)], [v(3), v(4), v(5)]], [v(6), v(7)])
 }
+
+/// Bytes an entry of the set of a packed part's distinct voxels takes (key and hash table
+/// overhead).
+const DISTINCT_ENTRY_BYTES: f64 = 16.0;
 
 /// Bytes of one kept contribution of a split group: the receiver's canonical index (u64), its
 /// side (u8), the sender's plane group and side ([`sender_key`], u64), the light (f64 x 3) and
