@@ -22,7 +22,8 @@
 //!    scaled, added to the sums in the order it was gathered: what the whole group adds, bit
 //!    for bit.
 //! 3. One pass over the source picks these surfels, in canonical order: a small scene of its
-//!    own, on which `solve::direct::gather_groups` runs unchanged. Every line it walks is whole
+//!    own, on which `solve::direct::gather_groups` (or, for a split group's pieces,
+//!    `gather_pieces`, the same walk of each line) runs unchanged. Every line it walks is whole
 //!    there, so it finds the links the whole scene gives.
 //! 4. The light and weight shifts of the part's surfels are added to the running sums, kept by
 //!    canonical index in a work file ([`SUM_LEN`] bytes a surfel), starting from the sums of the

@@ -95,7 +95,7 @@ pub struct DirectStats {
     /// memory.
     pub parts: u64,
     /// Out of core: the groups of dense directions whose emitters' lines did not fit one part,
-    /// taken a few directions at a time (`outcore::direct`); 0 in memory.
+    /// taken in pieces of their lines (`outcore::direct`); 0 in memory.
     pub split_groups: u64,
 }
 
