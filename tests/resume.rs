@@ -442,6 +442,17 @@ fn inside_a_main_axis(out: &Path) -> Option<u64> {
         "checkpoint {done} directions into iteration {} (axes end at {ends:?})",
         saved.header.state.iteration + 1
     );
+    // The out-of-core solver keeps its light in f32, and its checkpoints keep it so: the
+    // radiosity, then the sum of the axes done and the axis's light, 24 bytes a surfel each.
+    assert!(saved.header.state.sums_in_f32);
+    let surfels = saved.header.identity.surfels;
+    let payload =
+        surfels * 24 * (saved.header.radiosity_arrays() + saved.header.partial_arrays()) as u64;
+    let len = std::fs::metadata(&saved.path).unwrap().len();
+    assert!(
+        len > payload && len < payload + 4096,
+        "{len} bytes for a payload of {payload}"
+    );
     (!ends.contains(&done) && saved.header.state.axis_in_progress).then_some(done)
 }
 

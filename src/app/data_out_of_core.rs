@@ -205,7 +205,7 @@ pub(super) fn open_checkpoint_on_rank0(
         _ => {}
     }
     // The state, from rank 0 to all (whole numbers and f64s: a sum with zeros keeps them).
-    let mut words = [0.0f64; 14];
+    let mut words = [0.0f64; 15];
     let mut changes = Vec::new();
     if let Some(f) = &file {
         let state = &f.header.state;
@@ -228,6 +228,7 @@ pub(super) fn open_checkpoint_on_rank0(
             state.extrapolation.chebyshev.is_some() as u8 as f64,
             state.extrapolation.chebyshev.map_or(0.0, |c| c.0),
             state.extrapolation.chebyshev.map_or(0.0, |c| c.1 as f64),
+            state.sums_in_f32 as u8 as f64,
         ];
     }
     comm.sum_in_place(&mut words);
@@ -251,6 +252,7 @@ pub(super) fn open_checkpoint_on_rank0(
         within: (words[7] == 1.0).then_some(words[8] as u64),
         data_groups: words[9] as u32,
         axis_in_progress: words[10] == 1.0,
+        sums_in_f32: words[14] == 1.0,
     };
     Ok((file, Some(state)))
 }

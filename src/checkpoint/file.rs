@@ -2,7 +2,7 @@
 //!
 //! ```text
 //!  0  magic         8 bytes  "VXRDCKPT"
-//!  8  version       u32      FORMAT_VERSION (6; versions 1 to 5 are still read)
+//!  8  version       u32      FORMAT_VERSION (7; versions 1 to 6 are still read)
 //! 12  header_len    u32      bytes of the header body that follows
 //! 16  header body            Identity then State (see `encode_header`), little-endian;
 //!                            version 2 ends it with the mid-iteration position, version 3
@@ -11,14 +11,16 @@
 //!                            also with `data_groups`: the layout by groups out of core),
 //!                            version 6 then with the Chebyshev semi-iteration's state
 //!                            (present flag, ratio, updates: `solve::accelerate`) and
-//!                            whether the run allows it (`Identity::chebyshev`)
+//!                            whether the run allows it (`Identity::chebyshev`), version 7
+//!                            then with whether the partial sums are f32 (`State::sums_in_f32`)
 //!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
 //!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
 //!                            back RGB), in the solver's surfel order
 //!  .  older radiosity        only while Chebyshev runs: the radiosity before the last
 //!                            iteration's, surfels x 24 bytes alike
 //!  .  partial sums           only in mid-iteration: ranks x surfels x 48 bytes, the light each
-//!                            rank had gathered (f64 x 6 per surfel, side-major), rank 0 first;
+//!                            rank had gathered (f64 x 6 per surfel, side-major), rank 0 first
+//!                            (24 bytes, f32 x 6, where `sums_in_f32`: the out-of-core solvers);
 //!                            with `axis_in_progress`, one more array of surfels x 48 bytes
 //!                            after them (out of core: the light of the main axis in progress);
 //!                            by groups out of core (`data_groups` G and `axis_in_progress`),
@@ -44,13 +46,16 @@ use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
 /// The version written; [`OLDEST_VERSION`] up to it are read.
-pub const FORMAT_VERSION: u32 = 6;
+pub const FORMAT_VERSION: u32 = 7;
 /// Version 1: iteration boundaries only (no position, no partial sums).
 pub const OLDEST_VERSION: u32 = 1;
 /// Bytes per surfel of the radiosity payload.
 pub const RADIOSITY_LEN: usize = 24;
-/// Bytes per surfel of one rank's partial sums.
+/// Bytes per surfel of one rank's partial sums in f64 (what [`CheckpointFile`]'s readers hand
+/// out, whatever the file holds).
 pub const PARTIAL_LEN: usize = 48;
+/// Bytes per surfel of one array of partial sums in f32 ([`State::sums_in_f32`]).
+pub const PARTIAL32_LEN: usize = 24;
 /// The fixed prefix: magic, version, header length.
 const PREFIX_LEN: usize = 16;
 /// A header never comes near this (its only variable part is a short list of change norms);
@@ -92,6 +97,27 @@ pub fn encode_gathered(g: &Gathered, out: &mut [u8]) {
     }
 }
 
+/// One surfel's partial sums as the file of `header` holds them, in f64.
+pub fn decode_partial(bytes: &[u8], header: &Header) -> Gathered {
+    if header.state.sums_in_f32 {
+        decode_radiosity(bytes).map(|side| side.map(f64::from))
+    } else {
+        decode_gathered(bytes)
+    }
+}
+
+/// Pieces of f32 partial sums (`PARTIAL32_LEN` bytes a surfel) as the f64 records the readers
+/// hand out (the same values), in `wide`.
+fn widen(piece: &[u8], wide: &mut Vec<u8>) {
+    wide.resize(piece.len() / PARTIAL32_LEN * PARTIAL_LEN, 0);
+    for (narrow, out) in piece
+        .chunks_exact(PARTIAL32_LEN)
+        .zip(wide.chunks_exact_mut(PARTIAL_LEN))
+    {
+        encode_gathered(&decode_radiosity(narrow).map(|s| s.map(f64::from)), out);
+    }
+}
+
 pub fn decode_gathered(bytes: &[u8]) -> Gathered {
     let f = |k: usize| {
         let mut b = [0u8; 8];
@@ -104,7 +130,7 @@ pub fn decode_gathered(bytes: &[u8]) -> Gathered {
 /// Bytes of the payload (radiosity and partial sums) of a checkpoint with this header.
 fn payload_len(header: &Header) -> Option<u64> {
     let per_surfel = header.radiosity_arrays() as u64 * RADIOSITY_LEN as u64
-        + header.partial_arrays() as u64 * PARTIAL_LEN as u64;
+        + header.partial_arrays() as u64 * header.partial_len() as u64;
     header.identity.surfels.checked_mul(per_surfel)
 }
 
@@ -157,6 +183,8 @@ fn encode_header(header: &Header) -> Vec<u8> {
     u64s(&mut b, ratio.to_bits());
     u64s(&mut b, updates);
     u32s(&mut b, id.chebyshev as u32);
+    // Version 7: whether the partial sums are f32.
+    u32s(&mut b, state.sums_in_f32 as u32);
     b
 }
 
@@ -268,6 +296,15 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
     } else {
         (None, false)
     };
+    let sums_in_f32 = if version >= 7 {
+        match f.u32()? {
+            0 => false,
+            1 => true,
+            _ => return None,
+        }
+    } else {
+        false
+    };
     let identity = Identity {
         chebyshev: allowed,
         ..identity
@@ -288,6 +325,7 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
             within,
             data_groups,
             axis_in_progress,
+            sums_in_f32,
         },
     })
 }
@@ -376,10 +414,11 @@ pub fn parse(path: &Path, bytes: &[u8], rank: usize) -> Result<Parsed, Checkpoin
         payload.split_at(surfels * RADIOSITY_LEN * header.radiosity_arrays() as usize);
     let (radiosity, older) = decode_radiosity_arrays(arrays, surfels);
     let partial = (rank < header.partial_ranks() as usize).then(|| {
-        let one = surfels * PARTIAL_LEN;
+        let len = header.partial_len();
+        let one = surfels * len;
         sums[rank * one..(rank + 1) * one]
-            .chunks_exact(PARTIAL_LEN)
-            .map(decode_gathered)
+            .chunks_exact(len)
+            .map(|b| decode_partial(b, &header))
             .collect()
     });
     Ok(Parsed {
@@ -540,8 +579,9 @@ impl CheckpointFile {
         read(RADIOSITY_LEN, surfels, &mut radiosity)?;
         let older_count = surfels * (self.header.radiosity_arrays() as u64 - 1);
         read(RADIOSITY_LEN, older_count, &mut older)?;
-        read(PARTIAL_LEN, sums_count, &mut sums)?;
-        read(PARTIAL_LEN, axis_count, &mut axis)?;
+        let len = self.header.partial_len();
+        read(len, sums_count, &mut self.widening(&mut sums))?;
+        read(len, axis_count, &mut self.widening(&mut axis))?;
         let mut stored = [0u8; 4];
         file.read_exact(&mut stored)
             .map_err(|e| self.io_error("read", e))?;
@@ -564,17 +604,36 @@ impl CheckpointFile {
             return Err(bad(&self.path, format!("it holds no partial-sum array {index}")).into());
         }
         let surfels = self.header.identity.surfels;
+        let len = self.header.partial_len();
         let at = self.payload_at
             + surfels * RADIOSITY_LEN as u64 * self.header.radiosity_arrays() as u64
-            + index as u64 * surfels * PARTIAL_LEN as u64;
+            + index as u64 * surfels * len as u64;
         let mut file = self.open_at(at)?;
         self.read_records(
             &mut file,
-            (PARTIAL_LEN, surfels),
+            (len, surfels),
             buffer_bytes,
             None,
-            &mut f,
+            &mut self.widening(&mut f),
         )
+    }
+
+    /// `f`, handed partial sums as f64 records ([`PARTIAL_LEN`] bytes a surfel) whatever the
+    /// file holds: pieces of f32 sums are widened first.
+    fn widening<'f, E>(
+        &self,
+        f: &'f mut dyn FnMut(&[u8]) -> Result<(), E>,
+    ) -> impl FnMut(&[u8]) -> Result<(), E> + 'f {
+        let narrow = self.header.state.sums_in_f32;
+        let mut wide = Vec::new();
+        move |piece: &[u8]| {
+            if narrow {
+                widen(piece, &mut wide);
+                f(&wide)
+            } else {
+                f(piece)
+            }
+        }
     }
 
     fn io_error(&self, action: &'static str, source: std::io::Error) -> CheckpointError {
@@ -768,6 +827,7 @@ mod tests {
                 within,
                 data_groups: if within.is_some() { 2 } else { 0 },
                 axis_in_progress,
+                sums_in_f32: false,
             },
         }
     }
@@ -791,6 +851,16 @@ mod tests {
             .collect()
     }
 
+    /// The partial sums of array `rank` as a file of `header` keeps them: [`sums`], or in f32
+    /// where its sums are (`State::sums_in_f32`).
+    fn kept_sums(header: &Header, n: usize, rank: usize) -> Vec<Gathered> {
+        let narrow = |g: Gathered| g.map(|side| side.map(|v| v as f32 as f64));
+        match header.state.sums_in_f32 {
+            true => sums(n, rank).into_iter().map(narrow).collect(),
+            false => sums(n, rank),
+        }
+    }
+
     /// The older radiosity of a Chebyshev checkpoint: other values than [`radiosity`]'s.
     fn older(n: usize) -> Vec<Radiosity> {
         radiosity(n).iter().rev().map(|b| [b[1], b[0]]).collect()
@@ -810,10 +880,14 @@ mod tests {
                 w.write_all(&bytes)?;
             }
             let mut bytes = [0u8; PARTIAL_LEN];
+            let len = header.partial_len();
             for rank in 0..header.partial_arrays() as usize {
-                for g in sums(values.len(), rank) {
-                    encode_gathered(&g, &mut bytes);
-                    w.write_all(&bytes)?;
+                for g in kept_sums(header, values.len(), rank) {
+                    match header.state.sums_in_f32 {
+                        true => encode_radiosity(&g.map(|s| s.map(|v| v as f32)), &mut bytes),
+                        false => encode_gathered(&g, &mut bytes),
+                    }
+                    w.write_all(&bytes[..len])?;
                 }
             }
             Ok(())
@@ -833,11 +907,19 @@ mod tests {
     fn round_trip_in_memory_and_streamed() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
+        // The out-of-core layouts also with their sums in f32 (format version 7), which the
+        // readers hand out in f64, the same values.
+        let narrow = |mut h: Header| {
+            h.state.sums_in_f32 = true;
+            h
+        };
         for h in [
             header(37, None),
             header(37, Some(17)),
             axis_header(37, 17),
             groups_header(37, 17),
+            narrow(axis_header(37, 17)),
+            narrow(groups_header(37, 17)),
         ] {
             let within = h.state.within;
             let values = radiosity(37);
@@ -849,7 +931,8 @@ mod tests {
                 assert_eq!(got.header, h);
                 assert_eq!(bits(&got.radiosity), bits(&values));
                 let ranks = h.partial_ranks() as usize;
-                let want = (within.is_some() && rank < ranks).then(|| sum_bits(&sums(37, rank)));
+                let want =
+                    (within.is_some() && rank < ranks).then(|| sum_bits(&kept_sums(&h, 37, rank)));
                 assert_eq!(got.partial.as_deref().map(sum_bits), want);
             }
             let file = CheckpointFile::open(&path).unwrap();
@@ -878,11 +961,11 @@ mod tests {
             )
             .unwrap();
             let ranks_want: Vec<u64> = (0..h.partial_ranks() as usize)
-                .flat_map(|rank| sum_bits(&sums(37, rank)))
+                .flat_map(|rank| sum_bits(&kept_sums(&h, 37, rank)))
                 .collect();
             assert_eq!(sum_bits(&ranks), ranks_want);
             let axis_want: Vec<u64> = (h.partial_ranks()..h.partial_arrays())
-                .flat_map(|array| sum_bits(&sums(37, array as usize)))
+                .flat_map(|array| sum_bits(&kept_sums(&h, 37, array as usize)))
                 .collect();
             assert_eq!(sum_bits(&axis), axis_want);
             // Each array alone, after the whole read checked the checksum.
@@ -890,7 +973,7 @@ mod tests {
                 let mut one = Vec::new();
                 file.read_array::<CheckpointError>(array, 100, |piece| take(&mut one, piece))
                     .unwrap();
-                assert_eq!(sum_bits(&one), sum_bits(&sums(37, array as usize)));
+                assert_eq!(sum_bits(&one), sum_bits(&kept_sums(&h, 37, array as usize)));
             }
             assert!(file
                 .read_array::<CheckpointError>(h.partial_arrays(), 100, |_| Ok(()))
@@ -898,20 +981,32 @@ mod tests {
         }
         let groups = groups_header(37, 17);
         assert_eq!((groups.partial_ranks(), groups.partial_arrays()), (3, 6));
+        // f32 sums take half the bytes: the last file written above has them, against the
+        // same layout in f64.
+        let narrow_len = std::fs::metadata(&path).unwrap().len();
+        write_one(&path, &groups, &radiosity(37));
+        let wide_len = std::fs::metadata(&path).unwrap().len();
+        assert_eq!(
+            wide_len - narrow_len,
+            37 * 6 * (PARTIAL_LEN - PARTIAL32_LEN) as u64
+        );
     }
 
     /// An older file made from a current boundary one: the version, without the fields later
-    /// versions added at the header's end (version 3 the axis in progress, version 2 also the
-    /// layout of the sums, version 1 also the position), checksum redone.
+    /// versions added at the header's end (version 6 the precision of the sums, version 3
+    /// also the axis in progress, version 2 also the layout of the sums, version 1 also the
+    /// position), checksum redone.
     fn as_version(current: &[u8], version: u32) -> Vec<u8> {
         let header_len = u32::from_le_bytes(current[12..16].try_into().unwrap()) as usize;
         let end = PREFIX_LEN + header_len;
-        // Version 6 added 24 bytes (the Chebyshev state and whether the run allows it).
+        // Version 6 added 24 bytes (the Chebyshev state and whether the run allows it),
+        // version 7 four (whether the sums are f32).
         let cut = match version {
-            1 => 44,
-            2 => 32,
-            3 => 28,
-            4 | 5 => 24,
+            1 => 48,
+            2 => 36,
+            3 => 32,
+            4 | 5 => 28,
+            6 => 4,
             _ => 0,
         };
         let mut old = current[..end - cut].to_vec();
@@ -924,13 +1019,13 @@ mod tests {
     }
 
     #[test]
-    fn versions_1_to_5_are_read_and_an_unknown_version_is_refused() {
+    fn versions_1_to_6_are_read_and_an_unknown_version_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
         let h = header(5, None);
         write_one(&path, &h, &radiosity(5));
         let current = std::fs::read(&path).unwrap();
-        for old in [1, 2, 3, 4, 5] {
+        for old in [1, 2, 3, 4, 5, 6] {
             let bytes = as_version(&current, old);
             let got = parse(&path, &bytes, 0).unwrap();
             assert_eq!(got.header, h);

@@ -122,6 +122,7 @@ impl Saver {
             within: None,
             data_groups: 0,
             axis_in_progress: false,
+            sums_in_f32: false,
         }
     }
 

@@ -45,9 +45,9 @@
 use super::band::{BandBuffers, BandTimes, CopyFiles, DirectionPass};
 use super::budget::MemoryPlan;
 use super::files::{
-    decode_gathered, decode_light32, decode_radiosity, encode_gathered, encode_light32,
-    encode_radiosity, Gathered, IoCounters, Radiosity, RecordFile, SeqReader, SeqWriter,
-    GATHER_LEN, LIGHT32_LEN, RADIOSITY_LEN,
+    decode_gathered, decode_light32, decode_radiosity, encode_light32, encode_radiosity, Gathered,
+    IoCounters, Radiosity, RecordFile, SeqReader, SeqWriter, GATHER_LEN, LIGHT32_LEN,
+    RADIOSITY_LEN,
 };
 use super::framed::{FrameBuffers, FramedStatics};
 use super::links::LinkStore;
@@ -421,8 +421,8 @@ fn run(
         .collect::<Result<_, OocError>>()?;
     let axes = AxisSpans::new(&by_axis);
     // The checkpoints, where they share the work files' disk, take their room before the links
-    // do: a building of 1.2 x 10^8 surfels wrote 14 GB checkpoints, and with the links they
-    // filled the disk.
+    // do: a building of 1.2 x 10^8 surfels wrote 14 GB checkpoints (8.5 GB since their sums
+    // are f32), and with the links they filled the disk.
     let checkpoint_growth = checkpoints.as_ref().map_or(0, |c| {
         workset::checkpoint_growth(c.saver.path(), work.dir.path(), work.count)
     });
@@ -915,23 +915,6 @@ impl AxisSpans {
     }
 }
 
-/// Writes the f32 light records of `path` to `w` as f64 records, the checkpoint's layout of
-/// light (exactly the same values).
-fn copy_light_as_f64(
-    path: &Path,
-    plan: &MemoryPlan,
-    w: &mut dyn std::io::Write,
-) -> std::io::Result<()> {
-    let mut reader =
-        SeqReader::<LIGHT32_LEN>::open(path, plan.io_bytes).map_err(std::io::Error::other)?;
-    let mut wide = [0u8; GATHER_LEN];
-    while let Some(record) = reader.next_record().map_err(std::io::Error::other)? {
-        encode_gathered(&decode_light32(&record), &mut wide);
-        w.write_all(&wide)?;
-    }
-    Ok(())
-}
-
 /// Copies the `LEN`-byte records of a work file into a checkpoint being written.
 fn copy_records<const LEN: usize>(
     path: &Path,
@@ -974,8 +957,9 @@ fn copy_radiosity(
     }
 }
 
-// Same layout as a checkpoint's partial sums: f64 x 6 per surfel, side-major, LE.
-const _: () = assert!(crate::checkpoint::file::PARTIAL_LEN == GATHER_LEN);
+// Same layout as a checkpoint's partial sums in f32 (`State::sums_in_f32`, which these
+// checkpoints set): f32 x 6 per surfel, side-major, LE. The readers hand them out in f64.
+const _: () = assert!(crate::checkpoint::file::PARTIAL32_LEN == LIGHT32_LEN);
 
 /// Saves a checkpoint inside an iteration, `done` directions into it (the end of a main axis):
 /// the canonical radiosity file, then the canonical sum of the light gathered so far.
@@ -987,9 +971,10 @@ fn save_between_axes(
     plan: &MemoryPlan,
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     state.within = Some(done);
+    state.sums_in_f32 = true;
     saver.save(state, plan.io_bytes, |w| {
         copy_radiosity(older, work, plan, w)?;
-        copy_light_as_f64(&work.canonical_gathered, plan, w)
+        copy_records::<LIGHT32_LEN>(&work.canonical_gathered, plan, w)
     })
 }
 
@@ -1011,14 +996,15 @@ fn save_in_axis(
 ) -> Result<(), crate::checkpoint::CheckpointError> {
     state.within = Some(axes.done(at));
     state.axis_in_progress = true;
+    state.sums_in_f32 = true;
     let gathered = &work.gathered[light_file];
     saver.save(state, plan.io_bytes, |w| {
         copy_radiosity(older, work, plan, w)?;
         if summed {
-            copy_light_as_f64(&work.canonical_gathered, plan, w)?;
+            copy_records::<LIGHT32_LEN>(&work.canonical_gathered, plan, w)?;
         } else {
-            let zeros = vec![0u8; plan.io_bytes.max(GATHER_LEN) / GATHER_LEN * GATHER_LEN];
-            let mut left = work.count * GATHER_LEN as u64;
+            let zeros = vec![0u8; plan.io_bytes.max(LIGHT32_LEN) / LIGHT32_LEN * LIGHT32_LEN];
+            let mut left = work.count * LIGHT32_LEN as u64;
             while left > 0 {
                 let len = left.min(zeros.len() as u64) as usize;
                 w.write_all(&zeros[..len])?;
@@ -1029,9 +1015,10 @@ fn save_in_axis(
             .map_err(std::io::Error::other)?;
         let mut bytes = Vec::new();
         while let Some((_, values)) = canonical.next_chunk().map_err(std::io::Error::other)? {
-            bytes.resize(values.len() * GATHER_LEN, 0);
-            for (h, slot) in values.iter().zip(bytes.chunks_exact_mut(GATHER_LEN)) {
-                encode_gathered(h, slot);
+            // The axis light records' f32 values, exactly.
+            bytes.resize(values.len() * LIGHT32_LEN, 0);
+            for (h, slot) in values.iter().zip(bytes.chunks_exact_mut(LIGHT32_LEN)) {
+                encode_light32(h, slot);
             }
             w.write_all(&bytes)?;
         }
@@ -1148,7 +1135,8 @@ fn restore(
             None => Ok(()),
         },
         |piece| match sums.as_mut() {
-            // f64 in the checkpoint, f32 in the sum file, which held these values.
+            // f64 as the checkpoint's readers hand them out, f32 in the sum file, which held
+            // these values.
             Some(s) => {
                 let mut record = [0u8; LIGHT32_LEN];
                 for value in piece.chunks_exact(GATHER_LEN) {
@@ -1163,8 +1151,8 @@ fn restore(
             let Some((scatter, positions)) = axis.as_mut() else {
                 return Ok(());
             };
-            // The checkpoint holds the axis's light in f64, as the band rounded it: the axis
-            // light record holds it exactly.
+            // The axis's light as the band rounded it (f32 in the file since format version
+            // 7, handed out in f64): the axis light record holds it exactly.
             let mut record = [0u8; LIGHT32_LEN];
             for value in piece.chunks_exact(GATHER_LEN) {
                 let p = positions.expect_value()? as u64;

@@ -402,9 +402,9 @@ fn for_each_static_record(
 
 /// Bytes a checkpoint of one out-of-core process takes per surfel at most: its radiosity and
 /// the one before (Chebyshev), the light gathered so far and that of the axis in progress
-/// (`checkpoint::file`).
-const CHECKPOINT_BYTES_PER_SURFEL: u64 =
-    (2 * crate::checkpoint::file::RADIOSITY_LEN + 2 * crate::checkpoint::file::PARTIAL_LEN) as u64;
+/// (`checkpoint::file`; f32 sums since format version 7, 96 bytes a surfel in all, 144 before).
+const CHECKPOINT_BYTES_PER_SURFEL: u64 = (2 * crate::checkpoint::file::RADIOSITY_LEN
+    + 2 * crate::checkpoint::file::PARTIAL32_LEN) as u64;
 
 /// The disk that the checkpoints at `checkpoint` of a solve of `count` surfels may still take on
 /// the file system of `work_dir`: two copies (the new one is written beside the old, then

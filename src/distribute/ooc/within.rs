@@ -17,8 +17,7 @@ use super::route::Router;
 use super::{fold_axis, DataOocSweep, Solver, WalkStep};
 use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
 use crate::outcore::files::{
-    decode_gathered, decode_light32, encode_gathered, encode_light32, IoCounters, GATHER_LEN,
-    RADIOSITY_LEN,
+    decode_gathered, encode_light32, IoCounters, GATHER_LEN, LIGHT32_LEN, RADIOSITY_LEN,
 };
 use crate::outcore::OocError;
 use std::path::PathBuf;
@@ -37,34 +36,32 @@ struct Position {
 }
 
 impl Position {
-    /// The canonical sum of the light of the axes done (zeros before the first), in f64 as a
-    /// checkpoint holds it.
-    fn sum(self, w: &Wire) -> [u8; GATHER_LEN] {
+    /// The canonical sum of the light of the axes done (zeros before the first), its f32
+    /// slot as a checkpoint holds it (`State::sums_in_f32`).
+    fn sum(self, w: &Wire) -> [u8; LIGHT32_LEN] {
         let mut record = *w;
         if self.pending {
             fold_axis(&mut record, !self.earlier_any);
         } else if !self.earlier_any {
-            return [0; GATHER_LEN];
+            return [0; LIGHT32_LEN];
         }
-        wide(&record, EARLIER_AT)
+        slot(&record, EARLIER_AT)
     }
 
-    /// The light of the axis in progress (zeros between two axes), in f64 as a checkpoint
-    /// holds it (the axis light record's f32 values, exactly).
-    fn axis(self, w: &Wire) -> [u8; GATHER_LEN] {
+    /// The light of the axis in progress (zeros between two axes), its f32 slot as a
+    /// checkpoint holds it.
+    fn axis(self, w: &Wire) -> [u8; LIGHT32_LEN] {
         if self.in_axis {
-            wide(w, GATHERED_AT)
+            slot(w, GATHERED_AT)
         } else {
-            [0; GATHER_LEN]
+            [0; LIGHT32_LEN]
         }
     }
 }
 
-/// The f32 light slot at `at` as an f64 record (the same values).
-fn wide(w: &Wire, at: usize) -> [u8; GATHER_LEN] {
-    let mut value = [0; GATHER_LEN];
-    encode_gathered(&decode_light32(&w[at..]), &mut value);
-    value
+/// The f32 light slot at `at`.
+fn slot(w: &Wire, at: usize) -> [u8; LIGHT32_LEN] {
+    w[at..at + LIGHT32_LEN].try_into().expect("a light slot")
 }
 
 /// Whether a group that has done the first `done` steps of `walk` has finished an axis.
@@ -124,13 +121,13 @@ impl DataOocSweep<'_, '_> {
             for (kind, value) in [
                 (
                     "sum",
-                    Position::sum as fn(Position, &Wire) -> [u8; GATHER_LEN],
+                    Position::sum as fn(Position, &Wire) -> [u8; LIGHT32_LEN],
                 ),
                 ("axis", Position::axis),
             ] {
                 for group in 0..solver.groups {
                     let name = format!("checkpoint-{kind}-{group}.bin");
-                    let array = solver.gather_canonical::<GATHER_LEN>(
+                    let array = solver.gather_canonical::<LIGHT32_LEN>(
                         held,
                         group,
                         surfels,
@@ -155,6 +152,7 @@ impl DataOocSweep<'_, '_> {
         state.within = Some(done as u64);
         state.data_groups = solver.groups as u32;
         state.axis_in_progress = true;
+        state.sums_in_f32 = true;
         let result = saver.save(state, plan.io_bytes, |w| {
             for path in &files {
                 let file = std::fs::File::open(path)?;
@@ -209,8 +207,8 @@ impl Solver<'_> {
             *generation += 1;
             held =
                 self.place_slice::<GATHER_LEN>(held, &mine, *generation, router, io, |w, v| {
-                    // In f64 in the checkpoint, as f32 sums made them: the slot holds them
-                    // exactly.
+                    // Handed out in f64 (f32 in the file since format version 7), as f32
+                    // sums made them: the slot holds them exactly.
                     encode_light32(&decode_gathered(v), &mut w[at..]);
                 })?;
         }
