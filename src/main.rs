@@ -101,8 +101,8 @@ enum Command {
         /// Out of core: keep each direction's partner links in work files taking at most this
         /// much disk (per rank), so that iterations after the first read the light and the
         /// links instead of searching again (0: search in every iteration; default: half of the
-        /// disk left free once the work files are made, shared by the ranks on one node; one
-        /// process also leaves room for two checkpoints where they share that disk).
+        /// disk left free once the work files are made, shared by the ranks on one node, with
+        /// room left for two checkpoints where they share that disk).
         #[arg(long, value_parser = voxrad::outcore::parse_bytes_or_zero)]
         links_disk: Option<u64>,
         /// Out of core: make the work files (read and written in every iteration) and an OBJ

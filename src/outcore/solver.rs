@@ -424,7 +424,8 @@ fn run(
     // do: a building of 1.2 x 10^8 surfels wrote 14 GB checkpoints (8.5 GB since their sums
     // are f32), and with the links they filled the disk.
     let checkpoint_growth = checkpoints.as_ref().map_or(0, |c| {
-        workset::checkpoint_growth(c.saver.path(), work.dir.path(), work.count)
+        let per_surfel = workset::checkpoint_bytes_per_surfel(2);
+        workset::checkpoint_growth(c.saver.path(), work.dir.path(), work.count, per_surfel)
     });
     if let Some(free) = workset::free_bytes(work.dir.path()) {
         let needed = work.disk_still_needed(also) + checkpoint_growth;

@@ -400,23 +400,33 @@ fn for_each_static_record(
     Ok(id as u64)
 }
 
-/// Bytes a checkpoint of one out-of-core process takes per surfel at most: its radiosity and
-/// the one before (Chebyshev), the light gathered so far and that of the axis in progress
-/// (`checkpoint::file`; f32 sums since format version 7, 96 bytes a surfel in all, 144 before).
-const CHECKPOINT_BYTES_PER_SURFEL: u64 = (2 * crate::checkpoint::file::RADIOSITY_LEN
-    + 2 * crate::checkpoint::file::PARTIAL32_LEN) as u64;
+/// Bytes an out-of-core checkpoint takes per surfel at most with `sum_arrays` arrays of
+/// partial sums: its radiosity and the one before (Chebyshev), and the sums (`checkpoint::file`;
+/// f32 since format version 7). One process keeps two arrays, the light gathered so far and
+/// that of the axis in progress (96 bytes a surfel in all, 144 before the f32 sums); the data
+/// and hybrid modes two a group.
+pub(crate) fn checkpoint_bytes_per_surfel(sum_arrays: u64) -> u64 {
+    2 * crate::checkpoint::file::RADIOSITY_LEN as u64
+        + sum_arrays * crate::checkpoint::file::PARTIAL32_LEN as u64
+}
 
-/// The disk that the checkpoints at `checkpoint` of a solve of `count` surfels may still take on
-/// the file system of `work_dir`: two copies (the new one is written beside the old, then
-/// renamed over it) less the one already there; 0 where they lie on another file system.
-pub(crate) fn checkpoint_growth(checkpoint: &Path, work_dir: &Path, count: u64) -> u64 {
+/// The disk that the checkpoints at `checkpoint` of a solve of `count` surfels, `per_surfel`
+/// bytes each ([`checkpoint_bytes_per_surfel`]), may still take on the file system of
+/// `work_dir`: two copies (the new one is written beside the old, then renamed over it) less
+/// the one already there; 0 where they lie on another file system.
+pub(crate) fn checkpoint_growth(
+    checkpoint: &Path,
+    work_dir: &Path,
+    count: u64,
+    per_surfel: u64,
+) -> u64 {
     use std::os::unix::fs::MetadataExt;
     let device = |p: &Path| std::fs::metadata(p).ok().map(|m| m.dev());
     let out = checkpoint.parent().unwrap_or(Path::new("."));
     match (device(out), device(work_dir)) {
         (Some(a), Some(b)) if a == b => {
             let there = std::fs::metadata(checkpoint).map_or(0, |m| m.len());
-            (2 * count * CHECKPOINT_BYTES_PER_SURFEL).saturating_sub(there)
+            (2 * count * per_surfel).saturating_sub(there)
         }
         _ => 0,
     }
@@ -459,13 +469,16 @@ mod tests {
         std::fs::create_dir_all(&out).unwrap();
         std::fs::create_dir_all(&work).unwrap();
         let checkpoint = out.join("checkpoint.bin");
-        let two = 2 * 1000 * CHECKPOINT_BYTES_PER_SURFEL;
-        assert_eq!(checkpoint_growth(&checkpoint, &work, 1000), two);
+        // One process: the radiosity, the one before and two arrays of sums, in f32.
+        let per = checkpoint_bytes_per_surfel(2);
+        assert_eq!(per, 96);
+        let two = 2 * 1000 * per;
+        assert_eq!(checkpoint_growth(&checkpoint, &work, 1000, per), two);
         std::fs::write(&checkpoint, vec![0u8; 5000]).unwrap();
-        assert_eq!(checkpoint_growth(&checkpoint, &work, 1000), two - 5000);
+        assert_eq!(checkpoint_growth(&checkpoint, &work, 1000, per), two - 5000);
         // Where the file system cannot be told, nothing is set aside.
         let gone = dir.path().join("nowhere").join("checkpoint.bin");
-        assert_eq!(checkpoint_growth(&gone, &work, 1000), 0);
+        assert_eq!(checkpoint_growth(&gone, &work, 1000, per), 0);
     }
 
     #[test]

@@ -766,18 +766,36 @@ pub fn rank_budget(asked: Option<u64>, surfels: usize, comm: &dyn crate::comm::C
 /// How many ranks of `comm` run on this rank's node, by host name (every rank counts as one
 /// node's where the name cannot be read: the smaller share). Collective on `comm`.
 pub(crate) fn ranks_on_this_node(comm: &dyn crate::comm::Comm) -> usize {
+    node_mates(comm).count
+}
+
+/// The ranks of `comm` that share this rank's node (by host name).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct NodeMates {
+    /// How many, this one included (all where the name cannot be read: the smaller share).
+    pub count: usize,
+    /// Whether rank 0 is one of them (so it is where the name cannot be read: the room it
+    /// needs is then set aside).
+    pub with_rank_0: bool,
+}
+
+/// Which ranks of `comm` share this rank's node, by host name. Collective on `comm`.
+pub(crate) fn node_mates(comm: &dyn crate::comm::Comm) -> NodeMates {
     if comm.size() == 1 {
-        return 1;
+        return NodeMates {
+            count: 1,
+            with_rank_0: true,
+        };
     }
     let name = std::fs::read_to_string("/proc/sys/kernel/hostname")
         .map(|n| n.trim().as_bytes().to_vec())
         .unwrap_or_default();
     let received = comm.exchange(vec![name.clone(); comm.size()]);
-    received
-        .iter()
-        .filter(|other| name.is_empty() || **other == name)
-        .count()
-        .max(1)
+    let mate = |other: &Vec<u8>| name.is_empty() || *other == name;
+    NodeMates {
+        count: received.iter().filter(|o| mate(o)).count().max(1),
+        with_rank_0: comm.rank() == 0 || mate(&received[0]),
+    }
 }
 
 /// How many bytes of links may still be kept.

@@ -387,12 +387,44 @@ impl Solver<'_> {
             .collect();
         let starts = self.slice_starts(slice.first);
         // The links files' allowance: the ranks of one node share its disk, and a merge adds
-        // about two shares to the held files on it now (see the check above).
+        // about two shares to the held files on it now (see the check above). Rank 0 writes the
+        // checkpoints, from arrays it first gathers in its work directory: on its node their
+        // room is set aside before the links' (two checkpoints where `--out` shares that disk,
+        // and the gathered arrays).
+        let mates = crate::solve::links::node_mates(self.comm);
+        let checkpoint_room = match (me, checkpoints.as_ref()) {
+            (0, Some(c)) => {
+                use crate::outcore::workset::{checkpoint_bytes_per_surfel, checkpoint_growth};
+                let per_surfel = checkpoint_bytes_per_surfel(2 * self.groups as u64);
+                checkpoint_growth(c.saver.path(), dir, surfels, per_surfel) + surfels * per_surfel
+            }
+            _ => 0,
+        };
+        let checkpoint_room = self.comm.max_u64(checkpoint_room);
+        let still_needed = 2 * share
+            + canonical_bytes
+            + match mates.with_rank_0 {
+                true => checkpoint_room.div_ceil(mates.count as u64),
+                false => 0,
+            };
+        if me == 0 && checkpoint_room > 0 {
+            let needed = still_needed * mates.count as u64;
+            match crate::outcore::workset::free_bytes(dir) {
+                Some(free) if free < needed => tracing::warn!(
+                    free = crate::outcore::budget::format_bytes(free),
+                    needed = crate::outcore::budget::format_bytes(needed),
+                    "the work files of this node's ranks and two checkpoints do not fit on the \
+                     disk: checkpoints that do not fit are not written, and the solve goes on \
+                     without them"
+                ),
+                _ => {}
+            }
+        }
         let links_allowance = crate::outcore::links::allowance(
             dir,
             self.options.links_disk,
-            2 * share + canonical_bytes,
-            crate::solve::links::ranks_on_this_node(self.comm) as u64,
+            still_needed,
+            mates.count as u64,
         );
         let links = LinkStore::new(dir, d_count, links_allowance, surfels, plan.io_bytes);
         let mut sweep = DataOocSweep {
