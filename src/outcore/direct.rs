@@ -21,8 +21,9 @@
 //!    until the group is complete; then its senders' balance is settled and the kept light,
 //!    scaled, added to the sums in the order it was gathered: what the whole group adds, bit
 //!    for bit.
-//! 3. One pass over the source picks these surfels, in canonical order: a small scene of its
-//!    own, on which `solve::direct::gather_groups` (or, for a split group's pieces,
+//! 3. The source hands over these surfels, in canonical order (`outcore::pick`: a shard set
+//!    in the voxels' order is searched for them, any other source streamed): a small scene of
+//!    its own, on which `solve::direct::gather_groups` (or, for a split group's pieces,
 //!    `gather_pieces`, the same walk of each line) runs unchanged. Every line it walks is whole
 //!    there, so it finds the links the whole scene gives.
 //! 4. The light and weight shifts of the part's surfels are added to the running sums, kept by
@@ -236,11 +237,9 @@ impl Pass<'_> {
         )
     }
 
-    /// One pass over the source for the surfels of the voxels `keys` (sorted), in canonical
-    /// order; `None` if they are more than the part's room holds. A shard set comes in the
-    /// keys' order, so the keys are walked along with it, by steps that double (a search over
-    /// all of them only where the stream's order goes back, as a scene voxelized in memory,
-    /// stored in Morton order, does).
+    /// The surfels of the voxels `keys` (sorted), in canonical order (`outcore::pick`: a shard
+    /// set in the voxels' order is searched for them, any other source streamed whole); an
+    /// [`Overflow`] if they are more than the part's room holds.
     fn pick(&self, keys: &[u64], io: &mut IoCounters) -> Result<Result<Part, Overflow>, OocError> {
         let info = self.source.info();
         let cap =
@@ -252,29 +251,24 @@ impl Pass<'_> {
             materials: info.materials.clone(),
         };
         let mut ids: Vec<u64> = Vec::new();
-        let (mut at, mut last) = (0, 0);
-        for (id, s) in self.source.stream(self.plan.io_bytes as u64)?.enumerate() {
-            let s = s?;
-            let key = voxel_key(s.voxel);
-            if key < last {
-                at = keys.partition_point(|&k| k < key);
-            } else {
-                at = gallop(keys, at, key);
-            }
-            last = key;
-            if keys.get(at) == Some(&key) {
+        let mut overflow = None;
+        io.read += self
+            .source
+            .pick_voxels(keys, self.plan.io_bytes as u64, &mut |id, s, at| {
                 if set.surfels.len() >= cap {
-                    io.read += (id as u64 + 1) * crate::storage::RECORD_LEN as u64;
-                    return Ok(Err(Overflow {
-                        density: cap as f64 / (at.max(1)) as f64,
-                    }));
+                    overflow = Some(Overflow {
+                        density: cap as f64 / at.max(1) as f64,
+                    });
+                    return Ok(false);
                 }
                 set.surfels.push(s);
-                ids.push(id as u64);
-            }
-        }
-        io.read += info.count * crate::storage::RECORD_LEN as u64;
-        Ok(Ok(Part { set, ids }))
+                ids.push(id);
+                Ok(true)
+            })?;
+        Ok(match overflow {
+            Some(o) => Err(o),
+            None => Ok(Part { set, ids }),
+        })
     }
 
     /// Whole groups `which` on `part`: their light added to the running sums of its surfels.
@@ -876,19 +870,6 @@ fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
     }
 }
 
-/// The first place at or after `from` in `keys` (sorted) whose key is not below `key`, found by
-/// steps that double from `from` and then halve: a few steps when it is near.
-fn gallop(keys: &[u64], from: usize, key: u64) -> usize {
-    let mut step = 1;
-    let mut low = from;
-    while low + step <= keys.len() && keys[low + step - 1] < key {
-        low += step;
-        step *= 2;
-    }
-    let high = (low + step).min(keys.len());
-    low + keys[low..high].partition_point(|&k| k < key)
-}
-
 /// The occupied voxels on the lines through the emitters (at `emitter_voxels`) along the dense
 /// directions `which`, sorted, each once.
 fn line_voxels(
@@ -989,18 +970,6 @@ fn decode_term(bytes: &[u8; TERM_LEN]) -> (u64, u8, u64, [f64; 3], f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn gallop_finds_what_a_search_over_the_rest_finds() {
-        let keys: Vec<u64> = (0..200u64).map(|k| k * 7 + k % 5).collect();
-        assert!(keys.is_sorted());
-        for from in [0, 1, 5, 63, 64, 150, 199, 200] {
-            for key in 0..1450 {
-                let want = from + keys[from..].partition_point(|&k| k < key);
-                assert_eq!(gallop(&keys, from, key), want, "from {from}, key {key}");
-            }
-        }
-    }
 
     #[test]
     fn kept_contributions_round_trip() {

@@ -49,6 +49,7 @@ pub mod files;
 pub mod framed;
 pub mod links;
 pub mod packed_index;
+pub mod pick;
 pub mod scatter;
 pub mod solver;
 pub mod source;

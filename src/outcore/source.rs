@@ -58,6 +58,18 @@ pub trait SurfelSource: Sync {
     ) -> Result<(SurfelStream<'_>, u64), OocError> {
         self.stream_from(first, window_bytes)
     }
+    /// The surfels of the voxels `keys` (sorted keys of `solve::direct::VoxelTable`: `z`, then
+    /// `y`, then `x`), handed to `take` in canonical order with their canonical indices, until
+    /// it says stop; returns the bytes read. By default a pass over the whole stream
+    /// (`pick::by_stream`).
+    fn pick_voxels(
+        &self,
+        keys: &[u64],
+        window_bytes: u64,
+        take: &mut super::pick::Take<'_>,
+    ) -> Result<u64, OocError> {
+        super::pick::by_stream(self.stream(window_bytes)?, keys, take)
+    }
     /// What to call the source in messages.
     fn describe(&self) -> String;
     /// Whether the scene's light is sealed in (`solve::enclosure`), the check taking at most
@@ -291,6 +303,28 @@ impl SurfelSource for ShardSetSource {
 
     fn describe(&self) -> String {
         format!("the shard set {}", self.dir.display())
+    }
+
+    /// A set sorted in the voxels' order (order 0) with every shard here is searched, reading
+    /// only the records of the voxels wanted (`pick::from_sorted_shards`); any other, streamed.
+    fn pick_voxels(
+        &self,
+        keys: &[u64],
+        window_bytes: u64,
+        take: &mut super::pick::Take<'_>,
+    ) -> Result<u64, OocError> {
+        let present: Option<Vec<(&ShardReader, u64)>> = self
+            .readers
+            .iter()
+            .map(|(reader, entry)| reader.as_ref().map(|r| (r, entry.records)))
+            .collect();
+        match present {
+            Some(shards) if self.order == 0 && super::pick::shards_in_key_order(&shards)? => {
+                let shards = shards.into_iter();
+                super::pick::from_sorted_shards(shards, &self.info, keys, window_bytes, take)
+            }
+            _ => super::pick::by_stream(self.stream(window_bytes)?, keys, take),
+        }
     }
 
     /// From the shards' own checksums (checked against the data as it is streamed), without
