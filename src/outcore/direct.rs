@@ -819,12 +819,14 @@ pub fn gather_direct_out_of_core(
     Ok(DirectFile { path, stats })
 }
 
-/// Passes over the scene above which the pass warns that it will be long.
+/// Parts above which the pass warns that it will be long.
 const MANY_PASSES: f64 = 100.0;
 
-/// Warns when the parts of the pass, each a pass over the whole scene, will be many: estimated
-/// from the first group's lines against the room of a part. The answer does not depend on the
-/// budget, so the pass is not cut short; the user is told what shortens it.
+/// Warns when the parts of the pass, each reading the surfels on its lines (a sorted shard
+/// set) or the whole scene (any other source, `outcore::pick`) and gathering them, will be
+/// many: estimated from sample groups' lines against the room of a part. The answer does not
+/// depend on the budget, so the pass is not cut short; the user is told what shortens it.
+/// (While it runs, its progress is logged: `progress::bar`.)
 fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
     if groups.is_empty() {
         return;
@@ -857,7 +859,7 @@ fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
     let passes = groups.len() as f64 * per_group / sample.len() as f64;
     if passes > MANY_PASSES {
         tracing::warn!(
-            "the direct-light pass will take at least about {passes:.0} passes over the scene's {} \
+            "the direct-light pass will take at least about {passes:.0} parts over the scene's {} \
              surfels: the lines of a group of {} dense directions through its emitters hold up \
              to about {} against the {} a part of --memory holds; a larger --memory or fewer \
              --direct-directions (now {}) shortens it",
