@@ -283,13 +283,11 @@ impl Pass<'_> {
     ) -> Result<(), OocError> {
         let mut light = vec![[[0f64; 3]; 2]; part.ids.len()];
         let mut rescaled = vec![[0f64; 2]; part.ids.len()];
-        let mut bytes = [0u8; SUM_LEN];
+        let mut run = Vec::new();
         if !first {
-            for (k, &id) in part.ids.iter().enumerate() {
-                self.sums_file
-                    .read_at(id * SUM_LEN as u64, &mut bytes, io)?;
-                (light[k], rescaled[k]) = decode_sum(&bytes);
-            }
+            self.for_sums_in_runs(&part.ids, &mut run, io, |k, sum| {
+                (light[k], rescaled[k]) = decode_sum(sum);
+            })?;
         }
         let sums = Sums {
             light: &mut light,
@@ -299,9 +297,56 @@ impl Pass<'_> {
         let (emission, emitters, surfels) = self.part_tables(part);
         let on = self.gather_on(part, &emission, &emitters, &surfels);
         gather_groups(&on, which, SenderBalance::PerDirection, progress, sums);
-        for (k, &id) in part.ids.iter().enumerate() {
-            encode_sum(&light[k], &rescaled[k], &mut bytes);
-            self.sums_file.write_at(id * SUM_LEN as u64, &bytes, io)?;
+        // Written in runs of consecutive surfels (from the start when this part is the first:
+        // the file holds no sums yet).
+        self.for_sums_in_runs_written(&part.ids, !first, &mut run, io, |k, sum| {
+            encode_sum(&light[k], &rescaled[k], sum);
+        })
+    }
+
+    /// Hands `f` the running sums of the surfels `ids` (sorted, distinct) as read from the sums
+    /// file, by their place in `ids`: a run of consecutive surfels (at most [`SUM_RUN`]) in one
+    /// read, not one a surfel (the surfels of neighbouring lines of a direction sit next to one
+    /// another in the canonical order). `run` is the read's buffer.
+    fn for_sums_in_runs(
+        &self,
+        ids: &[u64],
+        run: &mut Vec<u8>,
+        io: &mut IoCounters,
+        mut f: impl FnMut(usize, &[u8; SUM_LEN]),
+    ) -> Result<(), OocError> {
+        for (first, len) in runs_of(ids) {
+            run.resize(len * SUM_LEN, 0);
+            self.sums_file
+                .read_at(ids[first] * SUM_LEN as u64, run, io)?;
+            for (j, sum) in run.chunks_exact(SUM_LEN).enumerate() {
+                f(first + j, sum.try_into().expect("a sum"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Has `f` fill in the running sums of the surfels `ids` (sorted, distinct) by their place
+    /// in `ids`, each run of consecutive surfels read first where `read` (for `f` to change
+    /// them), and written back in one write.
+    fn for_sums_in_runs_written(
+        &self,
+        ids: &[u64],
+        read: bool,
+        run: &mut Vec<u8>,
+        io: &mut IoCounters,
+        mut f: impl FnMut(usize, &mut [u8; SUM_LEN]),
+    ) -> Result<(), OocError> {
+        for (first, len) in runs_of(ids) {
+            run.resize(len * SUM_LEN, 0);
+            let at = ids[first] * SUM_LEN as u64;
+            if read {
+                self.sums_file.read_at(at, run, io)?;
+            }
+            for (j, sum) in run.chunks_exact_mut(SUM_LEN).enumerate() {
+                f(first + j, sum.try_into().expect("a sum"));
+            }
+            self.sums_file.write_at(at, run, io)?;
         }
         Ok(())
     }
@@ -405,7 +450,9 @@ impl Pass<'_> {
         // The kept light in runs as large as the room holds, each run's terms applied by
         // surfel (a stable sort keeps each surfel's terms in the order gathered) with one read
         // and one write of its sums.
-        let run = (self.room / std::mem::size_of::<Term>() as u64).max(1) as usize;
+        // (Besides each term, `apply` lists each surfel once with where its terms begin.)
+        let per_term = std::mem::size_of::<Term>() as u64 + 16;
+        let run = (self.room / per_term).max(1) as usize;
         let mut terms: Vec<Term> = Vec::with_capacity(run.min(1 << 20));
         let mut reader = SeqReader::<TERM_LEN>::open(&kept_path, self.plan.io_bytes)?;
         let damaged = || {
@@ -600,13 +647,20 @@ impl Pass<'_> {
     /// Adds `terms` (in the order they were gathered) to the running sums and empties it.
     fn apply(&self, terms: &mut Vec<Term>, io: &mut IoCounters) -> Result<(), OocError> {
         terms.sort_by_key(|t| t.id);
-        let mut bytes = [0u8; SUM_LEN];
-        for same in terms.chunk_by(|a, b| a.id == b.id) {
-            let id = same[0].id;
-            self.sums_file
-                .read_at(id * SUM_LEN as u64, &mut bytes, io)?;
-            let (mut light, mut rescaled) = decode_sum(&bytes);
-            for t in same {
+        // The surfels named, each once, and where each one's terms begin.
+        let mut ids = Vec::new();
+        let mut starts = Vec::new();
+        for (k, t) in terms.iter().enumerate() {
+            if ids.last() != Some(&t.id) {
+                ids.push(t.id);
+                starts.push(k);
+            }
+        }
+        starts.push(terms.len());
+        let mut run = Vec::new();
+        self.for_sums_in_runs_written(&ids, true, &mut run, io, |k, sum| {
+            let (mut light, mut rescaled) = decode_sum(sum);
+            for t in &terms[starts[k]..starts[k + 1]] {
                 let side = t.side as usize;
                 add_scaled(
                     &mut light[side],
@@ -616,9 +670,8 @@ impl Pass<'_> {
                     t.scale,
                 );
             }
-            encode_sum(&light, &rescaled, &mut bytes);
-            self.sums_file.write_at(id * SUM_LEN as u64, &bytes, io)?;
-        }
+            encode_sum(&light, &rescaled, sum);
+        })?;
         terms.clear();
         Ok(())
     }
@@ -911,6 +964,27 @@ fn line_voxels(
     keys
 }
 
+/// Surfels whose running sums are read or written at once, at most (64 KiB).
+const SUM_RUN: usize = 1024;
+
+/// The runs of consecutive values in `ids` (sorted, distinct), each at most [`SUM_RUN`] long:
+/// (place of its first in `ids`, length).
+fn runs_of(ids: &[u64]) -> impl Iterator<Item = (usize, usize)> + '_ {
+    let mut first = 0;
+    std::iter::from_fn(move || {
+        if first >= ids.len() {
+            return None;
+        }
+        let mut end = first + 1;
+        while end < ids.len() && end - first < SUM_RUN && ids[end] == ids[end - 1] + 1 {
+            end += 1;
+        }
+        let run = (first, end - first);
+        first = end;
+        Some(run)
+    })
+}
+
 fn encode_sum(light: &[[f64; 3]; 2], shift: &[f64; 2], out: &mut [u8; SUM_LEN]) {
     for (slot, v) in out
         .chunks_exact_mut(8)
@@ -972,6 +1046,20 @@ fn decode_term(bytes: &[u8; TERM_LEN]) -> (u64, u8, u64, [f64; 3], f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn runs_of_consecutive_surfels_are_cut_where_they_break_or_grow_too_long() {
+        let ids: Vec<u64> = [3, 4, 5, 9, 11, 12]
+            .into_iter()
+            .chain(100..100 + SUM_RUN as u64 + 5)
+            .collect();
+        let runs: Vec<(usize, usize)> = runs_of(&ids).collect();
+        assert_eq!(
+            runs,
+            [(0, 3), (3, 1), (4, 2), (6, SUM_RUN), (6 + SUM_RUN, 5)]
+        );
+        assert_eq!(runs_of(&[]).count(), 0);
+    }
 
     #[test]
     fn kept_contributions_round_trip() {
