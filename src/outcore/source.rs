@@ -5,6 +5,11 @@
 //! The canonical order keeps the surfels of one voxel together (both a shard set's lexicographic
 //! order and the voxelizer's Morton order do), which is what [`VoxelGroups`] relies on to give
 //! each surfel its voxel-mates (for its coverage) without an index.
+//!
+//! Besides the stream, a source hands over the surfels of chosen voxels
+//! ([`SurfelSource::pick_voxels`], for the direct-light pass's parts): by default from the
+//! stream; a shard set sorted in the voxels' order searches its shards instead
+//! (`outcore::pick`, which owns both ways).
 
 use super::OocError;
 use crate::scene::Material;
