@@ -431,6 +431,32 @@ impl RecordFile {
     }
 }
 
+/// Gives the disk blocks under bytes `offset..offset + len` of `file` back to the file system:
+/// a hole, which reads as zeros, the file keeping its length. For work files whose records
+/// nothing reads again while the file itself still serves the others. Best effort: `false`
+/// where the system or the file system cannot (the bytes then stay until the file goes).
+pub fn punch_hole(file: &File, offset: u64, len: u64) -> bool {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::fd::AsRawFd;
+        let (Ok(offset), Ok(len)) = (libc::off_t::try_from(offset), libc::off_t::try_from(len))
+        else {
+            return false;
+        };
+        if len == 0 {
+            return true;
+        }
+        // SAFETY: a plain system call on a descriptor `file` owns; it reads no memory of ours.
+        let mode = libc::FALLOC_FL_PUNCH_HOLE | libc::FALLOC_FL_KEEP_SIZE;
+        unsafe { libc::fallocate(file.as_raw_fd(), mode, offset, len) == 0 }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (file, offset, len);
+        false
+    }
+}
+
 /// Removes everything in the work directory `dir` but the file `keep`, once a solve is over and
 /// its outputs need only that file (the answer in canonical order) and the source. Best effort:
 /// what cannot be removed now goes with the directory when it is dropped.

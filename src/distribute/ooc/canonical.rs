@@ -199,7 +199,7 @@ impl Solver<'_> {
     ) -> Result<Held, OocError> {
         let plan = router.plan;
         let mut values = SeqReader::<L>::open(slice, plan.io_bytes)?;
-        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut reader = HeldReader::consuming(&held, plan.io_bytes)?;
         let mut writer = HeldWriter::create(router.dir, generation, plan.io_bytes, None)?;
         while let Some(mut w) = reader.next(io)? {
             place(&mut w, &values.expect_record()?);
@@ -213,18 +213,25 @@ impl Solver<'_> {
     }
 
     /// Sends every held `(id, B)` to rank 0, which places them in a canonical radiosity file
-    /// (returned there; `None` elsewhere).
+    /// (returned there; `None` elsewhere). `last`: the held files are read for the last time
+    /// (the solve's results), and give their disk back as they are read, so that they and the
+    /// canonical file do not both lie whole on rank 0's disk.
     pub(super) fn gather_results(
         &self,
         held: &Held,
         surfels: u64,
-        dir: &Path,
-        plan: &MemoryPlan,
+        (dir, plan): (&Path, &MemoryPlan),
+        last: bool,
         io: &mut IoCounters,
     ) -> Result<Option<PathBuf>, OocError> {
         // Group 0 holds every surfel once (the hybrid mode's other groups hold copies).
         let name = "radiosity-canonical.bin";
-        self.gather_canonical::<RADIOSITY_LEN>(held, 0, surfels, name, (dir, plan), io, |w| {
+        let reader = if last {
+            HeldReader::consuming(held, plan.io_bytes)?
+        } else {
+            HeldReader::open(held, plan.io_bytes)?
+        };
+        self.gather_canonical::<RADIOSITY_LEN>(reader, 0, surfels, name, (dir, plan), io, |w| {
             w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN]
                 .try_into()
                 .expect("a radiosity record")
@@ -242,20 +249,22 @@ impl Solver<'_> {
         (dir, plan): (&Path, &MemoryPlan),
         io: &mut IoCounters,
     ) -> Result<Option<PathBuf>, OocError> {
-        self.gather_canonical::<RADIOSITY_LEN>(held, 0, surfels, name, (dir, plan), io, |w| {
+        let reader = HeldReader::open(held, plan.io_bytes)?;
+        self.gather_canonical::<RADIOSITY_LEN>(reader, 0, surfels, name, (dir, plan), io, |w| {
             w[held::OLDER_AT..held::OLDER_AT + RADIOSITY_LEN]
                 .try_into()
                 .expect("a radiosity record")
         })
     }
 
-    /// Sends `value` of every surfel that the ranks of group `group` hold (each surfel once) to
-    /// rank 0 with its id, which places them in a file of `surfels` records of `L` bytes in
-    /// canonical order, `name` in `dir` (returned there; `None` elsewhere). Collective.
+    /// Sends `value` of every surfel that the ranks of group `group` hold (each surfel once,
+    /// read by `reader` from the held files) to rank 0 with its id, which places them in a file
+    /// of `surfels` records of `L` bytes in canonical order, `name` in `dir` (returned there;
+    /// `None` elsewhere). Collective.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn gather_canonical<const L: usize>(
         &self,
-        held: &Held,
+        mut reader: HeldReader,
         group: usize,
         surfels: u64,
         name: &str,
@@ -275,7 +284,6 @@ impl Solver<'_> {
         };
         let out_path = dir.join("gather-out.bin");
         let mut out = crate::outcore::files::SeqWriter::create(&out_path, plan.io_bytes)?;
-        let mut reader = HeldReader::open(held, plan.io_bytes)?;
         let sends = self.group_index == group;
         while let Some(w) = reader.next(io)?.filter(|_| sends) {
             let id = held::id(&w) as u64;

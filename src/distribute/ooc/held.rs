@@ -167,6 +167,7 @@ impl AxisKey {
 /// the received records are written to new files and the kept ones stay where they are
 /// ([`HeldWriter::keep`]), up to [`MOST_SETS`] sets, after which the records are copied into
 /// one set again.
+#[derive(Clone)]
 pub struct Held {
     /// Each set's four files, as [`HeldWriter`] names them.
     pub sets: Vec<[PathBuf; 4]>,
@@ -277,6 +278,47 @@ impl Held {
         out
     }
 
+    /// Gives back the disk under the records `ranges` (first, count) of the held order, which
+    /// nothing reads again (they left the rank, or were copied into new files): holes punched in
+    /// the files of whole records ([`crate::outcore::files::punch_hole`]), which keep their
+    /// length, so every other record stays where it is. The static records, a few bytes each in
+    /// frames, stay. A rank's sets otherwise keep the records that left until they are copied
+    /// into one set again (see [`MOST_SETS`]), and that copy wrote a whole share beside them.
+    pub fn release(&self, ranges: &[(u64, u64)]) -> Result<(), OocError> {
+        let mut files: Vec<Option<[std::fs::File; 3]>> = Vec::new();
+        files.resize_with(self.sets.len(), || None);
+        // Ranges that touch are joined: a hole gives back only the whole blocks inside it, and
+        // the records that leave a rank above the kept rows of one layer and below those of the
+        // next are one run of the held order.
+        let mut joined: Vec<(u64, u64)> = Vec::with_capacity(ranges.len());
+        for &(first, count) in ranges.iter().filter(|r| r.1 > 0) {
+            match joined.last_mut() {
+                Some(last) if last.0 + last.1 == first => last.1 += count,
+                _ => joined.push((first, count)),
+            }
+        }
+        for (first, count) in joined {
+            for run in self.runs_of(first, count) {
+                if files[run.set].is_none() {
+                    let set = &self.sets[run.set];
+                    let open = |k: usize| {
+                        std::fs::OpenOptions::new()
+                            .write(true)
+                            .open(&set[k])
+                            .map_err(|e| OocError::io(&set[k], "open", e))
+                    };
+                    files[run.set] = Some([open(1)?, open(2)?, open(3)?]);
+                }
+                let set_files = files[run.set].as_ref().expect("just opened");
+                for (file, len) in set_files.iter().zip(&LENGTHS[1..]) {
+                    let len = *len as u64;
+                    crate::outcore::files::punch_hole(file, run.first * len, run.count * len);
+                }
+            }
+        }
+        Ok(())
+    }
+
     pub fn remove(self) -> Result<(), OocError> {
         for set in &self.sets {
             remove_set(set)?;
@@ -361,18 +403,52 @@ fn remove_set(set: &[PathBuf; 4]) -> Result<(), OocError> {
     Ok(())
 }
 
+/// Records a consuming [`HeldReader`] releases at once, at least: 1.3 MiB of whole records,
+/// where the blocks a hole cannot give back (one at each end, in each file) are a few tenths of
+/// a percent.
+const RELEASE_RECORDS: u64 = 8192;
+
 /// Reads held files record by record, in wire form, in the held order.
-pub struct HeldReader(HeldRangeReader);
+pub struct HeldReader {
+    reader: HeldRangeReader,
+    /// With [`HeldReader::consuming`]: the files, and the records handed out and not yet
+    /// released (first, count).
+    consumed: Option<(Held, (u64, u64))>,
+}
 
 impl HeldReader {
     pub fn open(held: &Held, buffer_bytes: usize) -> Result<Self, OocError> {
         let all = vec![(0, held.count)];
-        Ok(HeldReader(HeldRangeReader::open(held, all, buffer_bytes)?))
+        Ok(HeldReader {
+            reader: HeldRangeReader::open(held, all, buffer_bytes)?,
+            consumed: None,
+        })
+    }
+
+    /// As [`HeldReader::open`], for the last reading of `held` (its records rewritten into new
+    /// files, which then replace it): the records read are released as it goes
+    /// ([`Held::release`]), a buffer at a time, so that the old files and the new ones do not
+    /// both lie whole on the disk. The update of every iteration did that: a rank's share twice.
+    pub fn consuming(held: &Held, buffer_bytes: usize) -> Result<Self, OocError> {
+        let mut reader = Self::open(held, buffer_bytes)?;
+        reader.consumed = Some((held.clone(), (0, 0)));
+        Ok(reader)
     }
 
     /// The next record, or `None` at the end.
     pub fn next(&mut self, io: &mut IoCounters) -> Result<Option<Wire>, OocError> {
-        self.0.next(io)
+        let next = self.reader.next(io)?;
+        if let Some((held, (first, count))) = self.consumed.as_mut() {
+            // The records handed out before the buffer is filled again are copies already.
+            // Released in batches: a hole gives back only the whole blocks inside it.
+            let at_end = next.is_none();
+            *count += !at_end as u64;
+            if (*count >= RELEASE_RECORDS || at_end) && self.reader.buffer_spent() && *count > 0 {
+                held.release(&[(*first, *count)])?;
+                (*first, *count) = (*first + *count, 0);
+            }
+        }
+        Ok(next)
     }
 }
 
@@ -405,9 +481,14 @@ impl HeldRangeReader {
         })
     }
 
+    /// Whether every record read into the buffer has been handed out (the next call reads).
+    fn buffer_spent(&self) -> bool {
+        self.taken * WIRE_LEN >= self.buffer.len()
+    }
+
     /// The next record, or `None` after the last range.
     pub fn next(&mut self, io: &mut IoCounters) -> Result<Option<Wire>, OocError> {
-        if self.taken * WIRE_LEN >= self.buffer.len() {
+        if self.buffer_spent() {
             let Some(range) = self.ranges.last_mut() else {
                 return Ok(None);
             };
@@ -809,7 +890,9 @@ fn merge_sources(
 
 /// Sorts the records of `first` and of the run files `inputs` (in any order) by `key` into
 /// `sink`: pieces of `chunk_records` sorted in memory into runs, then merged. Removes the
-/// inputs.
+/// inputs, and calls `all_read` once every record is in a run, before the merge: what `first`
+/// reads from (a rank's old held files) can then be removed, so that it does not lie on the
+/// disk beside both the runs and what the merge writes.
 #[allow(clippy::too_many_arguments)]
 pub fn sort_runs(
     first: Option<Source>,
@@ -820,6 +903,7 @@ pub fn sort_runs(
     buffer_bytes: usize,
     dir: &Path,
     io: &mut IoCounters,
+    all_read: &mut dyn FnMut() -> Result<(), OocError>,
     sink: &mut dyn FnMut(&Wire) -> Result<(), OocError>,
 ) -> Result<(), OocError> {
     let chunk_records = chunk_records.max(1);
@@ -862,6 +946,7 @@ pub fn sort_runs(
     remove_all(&inputs)?;
     flush(&mut piece, &mut runs, io)?;
     drop(piece);
+    all_read()?;
     merge_runs(None, runs, key, fan_in, buffer_bytes, dir, io, sink)
 }
 
@@ -946,21 +1031,38 @@ mod tests {
         // The first part as a source, the others as run files.
         let first = run_source(&inputs[0], 4096).unwrap();
         let rest = inputs[1..].to_vec();
+        // Every input is read, and the run files among them removed, before the first record
+        // comes out of the merge: the caller frees the first input's files there.
+        let all_read = std::cell::Cell::new(0);
         sort_runs(
             Some(first),
-            rest,
+            rest.clone(),
             key,
             7,
             2,
             4096,
             dir.path(),
             &mut io,
+            &mut || {
+                assert!(
+                    rest.iter().all(|p| !p.exists()),
+                    "the run inputs are removed"
+                );
+                all_read.set(all_read.get() + 1);
+                Ok(())
+            },
             &mut |w| {
+                assert_eq!(
+                    all_read.get(),
+                    1,
+                    "every input read before the merge writes"
+                );
                 got.push(*w);
                 Ok(())
             },
         )
         .unwrap();
+        assert_eq!(all_read.get(), 1);
         assert_eq!(got.len(), expected.len());
         assert!(got == expected);
         // Nothing left behind but the first input, which the caller owns.
@@ -997,6 +1099,120 @@ mod tests {
 
     /// Held files that keep records of earlier ones where they are: read back in order,
     /// written in place through the pieced files, and the files no run reads removed.
+    /// Released records read back as zeros past their static part and give their blocks back,
+    /// across the sets a held order runs through; every other record reads back unchanged.
+    #[test]
+    fn released_records_give_their_disk_back_and_spare_the_others() {
+        use std::os::unix::fs::MetadataExt;
+        let dir = tempfile::tempdir().unwrap();
+        let mut io = IoCounters::default();
+        // Every byte past the static part set, so that a hole shows.
+        let records: Vec<Wire> = (0..4020u32)
+            .map(|id| {
+                let mut w = record([id as i32, 1, 2], id);
+                for (j, b) in w[STATIC_LEN..].iter_mut().enumerate() {
+                    *b = (id as usize * 31 + j) as u8 | 1;
+                }
+                w
+            })
+            .collect();
+        let mut a = HeldWriter::create(dir.path(), 0, 4096, None).unwrap();
+        for w in &records[..4000] {
+            a.write(w).unwrap();
+        }
+        let (a, _) = a.finish(&mut io).unwrap();
+        // Ten records of its own, records 100..3100 of `a` in place, ten more.
+        let mut b = HeldWriter::create(dir.path(), 1, 4096, None).unwrap();
+        let base = b.adopt(&a);
+        for w in &records[4000..4010] {
+            b.write(w).unwrap();
+        }
+        b.keep(&a, base, (100, 3000));
+        for w in &records[4010..4020] {
+            b.write(w).unwrap();
+        }
+        let (b, _) = b.finish(&mut io).unwrap();
+        let order: Vec<usize> = (4000..4010).chain(100..3100).chain(4010..4020).collect();
+        let rest_of_a = &b.sets[1][3];
+        let blocks = || std::fs::metadata(rest_of_a).unwrap().blocks() * 512;
+        let (before, length) = (blocks(), std::fs::metadata(rest_of_a).unwrap().len());
+        // From `b`'s sixth record to its 3,016th: five of its own, then 3,000 of `a`'s, then one.
+        let released = 5..3016;
+        b.release(&[(
+            released.start as u64,
+            (released.end - released.start) as u64,
+        )])
+        .unwrap();
+        let mut reader = HeldReader::open(&b, 4096).unwrap();
+        for (k, &id) in order.iter().enumerate() {
+            let w = reader.next(&mut io).unwrap().expect("a record");
+            assert_eq!(w[..STATIC_LEN], records[id][..STATIC_LEN], "record {k}");
+            if released.contains(&k) {
+                assert!(
+                    w[STATIC_LEN..].iter().all(|&b| b == 0),
+                    "record {k}: a hole"
+                );
+            } else {
+                assert!(w == records[id], "record {k} unchanged");
+            }
+        }
+        assert!(reader.next(&mut io).unwrap().is_none());
+        assert_eq!(std::fs::metadata(rest_of_a).unwrap().len(), length);
+        // 3,000 records of 112 bytes in the fourth file, less a block at each end.
+        let freed = before - blocks();
+        assert!(
+            freed + 2 * 4096 >= 3000 * REST_LEN as u64,
+            "{freed} bytes given back of {before}"
+        );
+    }
+
+    /// A consuming reader hands out every record as the plain one does, and the files hold
+    /// none of them at the end (only the static frames stay).
+    #[test]
+    fn a_consuming_reader_gives_back_what_it_has_read() {
+        use std::os::unix::fs::MetadataExt;
+        let dir = tempfile::tempdir().unwrap();
+        let mut io = IoCounters::default();
+        let total = 3 * RELEASE_RECORDS as usize;
+        let records: Vec<Wire> = (0..total as u32)
+            .map(|id| {
+                let mut w = record([id as i32, 0, 1], id);
+                w[STATIC_LEN..].fill(id as u8 | 1);
+                w
+            })
+            .collect();
+        let mut writer = HeldWriter::create(dir.path(), 0, 4096, None).unwrap();
+        for w in &records {
+            writer.write(w).unwrap();
+        }
+        let (held, _) = writer.finish(&mut io).unwrap();
+        let allocated = || {
+            held.sets[0][1..]
+                .iter()
+                .map(|p| std::fs::metadata(p).unwrap().blocks() * 512)
+                .sum::<u64>()
+        };
+        let whole = allocated();
+        assert!(whole >= (total * (WIRE_LEN - STATIC_LEN)) as u64);
+        // About 17 records a buffer: many refills.
+        let mut reader = HeldReader::consuming(&held, 4096).unwrap();
+        let mut got = Vec::new();
+        while let Some(w) = reader.next(&mut io).unwrap() {
+            got.push(w);
+            // Two batches released once the buffer after them is read.
+            if got.len() == 2 * RELEASE_RECORDS as usize + 100 {
+                let left = allocated();
+                assert!(
+                    left < whole * 4 / 10,
+                    "two thirds read: {left} of {whole} bytes left"
+                );
+            }
+        }
+        assert!(got == records);
+        // A block at each end of each file at most.
+        assert!(allocated() <= 3 * 2 * 4096, "{} bytes left", allocated());
+    }
+
     #[test]
     fn kept_records_stay_in_their_files_and_read_back_in_order() {
         let dir = tempfile::tempdir().unwrap();

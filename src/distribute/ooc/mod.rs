@@ -511,7 +511,7 @@ impl Solver<'_> {
         stats.reduce_seconds = seconds.reduce;
 
         let t = Instant::now();
-        let canonical = self.gather_results(&held, surfels, dir, &plan, &mut io)?;
+        let canonical = self.gather_results(&held, surfels, (dir, &plan), true, &mut io)?;
         held.remove()?;
         seconds.reduce += t.elapsed().as_secs_f64();
 
@@ -718,7 +718,7 @@ impl Solver<'_> {
     ) -> Result<(Held, Update), OocError> {
         let info = self.source.info();
         let area_unit = info.grid.voxel_size * info.grid.voxel_size;
-        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut reader = HeldReader::consuming(&held, plan.io_bytes)?;
         let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
         let mut result = Update::default();
         // Records in memory at once: a quarter of the working memory, with their light.
@@ -879,7 +879,7 @@ impl Solver<'_> {
         io: &mut IoCounters,
     ) -> Result<Held, OocError> {
         let info = self.source.info();
-        let mut reader = HeldReader::open(&held, plan.io_bytes)?;
+        let mut reader = HeldReader::consuming(&held, plan.io_bytes)?;
         let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
         while let Some(mut w) = reader.next(io)? {
             let mut b = [decode_radiosity(&w[held::RADIOSITY_AT..])];
@@ -1186,8 +1186,8 @@ impl Sweep for DataOocSweep<'_, '_> {
             let radiosity = self.solver.gather_results(
                 self.held(),
                 self.surfels,
-                self.dir,
-                self.plan,
+                (self.dir, self.plan),
+                false,
                 &mut io,
             )?;
             // While Chebyshev runs, also the radiosity before last (every rank has the state).

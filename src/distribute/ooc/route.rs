@@ -101,10 +101,12 @@ impl Router<'_> {
         match kept_rows.filter(|_| sorted) {
             Some(kept_rows) => {
                 let ranges = leaving_ranges(&histogram, key.rows(), kept_rows);
-                let mut reader = HeldRangeReader::open(&held, ranges, self.plan.io_bytes)?;
+                let mut reader = HeldRangeReader::open(&held, ranges.clone(), self.plan.io_bytes)?;
                 while let Some(w) = reader.next(io)? {
                     send(w)?;
                 }
+                // They are in the outgoing runs now, and no run of the new held files reads them.
+                held.release(&ranges)?;
             }
             None => {
                 let mut reader = HeldReader::open(&held, self.plan.io_bytes)?;
@@ -176,10 +178,13 @@ impl Router<'_> {
         )?;
         let (fan_in, read_buffer) = self.fan_in();
         let mut sink = |w: &Wire| writer.write(w);
+        // The old held files, until the sort has read them (see `sort_runs`).
+        let mut old = Some(held);
         {
             // The merge counts the kept records it takes; the ones that left are counted below.
             let mut uncounted = IoCounters::default();
-            let mut reader = HeldReader::open(&held, self.plan.io_bytes)?;
+            let mut reader =
+                HeldReader::consuming(old.as_ref().expect("held"), self.plan.io_bytes)?;
             let kept: Source = Box::new(move || {
                 while let Some(mut w) = reader.next(&mut uncounted)? {
                     transform(&mut w);
@@ -202,6 +207,10 @@ impl Router<'_> {
                 )?;
             } else {
                 let records = self.sort_records();
+                // At a change of main axis every record is sorted again: the old held files go
+                // once the runs hold their records, before the new ones are written, so that
+                // the old files, the runs and the new files do not lie on the disk at once.
+                let mut remove_old = || old.take().map_or(Ok(()), Held::remove);
                 sort_runs(
                     Some(kept),
                     runs,
@@ -211,12 +220,15 @@ impl Router<'_> {
                     read_buffer,
                     self.dir,
                     io,
+                    &mut remove_old,
                     &mut sink,
                 )?;
             }
         }
         io.read += moved * WIRE_LEN as u64;
-        held.remove()?;
+        if let Some(held) = old {
+            held.remove()?;
+        }
         let (held, histogram) = writer.finish(io)?;
         seconds.merge += t.elapsed().as_secs_f64();
         Ok((held, histogram.unwrap_or_default(), moved))
@@ -328,7 +340,9 @@ impl Router<'_> {
                 if !*copied_layer {
                     match &from {
                         Some(from) => {
-                            writer.copy_records(from, range, chunk, &mut buffer, &mut copied)?
+                            writer.copy_records(from, range, chunk, &mut buffer, &mut copied)?;
+                            // Copied: the old files' bytes go as the new ones grow.
+                            held.release(&[range])?;
                         }
                         None => writer.keep(&held, base, range),
                     }

@@ -12,7 +12,7 @@
 //! same order. Each array is by surfel id, so a run with another rank count but the same
 //! groups continues inside the iteration too.
 
-use super::held::{self, Held, Wire, EARLIER_AT, GATHERED_AT};
+use super::held::{self, Held, HeldReader, Wire, EARLIER_AT, GATHERED_AT};
 use super::route::Router;
 use super::{fold_axis, DataOocSweep, Solver, WalkStep};
 use crate::checkpoint::{CheckpointError, CheckpointFile, Saver, State};
@@ -94,7 +94,7 @@ impl DataOocSweep<'_, '_> {
         let chebyshev = state.extrapolation.chebyshev.is_some();
         let mut gather = || -> Result<(), OocError> {
             let radiosity = solver.gather_canonical::<RADIOSITY_LEN>(
-                held,
+                HeldReader::open(held, plan.io_bytes)?,
                 0,
                 surfels,
                 "checkpoint-radiosity.bin",
@@ -128,7 +128,7 @@ impl DataOocSweep<'_, '_> {
                 for group in 0..solver.groups {
                     let name = format!("checkpoint-{kind}-{group}.bin");
                     let array = solver.gather_canonical::<LIGHT32_LEN>(
-                        held,
+                        HeldReader::open(held, plan.io_bytes)?,
                         group,
                         surfels,
                         &name,
