@@ -964,6 +964,15 @@ mod tests {
         w
     }
 
+    /// Held files of generation `generation` in `dir` holding `records`, in their order.
+    fn written(dir: &Path, generation: u64, buffer: usize, records: &[Wire]) -> Held {
+        let mut writer = HeldWriter::create(dir, generation, buffer, None).unwrap();
+        for w in records {
+            writer.write(w).unwrap();
+        }
+        writer.finish(&mut IoCounters::default()).unwrap().0
+    }
+
     /// A run file of several frames reads back its records in order, takes fewer bytes than
     /// they do, and a damaged frame is an error naming the file.
     #[test]
@@ -1116,11 +1125,7 @@ mod tests {
                 w
             })
             .collect();
-        let mut a = HeldWriter::create(dir.path(), 0, 4096, None).unwrap();
-        for w in &records[..4000] {
-            a.write(w).unwrap();
-        }
-        let (a, _) = a.finish(&mut io).unwrap();
+        let a = written(dir.path(), 0, 4096, &records[..4000]);
         // Ten records of its own, records 100..3100 of `a` in place, ten more.
         let mut b = HeldWriter::create(dir.path(), 1, 4096, None).unwrap();
         let base = b.adopt(&a);
@@ -1181,11 +1186,7 @@ mod tests {
                 w
             })
             .collect();
-        let mut writer = HeldWriter::create(dir.path(), 0, 4096, None).unwrap();
-        for w in &records {
-            writer.write(w).unwrap();
-        }
-        let (held, _) = writer.finish(&mut io).unwrap();
+        let held = written(dir.path(), 0, 4096, &records);
         let allocated = || {
             held.sets[0][1..]
                 .iter()
@@ -1219,11 +1220,7 @@ mod tests {
         let files = || std::fs::read_dir(dir.path()).unwrap().count();
         let mut io = IoCounters::default();
         let records: Vec<Wire> = (0..20u32).map(|id| record([id as i32, 0, 0], id)).collect();
-        let mut a = HeldWriter::create(dir.path(), 0, 64, None).unwrap();
-        for w in &records[..10] {
-            a.write(w).unwrap();
-        }
-        let (a, _) = a.finish(&mut io).unwrap();
+        let a = written(dir.path(), 0, 64, &records[..10]);
         // New files: two records, records 3..7 of `a` kept in place, one more record.
         let mut b = HeldWriter::create(dir.path(), 1, 64, None).unwrap();
         let base = b.adopt(&a);
