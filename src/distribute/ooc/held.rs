@@ -38,6 +38,11 @@
 //! is a copy order, whose neighbours are alike: 72 bytes a record become a few (see
 //! `docs/cluster.md`). Run files ([`RunWriter`]), which also go between ranks as they are,
 //! keep whole wire records in frames of their own.
+//!
+//! **Disk given back as it goes.** Records that nothing reads again (those that left the rank,
+//! those copied into new files, a set read for the last time by a consuming [`HeldReader`]) are
+//! released: holes punched in the files of whole records, which keep their length
+//! ([`Held::release`]), so that a rank's old and new files do not both lie whole on the disk.
 
 use crate::outcore::files::{
     IoCounters, RecordFile, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
