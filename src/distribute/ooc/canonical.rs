@@ -60,13 +60,19 @@ impl Solver<'_> {
             } else {
                 held::OLDER_AT
             };
-            held =
-                self.place_slice::<RADIOSITY_LEN>(held, &mine, *generation, router, io, |w, b| {
+            held = self.place_slice::<RADIOSITY_LEN>(
+                held,
+                (&mine, false),
+                *generation,
+                router,
+                io,
+                |w, b| {
                     w[at..at + RADIOSITY_LEN].copy_from_slice(b);
                     if array == 0 {
                         carry(w, info, direct);
                     }
-                })?;
+                },
+            )?;
         }
         Ok(held)
     }
@@ -188,10 +194,11 @@ impl Solver<'_> {
 
     /// Rewrites the held files (in canonical order, as read) with the records of `slice` (one
     /// of `L` bytes per held surfel, in the same order) put in by `place`; removes `slice`.
+    /// `adds_direct`: `place` puts the direct light in (the new files then keep it).
     pub(super) fn place_slice<const L: usize>(
         &self,
         held: Held,
-        slice: &Path,
+        (slice, adds_direct): (&Path, bool),
         generation: u64,
         router: &Router,
         io: &mut IoCounters,
@@ -200,7 +207,8 @@ impl Solver<'_> {
         let plan = router.plan;
         let mut values = SeqReader::<L>::open(slice, plan.io_bytes)?;
         let mut reader = HeldReader::consuming(&held, plan.io_bytes)?;
-        let mut writer = HeldWriter::create(router.dir, generation, plan.io_bytes, None)?;
+        let direct = held.direct || adds_direct;
+        let mut writer = HeldWriter::create(router.dir, generation, plan.io_bytes, None, direct)?;
         while let Some(mut w) = reader.next(io)? {
             place(&mut w, &values.expect_record()?);
             writer.write(&w)?;

@@ -63,11 +63,17 @@ impl Solver<'_> {
         io.read += sent.read;
         io.written += sent.written;
         let info = self.source.info();
-        let held =
-            self.place_slice::<LIGHT32_LEN>(held, &mine, generation, router, io, |w, d| {
+        let held = self.place_slice::<LIGHT32_LEN>(
+            held,
+            (&mine, true),
+            generation,
+            router,
+            io,
+            |w, d| {
                 w[held::DIRECT_AT..held::DIRECT_AT + LIGHT32_LEN].copy_from_slice(d);
                 carry(w, info, true);
-            })?;
+            },
+        )?;
         // Rank 0's figures for every rank.
         let mut figures = [
             stats.directions as f64,

@@ -74,8 +74,42 @@ pub const DIRECT_AT: usize = RADIOSITY_AT + RADIOSITY_LEN;
 /// The radiosity the last update replaced.
 pub const OLDER_AT: usize = DIRECT_AT + LIGHT32_LEN;
 const _: () = assert!(OLDER_AT + RADIOSITY_LEN == WIRE_LEN);
-const LENGTHS: [usize; 4] = [STATIC_LEN, RADIOSITY_LEN, LIGHT32_LEN, REST_LEN];
 const OFFSETS: [usize; 4] = [0, CARRIED_AT, GATHERED_AT, EARLIER_AT];
+
+/// Bytes of each file's record in held files with the direct light (`direct`) or without: a
+/// solve without the direct-light pass has none, and its rest file leaves those 24 bytes out
+/// (they read back as zeros).
+const fn lengths(direct: bool) -> [usize; 4] {
+    let rest = if direct {
+        REST_LEN
+    } else {
+        REST_LEN - LIGHT32_LEN
+    };
+    [STATIC_LEN, RADIOSITY_LEN, LIGHT32_LEN, rest]
+}
+
+/// The rest of wire record `w` as the rest file keeps it (`direct`: with the direct light), in
+/// one or two pieces.
+fn rest_pieces(w: &Wire, direct: bool) -> [&[u8]; 2] {
+    if direct {
+        [&w[EARLIER_AT..], &[]]
+    } else {
+        [&w[EARLIER_AT..DIRECT_AT], &w[DIRECT_AT + LIGHT32_LEN..]]
+    }
+}
+
+/// Puts `rest`, one record of a rest file (`direct`: with the direct light), into wire record
+/// `w`; the direct light is zero where the file leaves it out.
+fn place_rest(w: &mut [u8], rest: &[u8], direct: bool) {
+    if direct {
+        w[EARLIER_AT..].copy_from_slice(rest);
+    } else {
+        let split = DIRECT_AT - EARLIER_AT;
+        w[EARLIER_AT..DIRECT_AT].copy_from_slice(&rest[..split]);
+        w[DIRECT_AT..DIRECT_AT + LIGHT32_LEN].fill(0);
+        w[DIRECT_AT + LIGHT32_LEN..].copy_from_slice(&rest[split..]);
+    }
+}
 
 fn word(w: &[u8], at: usize) -> [u8; 4] {
     [w[at], w[at + 1], w[at + 2], w[at + 3]]
@@ -179,6 +213,8 @@ pub struct Held {
     /// The records in order: runs of `count` records of set `set` from record `first`.
     pub runs: Vec<HeldRun>,
     pub count: u64,
+    /// Whether the rest files keep the direct light ([`lengths`]); the same in every set.
+    pub direct: bool,
 }
 
 /// Records `first..first + count` of one set of held files.
@@ -199,7 +235,7 @@ pub const MOST_SETS: usize = 16;
 
 impl Held {
     /// The records of one set of four files, in their order.
-    pub fn whole(paths: [PathBuf; 4], count: u64) -> Self {
+    pub fn whole(paths: [PathBuf; 4], count: u64, direct: bool) -> Self {
         Held {
             sets: vec![paths],
             runs: vec![HeldRun {
@@ -208,6 +244,7 @@ impl Held {
                 count,
             }],
             count,
+            direct,
         }
     }
 
@@ -219,7 +256,7 @@ impl Held {
                 return RecordFile::open(&self.sets[0][k]);
             }
             let paths: Vec<&Path> = self.sets.iter().map(|set| set[k].as_path()).collect();
-            let len = LENGTHS[k] as u64;
+            let len = lengths(self.direct)[k] as u64;
             let pieces: Vec<(usize, u64, u64)> = self
                 .runs
                 .iter()
@@ -246,6 +283,7 @@ impl Held {
             radiosity: open(1)?,
             gathered: open(2)?,
             rest: open(3)?,
+            direct: self.direct,
         })
     }
 
@@ -315,7 +353,7 @@ impl Held {
                     files[run.set] = Some([open(1)?, open(2)?, open(3)?]);
                 }
                 let set_files = files[run.set].as_ref().expect("just opened");
-                for (file, len) in set_files.iter().zip(&LENGTHS[1..]) {
+                for (file, len) in set_files.iter().zip(&lengths(self.direct)[1..]) {
                     let len = *len as u64;
                     crate::outcore::files::punch_hole(file, run.first * len, run.count * len);
                 }
@@ -365,11 +403,13 @@ pub struct HeldFiles {
     pub radiosity: RecordFile,
     pub gathered: RecordFile,
     pub rest: RecordFile,
+    /// As [`Held::direct`].
+    pub direct: bool,
 }
 
 impl HeldFiles {
     /// Fills `out` with records of part `part` (0 static, 1 radiosity, 2 gathered light, 3 the
-    /// rest) from record `first` on.
+    /// rest, as its file keeps it: [`lengths`]) from record `first` on.
     pub fn read(
         &self,
         part: usize,
@@ -383,7 +423,7 @@ impl HeldFiles {
             2 => &self.gathered,
             _ => &self.rest,
         };
-        file.read_at(first * LENGTHS[part] as u64, out, io)
+        file.read_at(first * lengths(self.direct)[part] as u64, out, io)
     }
 }
 
@@ -506,12 +546,22 @@ impl HeldRangeReader {
             let records = count as usize;
             self.buffer.resize(records * WIRE_LEN, 0);
             let mut part = Vec::new();
+            let direct = self.files.direct;
+            let lengths = lengths(direct);
             for k in 0..4 {
-                part.resize(records * LENGTHS[k], 0);
+                part.resize(records * lengths[k], 0);
                 self.files.read(k, first, &mut part, io)?;
-                for (r, bytes) in part.chunks_exact(LENGTHS[k]).enumerate() {
+                for (r, bytes) in part.chunks_exact(lengths[k]).enumerate() {
                     let at = r * WIRE_LEN + OFFSETS[k];
-                    self.buffer[at..at + LENGTHS[k]].copy_from_slice(bytes);
+                    if k == 3 {
+                        place_rest(
+                            &mut self.buffer[r * WIRE_LEN..(r + 1) * WIRE_LEN],
+                            bytes,
+                            direct,
+                        );
+                    } else {
+                        self.buffer[at..at + lengths[k]].copy_from_slice(bytes);
+                    }
                 }
             }
             self.taken = 0;
@@ -541,14 +591,19 @@ pub struct HeldWriter {
     adopted: Vec<[PathBuf; 4]>,
     /// The result's records in order.
     runs: Vec<HeldRun>,
+    /// As [`Held::direct`].
+    direct: bool,
 }
 
 impl HeldWriter {
+    /// `direct`: the records carry the direct light, which the rest file then keeps
+    /// ([`lengths`]); without, it must be zero.
     pub fn create(
         dir: &Path,
         generation: u64,
         buffer_bytes: usize,
         histogram: Option<(AxisKey, Vec<u32>)>,
+        direct: bool,
     ) -> Result<Self, OocError> {
         let paths = ["static", "radiosity", "gathered", "rest"]
             .map(|name| dir.join(format!("held-{generation}-{name}.bin")));
@@ -572,14 +627,25 @@ impl HeldWriter {
             written: 0,
             adopted: Vec::new(),
             runs: Vec::new(),
+            direct,
         })
     }
 
     pub fn write(&mut self, w: &Wire) -> Result<(), OocError> {
         self.statics
             .write(w[..STATIC_LEN].try_into().expect("a static record"))?;
-        for (k, out) in (1..4).zip(self.writers.iter_mut()) {
-            out.write(&w[OFFSETS[k]..OFFSETS[k] + LENGTHS[k]])?;
+        let [radiosity, gathered, rest] = &mut self.writers;
+        radiosity.write(&w[CARRIED_AT..CARRIED_AT + RADIOSITY_LEN])?;
+        gathered.write(&w[GATHERED_AT..GATHERED_AT + LIGHT32_LEN])?;
+        debug_assert!(
+            self.direct
+                || w[DIRECT_AT..DIRECT_AT + LIGHT32_LEN]
+                    .iter()
+                    .all(|&b| b == 0),
+            "direct light in held files made without it"
+        );
+        for piece in rest_pieces(w, self.direct) {
+            rest.write(piece)?;
         }
         if let Some((key, h)) = self.histogram.as_mut() {
             h[key.row(voxel(w))] += 1;
@@ -607,6 +673,7 @@ impl HeldWriter {
     /// place without copying them; the result removes them when it is removed. Returns the
     /// number `keep` is given for `from`.
     pub fn adopt(&mut self, from: &Held) -> usize {
+        assert_eq!(from.direct, self.direct, "held files of one layout");
         let base = 1 + self.adopted.len();
         self.adopted.extend(from.sets.iter().cloned());
         base
@@ -635,10 +702,11 @@ impl HeldWriter {
         buffer: &mut Vec<u8>,
         io: &mut IoCounters,
     ) -> Result<(), OocError> {
+        assert_eq!(from.direct, self.direct, "held files of one layout");
         let (mut at, end) = (first, first + count);
         while at < end {
             let records = (end - at).min(chunk.max(1));
-            for (k, &len) in LENGTHS.iter().enumerate() {
+            for (k, &len) in lengths(self.direct).iter().enumerate() {
                 buffer.resize(records as usize * len, 0);
                 from.read(k, at, buffer, io)?;
                 if k == 0 {
@@ -675,6 +743,7 @@ impl HeldWriter {
             sets,
             runs: self.runs,
             count: self.count,
+            direct: self.direct,
         };
         Ok((held.prune()?, self.histogram.map(|(_, h)| h)))
     }
@@ -970,8 +1039,8 @@ mod tests {
     }
 
     /// Held files of generation `generation` in `dir` holding `records`, in their order.
-    fn written(dir: &Path, generation: u64, buffer: usize, records: &[Wire]) -> Held {
-        let mut writer = HeldWriter::create(dir, generation, buffer, None).unwrap();
+    fn written(dir: &Path, generation: u64, buffer: usize, records: &[Wire], direct: bool) -> Held {
+        let mut writer = HeldWriter::create(dir, generation, buffer, None, direct).unwrap();
         for w in records {
             writer.write(w).unwrap();
         }
@@ -1088,7 +1157,8 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let key = AxisKey::new(0, [3, 4, 5]);
         let mut io = IoCounters::default();
-        let mut writer = HeldWriter::create(dir.path(), 0, 4096, Some((key, Vec::new()))).unwrap();
+        let mut writer =
+            HeldWriter::create(dir.path(), 0, 4096, Some((key, Vec::new())), true).unwrap();
         let records: Vec<Wire> = (0..10u32)
             .map(|id| {
                 let mut w = record([(id % 3) as i32, 1, (id % 5) as i32], id);
@@ -1114,7 +1184,8 @@ mod tests {
     /// Held files that keep records of earlier ones where they are: read back in order,
     /// written in place through the pieced files, and the files no run reads removed.
     /// Released records read back as zeros past their static part and give their blocks back,
-    /// across the sets a held order runs through; every other record reads back unchanged.
+    /// across the sets a held order runs through; every other record reads back unchanged. The
+    /// files are those of a solve without the direct light, whose rest file leaves it out.
     #[test]
     fn released_records_give_their_disk_back_and_spare_the_others() {
         use std::os::unix::fs::MetadataExt;
@@ -1127,12 +1198,18 @@ mod tests {
                 for (j, b) in w[STATIC_LEN..].iter_mut().enumerate() {
                     *b = (id as usize * 31 + j) as u8 | 1;
                 }
+                w[DIRECT_AT..DIRECT_AT + LIGHT32_LEN].fill(0);
                 w
             })
             .collect();
-        let a = written(dir.path(), 0, 4096, &records[..4000]);
+        let a = written(dir.path(), 0, 4096, &records[..4000], false);
+        let rest_len = (REST_LEN - LIGHT32_LEN) as u64;
+        assert_eq!(
+            std::fs::metadata(&a.sets[0][3]).unwrap().len(),
+            4000 * rest_len
+        );
         // Ten records of its own, records 100..3100 of `a` in place, ten more.
-        let mut b = HeldWriter::create(dir.path(), 1, 4096, None).unwrap();
+        let mut b = HeldWriter::create(dir.path(), 1, 4096, None, false).unwrap();
         let base = b.adopt(&a);
         for w in &records[4000..4010] {
             b.write(w).unwrap();
@@ -1168,10 +1245,10 @@ mod tests {
         }
         assert!(reader.next(&mut io).unwrap().is_none());
         assert_eq!(std::fs::metadata(rest_of_a).unwrap().len(), length);
-        // 3,000 records of 112 bytes in the fourth file, less a block at each end.
+        // 3,000 records of 88 bytes in the fourth file, less a block at each end.
         let freed = before - blocks();
         assert!(
-            freed + 2 * 4096 >= 3000 * REST_LEN as u64,
+            freed + 2 * 4096 >= 3000 * rest_len,
             "{freed} bytes given back of {before}"
         );
     }
@@ -1191,7 +1268,7 @@ mod tests {
                 w
             })
             .collect();
-        let held = written(dir.path(), 0, 4096, &records);
+        let held = written(dir.path(), 0, 4096, &records, true);
         let allocated = || {
             held.sets[0][1..]
                 .iter()
@@ -1225,9 +1302,9 @@ mod tests {
         let files = || std::fs::read_dir(dir.path()).unwrap().count();
         let mut io = IoCounters::default();
         let records: Vec<Wire> = (0..20u32).map(|id| record([id as i32, 0, 0], id)).collect();
-        let a = written(dir.path(), 0, 64, &records[..10]);
+        let a = written(dir.path(), 0, 64, &records[..10], false);
         // New files: two records, records 3..7 of `a` kept in place, one more record.
-        let mut b = HeldWriter::create(dir.path(), 1, 64, None).unwrap();
+        let mut b = HeldWriter::create(dir.path(), 1, 64, None, false).unwrap();
         let base = b.adopt(&a);
         b.write(&records[10]).unwrap();
         b.write(&records[11]).unwrap();
@@ -1276,7 +1353,7 @@ mod tests {
             );
         }
         // New files that keep nothing of `a`: its files go.
-        let mut c = HeldWriter::create(dir.path(), 2, 64, None).unwrap();
+        let mut c = HeldWriter::create(dir.path(), 2, 64, None, false).unwrap();
         let base = c.adopt(&b);
         c.keep(&b, base, (0, 2));
         let (c, _) = c.finish(&mut io).unwrap();

@@ -719,7 +719,7 @@ impl Solver<'_> {
         let info = self.source.info();
         let area_unit = info.grid.voxel_size * info.grid.voxel_size;
         let mut reader = HeldReader::consuming(&held, plan.io_bytes)?;
-        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
+        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None, held.direct)?;
         let mut result = Update::default();
         // Records in memory at once: a quarter of the working memory, with their light.
         let chunk = (plan.working / 4 / (held::WIRE_LEN + GATHER_LEN) as u64).max(1) as usize;
@@ -880,7 +880,7 @@ impl Solver<'_> {
     ) -> Result<Held, OocError> {
         let info = self.source.info();
         let mut reader = HeldReader::consuming(&held, plan.io_bytes)?;
-        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None)?;
+        let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None, held.direct)?;
         while let Some(mut w) = reader.next(io)? {
             let mut b = [decode_radiosity(&w[held::RADIOSITY_AT..])];
             let previous = [decode_radiosity(&w[held::OLDER_AT..])];

@@ -175,6 +175,7 @@ impl Router<'_> {
             generation,
             self.plan.io_bytes,
             Some((key, histogram)),
+            held.direct,
         )?;
         let (fan_in, read_buffer) = self.fan_in();
         let mut sink = |w: &Wire| writer.write(w);
@@ -294,7 +295,8 @@ impl Router<'_> {
         } else {
             Some(held.open_files()?)
         };
-        let mut writer = HeldWriter::create(self.dir, generation, self.plan.io_bytes, None)?;
+        let mut writer =
+            HeldWriter::create(self.dir, generation, self.plan.io_bytes, None, held.direct)?;
         let base = if keep_in_place {
             writer.adopt(&held)
         } else {

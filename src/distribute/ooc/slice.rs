@@ -57,14 +57,15 @@ impl Solver<'_> {
                 .source
                 .stream_from(lo.saturating_sub(1), plan.io_bytes as u64)?,
         };
-        let mut writer = HeldWriter::create(dir, 0, plan.io_bytes, None)?;
+        // The direct light comes later (`direct::attach_direct`), into new files.
+        let mut writer = HeldWriter::create(dir, 0, plan.io_bytes, None, false)?;
         let mut group: Vec<Surfel> = Vec::new();
         let mut first_id = 0u64;
         let mut previous: Option<[i32; 3]> = None;
         let mut inside = false;
         let mut slice = Slice {
             first: 0,
-            held: Held::whole(Default::default(), 0),
+            held: Held::whole(Default::default(), 0, false),
             voxels: 0,
             any_light: false,
             emitting: 0,

@@ -205,12 +205,18 @@ impl Solver<'_> {
             }
             let mine = mine.expect("every rank is in a group");
             *generation += 1;
-            held =
-                self.place_slice::<GATHER_LEN>(held, &mine, *generation, router, io, |w, v| {
+            held = self.place_slice::<GATHER_LEN>(
+                held,
+                (&mine, false),
+                *generation,
+                router,
+                io,
+                |w, v| {
                     // Handed out in f64 (f32 in the file since format version 7), as f32
                     // sums made them: the slot holds them exactly.
                     encode_light32(&decode_gathered(v), &mut w[at..]);
-                })?;
+                },
+            )?;
         }
         Ok(held)
     }
