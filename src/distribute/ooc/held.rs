@@ -27,6 +27,9 @@
 //!                             extrapolation's, and the Chebyshev semi-iteration's `B_{k-1}`)
 //! ```
 //!
+//! On disk the fourth file leaves the direct light out in a solve without the direct-light
+//! pass, where it is zero (`Held::direct`): 88 bytes a record instead of 112.
+//!
 //! `B` travels beside what the lines carry, as the one-process out-of-core solver keeps its
 //! canonical radiosity beside the axis copies' `B - E`: the update reads `B` and writes both,
 //! and the answer stays that solver's bit for bit.
