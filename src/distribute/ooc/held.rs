@@ -1256,6 +1256,44 @@ mod tests {
         );
     }
 
+    /// Records copied into new files and then released in the old ones (a rank's sets made one
+    /// again, `route::merge_by_layers`) read back whole from the copy.
+    #[test]
+    fn a_copy_outlives_the_release_of_what_it_copied() {
+        use std::os::unix::fs::MetadataExt;
+        let dir = tempfile::tempdir().unwrap();
+        let mut io = IoCounters::default();
+        let records: Vec<Wire> = (0..5000u32)
+            .map(|id| {
+                let mut w = record([id as i32, 2, 0], id);
+                w[STATIC_LEN..].fill(id as u8 | 1);
+                w
+            })
+            .collect();
+        let a = written(dir.path(), 0, 4096, &records, true);
+        let from = a.open_files().unwrap();
+        let mut b = HeldWriter::create(dir.path(), 1, 4096, None, true).unwrap();
+        let mut buffer = Vec::new();
+        for range in [(0, 2000), (2000, 3000)] {
+            b.copy_records(&from, range, 300, &mut buffer, &mut io)
+                .unwrap();
+            a.release(&[range]).unwrap();
+        }
+        drop(from);
+        let (b, _) = b.finish(&mut io).unwrap();
+        let rest = std::fs::metadata(&a.sets[0][3]).unwrap();
+        assert!(
+            rest.blocks() * 512 <= 2 * 4096,
+            "the old rest file is given back"
+        );
+        let mut reader = HeldReader::open(&b, 4096).unwrap();
+        for (k, want) in records.iter().enumerate() {
+            let got = reader.next(&mut io).unwrap().expect("a record");
+            assert!(got == *want, "record {k}");
+        }
+        assert!(reader.next(&mut io).unwrap().is_none());
+    }
+
     /// A consuming reader hands out every record as the plain one does, and the files hold
     /// none of them at the end (only the static frames stay).
     #[test]
