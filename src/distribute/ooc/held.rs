@@ -832,8 +832,10 @@ impl RunWriter {
     }
 }
 
-/// A stream of wire records (a run file, or the held files read through a filter).
-pub type Source<'a> = Box<dyn FnMut() -> Result<Option<Wire>, OocError> + 'a>;
+/// A stream of wire records (a run file, or the held files read through a filter). It counts
+/// the bytes it reads from its files, as they lie on the disk (a run's compressed frames), in
+/// the counters it is given.
+pub type Source<'a> = Box<dyn FnMut(&mut IoCounters) -> Result<Option<Wire>, OocError> + 'a>;
 
 /// A run file ([`RunWriter`]) as a [`Source`].
 pub fn run_source<'a>(path: &Path, buffer_bytes: usize) -> Result<Source<'a>, OocError> {
@@ -842,7 +844,7 @@ pub fn run_source<'a>(path: &Path, buffer_bytes: usize) -> Result<Source<'a>, Oo
     let path = path.to_path_buf();
     let (mut records, mut planes, mut packed) = (Vec::new(), Vec::new(), Vec::new());
     let mut next = 0usize;
-    Ok(Box::new(move || {
+    Ok(Box::new(move |io: &mut IoCounters| {
         use std::io::Read;
         if next * WIRE_LEN >= records.len() {
             let damaged = |what: &str| {
@@ -872,6 +874,7 @@ pub fn run_source<'a>(path: &Path, buffer_bytes: usize) -> Result<Source<'a>, Oo
             }
             packed.resize(len, 0);
             input.read_exact(&mut packed).map_err(fail)?;
+            io.read += (head.len() + len) as u64;
             planes.resize(n * WIRE_LEN, 0);
             let got =
                 lz4::block::decompress_to_buffer(&packed, Some(planes.len() as i32), &mut planes)
@@ -948,7 +951,7 @@ fn merge_sources(
     let mut heads: Vec<Wire> = Vec::with_capacity(sources.len());
     let mut heap = BinaryHeap::with_capacity(sources.len());
     for (k, source) in sources.iter_mut().enumerate() {
-        let head = source()?;
+        let head = source(io)?;
         if let Some(w) = head {
             heap.push(Reverse((key.key(&w), k)));
         }
@@ -956,8 +959,7 @@ fn merge_sources(
     }
     while let Some(Reverse((_, k))) = heap.pop() {
         sink(&heads[k])?;
-        io.read += WIRE_LEN as u64;
-        if let Some(w) = sources[k]()? {
+        if let Some(w) = sources[k](io)? {
             heap.push(Reverse((key.key(&w), k)));
             heads[k] = w;
         }
@@ -1008,8 +1010,7 @@ pub fn sort_runs(
         sources.push(run_source(p, buffer_bytes)?);
     }
     for mut source in sources {
-        while let Some(w) = source()? {
-            io.read += WIRE_LEN as u64;
+        while let Some(w) = source(io)? {
             if piece.is_empty() {
                 // Exactly one piece: growth by doubling could overshoot the budget.
                 piece.reserve_exact(chunk_records);
@@ -1074,10 +1075,13 @@ mod tests {
             bytes.len()
         );
         let mut source = run_source(&path, 100).unwrap();
+        // Reading counts the bytes on the disk, the compressed frames, not the records.
+        let mut read = IoCounters::default();
         for (k, w) in records.iter().enumerate() {
-            assert!(source().unwrap().as_ref() == Some(w), "record {k}");
+            assert!(source(&mut read).unwrap().as_ref() == Some(w), "record {k}");
         }
-        assert!(source().unwrap().is_none());
+        assert!(source(&mut read).unwrap().is_none());
+        assert_eq!(read.read, bytes.len() as u64);
         // Appended whole elsewhere (as the exchange does, in pieces), the same records.
         let copy = dir.path().join("c.run");
         let mut appended = RunWriter::create(&copy, 64).unwrap();
@@ -1089,7 +1093,7 @@ mod tests {
         let mut damaged = bytes.clone();
         damaged[0] = 0;
         std::fs::write(&path, &damaged).unwrap();
-        let e = run_source(&path, 100).unwrap()().unwrap_err();
+        let e = run_source(&path, 100).unwrap()(&mut read).unwrap_err();
         assert!(e.to_string().contains("r.run"), "{e}");
     }
 

@@ -182,12 +182,10 @@ impl Router<'_> {
         // The old held files, until the sort has read them (see `sort_runs`).
         let mut old = Some(held);
         {
-            // The merge counts the kept records it takes; the ones that left are counted below.
-            let mut uncounted = IoCounters::default();
             let mut reader =
                 HeldReader::consuming(old.as_ref().expect("held"), self.plan.io_bytes)?;
-            let kept: Source = Box::new(move || {
-                while let Some(mut w) = reader.next(&mut uncounted)? {
+            let kept: Source = Box::new(move |io: &mut IoCounters| {
+                while let Some(mut w) = reader.next(io)? {
                     transform(&mut w);
                     if owner(&w) == me {
                         return Ok(Some(w));
@@ -226,7 +224,6 @@ impl Router<'_> {
                 )?;
             }
         }
-        io.read += moved * WIRE_LEN as u64;
         if let Some(held) = old {
             held.remove()?;
         }
