@@ -967,14 +967,11 @@ fn merge_sources(
     Ok(())
 }
 
-/// Sorts the records of `first` and of the run files `inputs` (in any order) by `key` into
-/// `sink`: pieces of `chunk_records` sorted in memory into runs, then merged. Removes the
-/// inputs, and calls `all_read` once every record is in a run, before the merge: what `first`
-/// reads from (a rank's old held files) can then be removed, so that it does not lie on the
-/// disk beside both the runs and what the merge writes.
+/// Sorts the records of the run files `inputs` (in any order) by `key` into `sink`: pieces of
+/// `chunk_records` sorted in memory into runs, then merged. The inputs are read one after the
+/// other, and removed once every record is in a run, before the merge writes.
 #[allow(clippy::too_many_arguments)]
 pub fn sort_runs(
-    first: Option<Source>,
     inputs: Vec<PathBuf>,
     key: AxisKey,
     chunk_records: usize,
@@ -982,7 +979,6 @@ pub fn sort_runs(
     buffer_bytes: usize,
     dir: &Path,
     io: &mut IoCounters,
-    all_read: &mut dyn FnMut() -> Result<(), OocError>,
     sink: &mut dyn FnMut(&Wire) -> Result<(), OocError>,
 ) -> Result<(), OocError> {
     let chunk_records = chunk_records.max(1);
@@ -1005,11 +1001,8 @@ pub fn sort_runs(
         piece.clear();
         Ok(())
     };
-    let mut sources: Vec<Source> = first.into_iter().collect();
     for p in &inputs {
-        sources.push(run_source(p, buffer_bytes)?);
-    }
-    for mut source in sources {
+        let mut source = run_source(p, buffer_bytes)?;
         while let Some(w) = source(io)? {
             if piece.is_empty() {
                 // Exactly one piece: growth by doubling could overshoot the budget.
@@ -1024,7 +1017,6 @@ pub fn sort_runs(
     remove_all(&inputs)?;
     flush(&mut piece, &mut runs, io)?;
     drop(piece);
-    all_read()?;
     merge_runs(None, runs, key, fan_in, buffer_bytes, dir, io, sink)
 }
 
@@ -1118,45 +1110,29 @@ mod tests {
         }
         expected.sort_by_key(|w| key.key(w));
         let mut got = Vec::new();
-        // The first part as a source, the others as run files.
-        let first = run_source(&inputs[0], 4096).unwrap();
-        let rest = inputs[1..].to_vec();
-        // Every input is read, and the run files among them removed, before the first record
-        // comes out of the merge: the caller frees the first input's files there.
-        let all_read = std::cell::Cell::new(0);
+        // The merge writes only once every input is read and removed.
         sort_runs(
-            Some(first),
-            rest.clone(),
+            inputs.clone(),
             key,
             7,
             2,
             4096,
             dir.path(),
             &mut io,
-            &mut || {
-                assert!(
-                    rest.iter().all(|p| !p.exists()),
-                    "the run inputs are removed"
-                );
-                all_read.set(all_read.get() + 1);
-                Ok(())
-            },
             &mut |w| {
-                assert_eq!(
-                    all_read.get(),
-                    1,
-                    "every input read before the merge writes"
+                assert!(
+                    inputs.iter().all(|p| !p.exists()),
+                    "every input read and removed before the merge writes"
                 );
                 got.push(*w);
                 Ok(())
             },
         )
         .unwrap();
-        assert_eq!(all_read.get(), 1);
         assert_eq!(got.len(), expected.len());
         assert!(got == expected);
-        // Nothing left behind but the first input, which the caller owns.
-        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        // Nothing left behind.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
     }
 
     #[test]
