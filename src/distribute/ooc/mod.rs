@@ -1217,7 +1217,8 @@ impl Sweep for DataOocSweep<'_, '_> {
             .map(PathBuf::as_path)
             .collect();
         let result = canonical::save(saver, state, &files, self.plan);
-        if let Some(path) = &older {
+        // In the checkpoint now: they would lie on rank 0's disk until the next one.
+        for path in &files {
             let _ = std::fs::remove_file(path);
         }
         result
