@@ -74,6 +74,12 @@ impl DataOocSweep<'_, '_> {
     /// radiosity (from group 0; and the radiosity before last while the Chebyshev
     /// semi-iteration runs), every group's sum of its axes done, then every group's light of its
     /// axis in progress, each in canonical order, and writes them. Collective.
+    ///
+    /// Each array is gathered into a canonical file on rank 0, copied into the checkpoint and
+    /// removed before the next one is gathered, so that rank 0's disk holds one of them at a
+    /// time beside its held files (all of them at once made the data mode's peak). Every rank
+    /// takes part in every gather, in the same order, whatever happens to rank 0's writing:
+    /// a failed write ends the copying, not the gathers.
     pub(super) fn save_inside(
         &mut self,
         saver: &mut Saver,
@@ -90,83 +96,113 @@ impl DataOocSweep<'_, '_> {
         let held = self.held.as_ref().expect("held files between steps");
         let (dir, plan, surfels) = (self.dir, self.plan, self.surfels);
         let mut io = IoCounters::default();
-        let mut files: Vec<PathBuf> = Vec::new();
         let chebyshev = state.extrapolation.chebyshev.is_some();
-        let mut gather = || -> Result<(), OocError> {
-            let radiosity = solver.gather_canonical::<RADIOSITY_LEN>(
-                HeldReader::open(held, plan.io_bytes)?,
-                0,
-                surfels,
-                "checkpoint-radiosity.bin",
-                (dir, plan),
-                &mut io,
-                |w| {
-                    w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN]
-                        .try_into()
-                        .expect("a radiosity record")
-                },
-            )?;
-            files.extend(radiosity);
-            if chebyshev {
-                // The Chebyshev semi-iteration's radiosity before last, after the radiosity.
-                let older = solver.gather_older(
+        // The arrays in the checkpoint's order: the radiosity, the one before last (while
+        // Chebyshev runs), every group's sum of its axes done, every group's axis in progress.
+        let groups = solver.groups;
+        let arrays = 1 + chebyshev as usize + 2 * groups;
+        let mut gather_array = |k: usize| -> Result<Option<PathBuf>, OocError> {
+            if k == 0 {
+                return solver.gather_canonical::<RADIOSITY_LEN>(
+                    HeldReader::open(held, plan.io_bytes)?,
+                    0,
+                    surfels,
+                    "checkpoint-radiosity.bin",
+                    (dir, plan),
+                    &mut io,
+                    |w| {
+                        w[held::RADIOSITY_AT..held::RADIOSITY_AT + RADIOSITY_LEN]
+                            .try_into()
+                            .expect("a radiosity record")
+                    },
+                );
+            }
+            if chebyshev && k == 1 {
+                return solver.gather_older(
                     held,
                     surfels,
                     "checkpoint-older.bin",
                     (dir, plan),
                     &mut io,
-                )?;
-                files.extend(older);
+                );
             }
-            for (kind, value) in [
-                (
+            let light = k - 1 - chebyshev as usize;
+            let (kind, group) = (light / groups, light % groups);
+            let (name, value) = match kind {
+                0 => (
                     "sum",
                     Position::sum as fn(Position, &Wire) -> [u8; LIGHT32_LEN],
                 ),
-                ("axis", Position::axis),
-            ] {
-                for group in 0..solver.groups {
-                    let name = format!("checkpoint-{kind}-{group}.bin");
-                    let array = solver.gather_canonical::<LIGHT32_LEN>(
-                        HeldReader::open(held, plan.io_bytes)?,
-                        group,
-                        surfels,
-                        &name,
-                        (dir, plan),
-                        &mut io,
-                        |w| value(at, w),
-                    )?;
-                    files.extend(array);
-                }
-            }
-            Ok(())
+                _ => (
+                    "axis",
+                    Position::axis as fn(Position, &Wire) -> [u8; LIGHT32_LEN],
+                ),
+            };
+            solver.gather_canonical::<LIGHT32_LEN>(
+                HeldReader::open(held, plan.io_bytes)?,
+                group,
+                surfels,
+                &format!("checkpoint-{name}-{group}.bin"),
+                (dir, plan),
+                &mut io,
+                |w| value(at, w),
+            )
         };
-        let gathered = gather();
-        self.io.read += io.read;
-        self.io.written += io.written;
-        gathered.map_err(|e| CheckpointError::Io {
-            path: saver.path().to_path_buf(),
+        let checkpoint = saver.path().to_path_buf();
+        let gather_error = |e: OocError| CheckpointError::Io {
+            path: checkpoint.clone(),
             action: "gather the light of every rank for",
             source: std::io::Error::other(e.to_string()),
-        })?;
+        };
+        let mut gathered = 0;
+        let mut failed: Option<CheckpointError> = None;
         state.within = Some(done as u64);
-        state.data_groups = solver.groups as u32;
+        state.data_groups = groups as u32;
         state.axis_in_progress = true;
         state.sums_in_f32 = true;
+        // Called on rank 0 alone, once its checkpoint file is open.
         let result = saver.save(state, plan.io_bytes, |w| {
-            for path in &files {
-                let file = std::fs::File::open(path)?;
-                let mut reader = std::io::BufReader::with_capacity(plan.io_bytes, file);
-                std::io::copy(&mut reader, w)?;
+            let mut written = Ok(());
+            while gathered < arrays && failed.is_none() {
+                let array = gather_array(gathered);
+                gathered += 1;
+                match array {
+                    Ok(Some(path)) => {
+                        if written.is_ok() {
+                            written = std::fs::File::open(&path).and_then(|file| {
+                                let mut reader =
+                                    std::io::BufReader::with_capacity(plan.io_bytes, file);
+                                std::io::copy(&mut reader, w).map(|_| ())
+                            });
+                        }
+                        let _ = std::fs::remove_file(&path);
+                    }
+                    Ok(None) => {}
+                    Err(e) => failed = Some(gather_error(e)),
+                }
             }
-            Ok(())
+            written
         });
-        for path in &files {
-            let _ = std::fs::remove_file(path);
+        // The gathers rank 0 did not make inside its writing (every one, on the other ranks).
+        while gathered < arrays && failed.is_none() {
+            match gather_array(gathered) {
+                Ok(Some(path)) => {
+                    let _ = std::fs::remove_file(&path);
+                }
+                Ok(None) => {}
+                Err(e) => failed = Some(gather_error(e)),
+            }
+            gathered += 1;
         }
+        drop(gather_array);
+        self.io.read += io.read;
+        self.io.written += io.written;
         // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
         saver.took(t.elapsed());
-        result
+        match failed {
+            Some(e) => Err(e),
+            None => result,
+        }
     }
 }
 
