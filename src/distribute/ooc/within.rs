@@ -194,7 +194,6 @@ impl DataOocSweep<'_, '_> {
             }
             gathered += 1;
         }
-        drop(gather_array);
         self.io.read += io.read;
         self.io.written += io.written;
         // The gathering is part of what a checkpoint costs here: it spaces the next ones too.
