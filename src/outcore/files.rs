@@ -43,7 +43,7 @@
 use super::OocError;
 use crate::solve::propagate::PropSurfel;
 use std::fs::{File, OpenOptions};
-use std::io::{BufReader, BufWriter, Read, Write};
+use std::io::{BufReader, Read};
 use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
@@ -339,39 +339,120 @@ impl RecordFile {
 }
 
 /// Sequential, buffered writing of a work file.
+///
+/// Whole blocks of zeros ([`HOLE_BLOCK`] bytes at aligned offsets) are not written but left as
+/// holes: the file is new, so they read back as zeros. Light cleared at the start of an axis
+/// or the end of an iteration is such zeros, and then costs neither writes nor disk until it
+/// is filled. With a buffer under two blocks every byte is written.
 pub struct SeqWriter {
     path: PathBuf,
-    out: BufWriter<File>,
+    file: File,
+    buffer: Vec<u8>,
+    capacity: usize,
+    /// The file offset of `buffer[0]`.
+    at: u64,
+    /// Bytes written to the file (holes left out).
     written: u64,
 }
+
+/// The size of a hole [`SeqWriter`] leaves for zeros, and the alignment of its holes: a file
+/// system block, the unit in which holes give disk back.
+pub const HOLE_BLOCK: usize = 4096;
 
 impl SeqWriter {
     pub fn create(path: &Path, buffer_bytes: usize) -> Result<Self, OocError> {
         let file = File::create(path).map_err(|e| OocError::io(path, "create", e))?;
+        let capacity = buffer_bytes.max(64);
         Ok(SeqWriter {
             path: path.to_path_buf(),
-            out: BufWriter::with_capacity(buffer_bytes.max(64), file),
+            file,
+            buffer: Vec::with_capacity(capacity),
+            capacity,
+            at: 0,
             written: 0,
         })
     }
 
-    pub fn write(&mut self, bytes: &[u8]) -> Result<(), OocError> {
-        self.written += bytes.len() as u64;
-        self.out
-            .write_all(bytes)
-            .map_err(|e| OocError::io(&self.path, "write", e))
+    pub fn write(&mut self, mut bytes: &[u8]) -> Result<(), OocError> {
+        while !bytes.is_empty() {
+            let take = (self.capacity - self.buffer.len()).min(bytes.len());
+            self.buffer.extend_from_slice(&bytes[..take]);
+            bytes = &bytes[take..];
+            if self.buffer.len() == self.capacity {
+                self.flush(false)?;
+            }
+        }
+        Ok(())
     }
 
-    /// Flushes and closes; returns the bytes written.
+    /// Writes the buffer out: all of it (`all`), or up to the last block boundary when holes
+    /// are made, so that a block of zeros split between two fillings is still found.
+    fn flush(&mut self, all: bool) -> Result<(), OocError> {
+        let block = HOLE_BLOCK as u64;
+        let sparse = self.capacity >= 2 * HOLE_BLOCK;
+        let end = self.at + self.buffer.len() as u64;
+        let upto = if all || !sparse {
+            end
+        } else {
+            end / block * block
+        };
+        if upto <= self.at {
+            return Ok(());
+        }
+        let n = (upto - self.at) as usize;
+        // Pieces between block boundaries; a whole block of zeros is skipped, the runs of
+        // other pieces are written at once.
+        let (mut k, mut run_start) = (0usize, 0usize);
+        while k < n {
+            let offset = self.at + k as u64;
+            let piece = ((offset / block + 1) * block - offset).min((n - k) as u64) as usize;
+            let hole =
+                sparse && piece == HOLE_BLOCK && self.buffer[k..k + piece].iter().all(|&b| b == 0);
+            if hole {
+                self.write_at_offset(run_start, k)?;
+                run_start = k + piece;
+            }
+            k += piece;
+        }
+        self.write_at_offset(run_start, n)?;
+        self.buffer.drain(..n);
+        self.at = upto;
+        Ok(())
+    }
+
+    /// Writes `buffer[from..to]` where it belongs in the file.
+    fn write_at_offset(&mut self, from: usize, to: usize) -> Result<(), OocError> {
+        if from < to {
+            self.file
+                .write_all_at(&self.buffer[from..to], self.at + from as u64)
+                .map_err(|e| OocError::io(&self.path, "write", e))?;
+            self.written += (to - from) as u64;
+        }
+        Ok(())
+    }
+
+    /// Writes what is left and closes; returns the bytes written (holes left out).
     pub fn finish(mut self) -> Result<u64, OocError> {
-        self.out
-            .flush()
+        self.flush(true)?;
+        // A hole at the end is not in the file until its length says so.
+        self.file
+            .set_len(self.at)
             .map_err(|e| OocError::io(&self.path, "write", e))?;
         Ok(self.written)
     }
 
     pub fn path(&self) -> &Path {
         &self.path
+    }
+}
+
+impl Drop for SeqWriter {
+    /// A writer dropped unfinished (on an error path) still leaves its bytes in the file, as a
+    /// buffered writer would. Best effort: errors here have no one to go to.
+    fn drop(&mut self) {
+        if !self.buffer.is_empty() && self.flush(true).is_ok() {
+            let _ = self.file.set_len(self.at);
+        }
     }
 }
 
@@ -499,6 +580,50 @@ pub fn allocated_bytes(dir: &Path) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_sequential_writer_leaves_whole_blocks_of_zeros_as_holes() {
+        let dir = tempfile::tempdir().unwrap();
+        // Data, then zeros over several blocks from an unaligned offset, data, and zeros to
+        // the end: written in pieces that fall on no boundary.
+        let block = HOLE_BLOCK;
+        let mut expected = vec![7u8; block + 100];
+        expected.extend(vec![0u8; 5 * block + 37]);
+        expected.extend(vec![9u8; 3 * block]);
+        expected.extend(vec![0u8; 4 * block]);
+        for buffer in [64, 3 * block + 5, 1 << 20] {
+            let path = dir.path().join(format!("w-{buffer}"));
+            let mut w = SeqWriter::create(&path, buffer).unwrap();
+            for piece in expected.chunks(777) {
+                w.write(piece).unwrap();
+            }
+            let written = w.finish().unwrap();
+            assert_eq!(std::fs::read(&path).unwrap(), expected, "buffer {buffer}");
+            // Whole aligned blocks of zeros: 4 in the middle (the run begins 100 bytes into a
+            // block and ends 137 bytes into one) and 3 at the end (from 137 bytes into a block
+            // on; the last 137 bytes are a part of a block, written).
+            let holes = if buffer >= 2 * block { 7 * block } else { 0 };
+            assert_eq!(written as usize, expected.len() - holes, "buffer {buffer}");
+            #[cfg(target_os = "linux")]
+            {
+                use std::os::unix::fs::MetadataExt;
+                let allocated = std::fs::metadata(&path).unwrap().blocks() * 512;
+                if holes > 0 {
+                    // On a file system that keeps holes (tmpfs and ext4 do), they take no disk.
+                    assert!(
+                        allocated as usize <= expected.len().div_ceil(block) * block - holes,
+                        "{allocated} bytes allocated"
+                    );
+                }
+            }
+        }
+        // A writer dropped unfinished still leaves its bytes.
+        let path = dir.path().join("dropped");
+        let mut w = SeqWriter::create(&path, 1 << 20).unwrap();
+        w.write(&expected).unwrap();
+        drop(w);
+        assert_eq!(std::fs::read(&path).unwrap(), expected);
+    }
 
     #[test]
     fn static_records_read_back_with_their_flags_and_mate_sides() {
