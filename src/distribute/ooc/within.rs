@@ -181,7 +181,11 @@ impl DataOocSweep<'_, '_> {
                     Err(e) => failed = Some(gather_error(e)),
                 }
             }
-            written
+            // A checkpoint without all its arrays must not replace the last one.
+            match &failed {
+                Some(_) => Err(std::io::Error::other("an array was not gathered")),
+                None => written,
+            }
         });
         // The gathers rank 0 did not make inside its writing (every one, on the other ranks).
         while gathered < arrays && failed.is_none() {
