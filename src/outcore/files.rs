@@ -1,5 +1,6 @@
-//! The solver's private work files: fixed-size records read and written sequentially (buffered)
-//! or at positions (`pread`/`pwrite`), and the byte layouts of what they hold.
+//! The solver's private work files: fixed-size records read and written sequentially (buffered;
+//! a sequential writer leaves whole blocks of zeros as holes) or at positions
+//! (`pread`/`pwrite`), and the byte layouts of what they hold.
 //!
 //! Work files live in a temporary directory of one solve and are never read by another program,
 //! so they carry no header or checksum (the shard set they are made from is checked as it is
