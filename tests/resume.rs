@@ -417,15 +417,17 @@ fn long_axes<'a>(extra: &[&'a str]) -> Vec<&'a str> {
 }
 
 /// The directions done in an iteration at the end of each main axis of the checkpoint's run (in
-/// the order the out-of-core solver walks them): where the checkpoints before in-axis ones
-/// could only be.
+/// the order the out-of-core solver walks the checkpoint's iteration): where the checkpoints
+/// before in-axis ones could only be.
 fn axis_ends(saved: &CheckpointFile) -> Vec<u64> {
     // (The identity's direction checksum also covers the direct-light pass's directions.)
     let directions = DirectionSet::with_count(300);
     assert_eq!(directions.len() as u32, saved.header.identity.directions);
-    voxrad::outcore::solver::walk_by_axis(&directions)
+    let by_axis = voxrad::outcore::solver::walk_by_axis(&directions);
+    let iteration = saved.header.state.iteration as usize + 1;
+    voxrad::outcore::solver::walk_of_iteration(&by_axis, iteration)
         .iter()
-        .scan(0, |done, axis| {
+        .scan(0, |done, (_, axis)| {
             *done += axis.len() as u64;
             Some(*done)
         })
@@ -945,7 +947,11 @@ fn out_of_core_checkpoint_with_a_position_that_does_not_match_its_sums_is_refuse
         chebyshev: false,
         scene_checksum: 1,
     };
-    let first_axis = voxrad::outcore::solver::walk_by_axis(&directions)[0].len() as u64;
+    // The checkpoints below are inside iteration 2, which walks backwards.
+    let by_axis = voxrad::outcore::solver::walk_by_axis(&directions);
+    let first_axis = voxrad::outcore::solver::walk_of_iteration(&by_axis, 2)[0]
+        .1
+        .len() as u64;
     assert!(first_axis >= 2);
     let tmp = tempfile::tempdir().unwrap();
     for (done, axis_in_progress, words) in [

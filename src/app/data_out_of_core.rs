@@ -219,7 +219,8 @@ pub(super) fn open_checkpoint_on_rank0(
             last_ratio.is_some() as u8 as f64,
             last_ratio.unwrap_or(0.0),
             changes.len() as f64,
-            state.within.is_some() as u8 as f64,
+            // Not inside an iteration the solver now walks in another order.
+            (state.within.is_some() && !state.walked_otherwise()) as u8 as f64,
             state.within.unwrap_or(0) as f64,
             state.data_groups as f64,
             state.axis_in_progress as u8 as f64,
@@ -253,6 +254,7 @@ pub(super) fn open_checkpoint_on_rank0(
         data_groups: words[9] as u32,
         axis_in_progress: words[10] == 1.0,
         sums_in_f32: words[14] == 1.0,
+        walked_forwards: false,
     };
     Ok((file, Some(state)))
 }

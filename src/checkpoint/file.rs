@@ -2,7 +2,7 @@
 //!
 //! ```text
 //!  0  magic         8 bytes  "VXRDCKPT"
-//!  8  version       u32      FORMAT_VERSION (7; versions 1 to 6 are still read)
+//!  8  version       u32      FORMAT_VERSION (8; versions 1 to 7 are still read)
 //! 12  header_len    u32      bytes of the header body that follows
 //! 16  header body            Identity then State (see `encode_header`), little-endian;
 //!                            version 2 ends it with the mid-iteration position, version 3
@@ -12,7 +12,9 @@
 //!                            version 6 then with the Chebyshev semi-iteration's state
 //!                            (present flag, ratio, updates: `solve::accelerate`) and
 //!                            whether the run allows it (`Identity::chebyshev`), version 7
-//!                            then with whether the partial sums are f32 (`State::sums_in_f32`)
+//!                            then with whether the partial sums are f32 (`State::sums_in_f32`);
+//!                            version 8 has version 7's layout, its out-of-core partial sums
+//!                            gathered in another walk (`State::walked_otherwise`)
 //!  .  header_crc    u32      CRC-32 of bytes 0 .. 16 + header_len
 //!  .  radiosity              surfels x 24 bytes: f32 x 6 per surfel, side-major (front RGB,
 //!                            back RGB), in the solver's surfel order
@@ -46,7 +48,7 @@ use std::path::{Path, PathBuf};
 
 pub const MAGIC: [u8; 8] = *b"VXRDCKPT";
 /// The version written; [`OLDEST_VERSION`] up to it are read.
-pub const FORMAT_VERSION: u32 = 7;
+pub const FORMAT_VERSION: u32 = 8;
 /// Version 1: iteration boundaries only (no position, no partial sums).
 pub const OLDEST_VERSION: u32 = 1;
 /// Bytes per surfel of the radiosity payload.
@@ -326,6 +328,7 @@ fn decode_header(body: &[u8], version: u32) -> Option<Header> {
             data_groups,
             axis_in_progress,
             sums_in_f32,
+            walked_forwards: version < 8 && within.is_some(),
         },
     })
 }
@@ -828,6 +831,7 @@ mod tests {
                 data_groups: if within.is_some() { 2 } else { 0 },
                 axis_in_progress,
                 sums_in_f32: false,
+                walked_forwards: false,
             },
         }
     }
@@ -1019,13 +1023,13 @@ mod tests {
     }
 
     #[test]
-    fn versions_1_to_6_are_read_and_an_unknown_version_is_refused() {
+    fn versions_1_to_7_are_read_and_an_unknown_version_is_refused() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("checkpoint.bin");
         let h = header(5, None);
         write_one(&path, &h, &radiosity(5));
         let current = std::fs::read(&path).unwrap();
-        for old in [1, 2, 3, 4, 5, 6] {
+        for old in [1, 2, 3, 4, 5, 6, 7] {
             let bytes = as_version(&current, old);
             let got = parse(&path, &bytes, 0).unwrap();
             assert_eq!(got.header, h);
@@ -1039,7 +1043,16 @@ mod tests {
         write_one(&path, &mid, &radiosity(5));
         let v3 = as_version(&std::fs::read(&path).unwrap(), 3);
         let got = parse(&path, &v3, 1).unwrap();
-        assert_eq!(got.header, mid);
+        let mut walked = mid.clone();
+        walked.state.walked_forwards = true;
+        assert_eq!(got.header, walked);
+        // Iteration 13 (12 done): an odd one, walked in the same order since version 8.
+        assert!(!walked.state.walked_otherwise());
+        walked.state.iteration = 13;
+        assert!(walked.state.walked_otherwise());
+        let mut v8 = walked.clone();
+        v8.state.walked_forwards = false;
+        assert!(!v8.state.walked_otherwise());
         assert_eq!(
             got.partial.as_deref().map(sum_bits),
             Some(sum_bits(&sums(5, 1)))

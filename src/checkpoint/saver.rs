@@ -123,6 +123,7 @@ impl Saver {
             data_groups: 0,
             axis_in_progress: false,
             sums_in_f32: false,
+            walked_forwards: false,
         }
     }
 

@@ -71,6 +71,20 @@ pub struct State {
     /// mid-iteration checkpoint of 1.2 x 10^8 surfels fell from 14 to 8.5 GB). `false`: f64, as
     /// the in-memory solvers add them up (and every file before version 7).
     pub sums_in_f32: bool,
+    /// Read from a file before format version 8, whose out-of-core solver walked every
+    /// iteration in one order; not stored (see [`State::walked_otherwise`]).
+    pub walked_forwards: bool,
+}
+
+impl State {
+    /// Whether the out-of-core solvers now walk iteration `iteration + 1` in another order
+    /// than the solver that wrote this mid-iteration checkpoint: since format version 8 they
+    /// walk even iterations backwards (`outcore::solver::walk_of_iteration`), so the light of a
+    /// file before it, written inside an even iteration, belongs to other directions than
+    /// theirs. They then start that iteration from its beginning (the same radiosity).
+    pub fn walked_otherwise(&self) -> bool {
+        self.walked_forwards && self.within.is_some() && (self.iteration + 1) % 2 == 0
+    }
 }
 
 /// Everything in a checkpoint but the radiosity.

@@ -231,6 +231,33 @@ pub fn walk_by_axis(directions: &DirectionSet) -> Vec<Vec<usize>> {
         .collect()
 }
 
+/// One iteration's walk: its main axes in the order they are solved, each with its directions
+/// in the order they are solved.
+pub type Walk = Vec<(usize, Vec<usize>)>;
+
+/// Whether iteration `iteration` (counted from 1) walks backwards (see [`walk_of_iteration`]).
+pub fn walks_backwards(iteration: usize) -> bool {
+    iteration % 2 == 0
+}
+
+/// The walk of iteration `iteration` (counted from 1) over `by_axis` ([`walk_by_axis`]): odd
+/// iterations walk it as it is, even ones backwards (the last axis first, its directions from
+/// the last). Every iteration after the first so begins on the main axis, and with the
+/// direction, that the one before ended on: the data mode out of core finds its held records
+/// in that axis's copy order already and sorts them once fewer per iteration
+/// (`distribute::ooc`). Every out-of-core path walks these, so that their answers stay the same
+/// bits; resuming inside an iteration takes the walk of the iteration resumed.
+pub fn walk_of_iteration(by_axis: &[Vec<usize>], iteration: usize) -> Walk {
+    let mut walk: Walk = by_axis.iter().cloned().enumerate().collect();
+    if walks_backwards(iteration) {
+        walk.reverse();
+        for (_, axis) in &mut walk {
+            axis.reverse();
+        }
+    }
+    walk
+}
+
 /// Directions gathered together at most: their links files are read or written side by side,
 /// each through its share of one direction's buffer.
 pub(crate) const MOST_TOGETHER: usize = 16;
@@ -419,7 +446,12 @@ fn run(
             ])
         })
         .collect::<Result<_, OocError>>()?;
-    let axes = AxisSpans::new(&by_axis);
+    // Both walks (odd and even iterations) with where their axes start.
+    let walks = [1, 2].map(|iteration| {
+        let walk = walk_of_iteration(&by_axis, iteration);
+        let spans = AxisSpans::new(&walk);
+        (walk, spans)
+    });
     // The checkpoints, where they share the work files' disk, take their room before the links
     // do: a building of 1.2 x 10^8 surfels wrote 14 GB checkpoints (8.5 GB since their sums
     // are f32), and with the links they filled the disk.
@@ -455,10 +487,20 @@ fn run(
     let mut resume_at = Position::default();
     if let Some(file) = checkpoints.as_mut().and_then(|c| c.resume.take()) {
         let t = Instant::now();
-        resume_at = restore(&file, previous.as_deref(), &work, &plan, &axes, &mut io)?;
+        // The walk of the iteration resumed.
+        let resumed = file.header.state.iteration as usize + 1;
+        let (walk, spans) = &walks[walks_backwards(resumed) as usize];
+        resume_at = restore(
+            &file,
+            previous.as_deref(),
+            &work,
+            &plan,
+            (walk, spans),
+            &mut io,
+        )?;
         lit = lit_file(source, &work, &plan, direct.is_some(), &mut io)?;
         stats.update_seconds += t.elapsed().as_secs_f64();
-        let done = axes.done(resume_at);
+        let done = spans.done(resume_at);
         start = Start::resumed(
             &file.header.state,
             &file.path,
@@ -481,8 +523,8 @@ fn run(
         work: &work,
         plan: &plan,
         files,
-        axes,
-        by_axis,
+        walks,
+        backwards: false,
         cosine_sum,
         channels,
         threads,
@@ -571,8 +613,11 @@ struct OutOfCore<'a> {
     work: &'a WorkSet,
     plan: &'a MemoryPlan,
     files: Vec<[CopyFiles; 2]>,
-    axes: AxisSpans,
-    by_axis: Vec<Vec<usize>>,
+    /// The walks of odd and even iterations ([`walk_of_iteration`]), with where their axes
+    /// start.
+    walks: [(Walk, AxisSpans); 2],
+    /// This iteration walks backwards (the second of `walks`).
+    backwards: bool,
     cosine_sum: Vec<f64>,
     channels: usize,
     threads: usize,
@@ -613,13 +658,24 @@ struct OutOfCore<'a> {
 }
 
 impl OutOfCore<'_> {
-    /// The main axis and the index in it of step `step`.
+    /// This iteration's walk.
+    fn walk(&self) -> &Walk {
+        &self.walks[self.backwards as usize].0
+    }
+
+    /// Where this iteration's axes start.
+    fn spans(&self) -> &AxisSpans {
+        &self.walks[self.backwards as usize].1
+    }
+
+    /// The place in this iteration's walk of the main axis of step `step`, and the index in it.
     fn place(&self, step: usize) -> (usize, usize) {
         let done = step as u64;
-        let m = (0..3)
-            .find(|&m| done < self.axes.starts[m + 1])
+        let starts = &self.spans().starts;
+        let p = (0..3)
+            .find(|&p| done < starts[p + 1])
             .expect("a step of the iteration");
-        (m, (done - self.axes.starts[m]) as usize)
+        (p, (done - starts[p]) as usize)
     }
 }
 
@@ -660,7 +716,8 @@ impl Sweep for OutOfCore<'_> {
         self.work.count * self.directions.len() as u64
     }
 
-    fn begin(&mut self, from: usize) -> Result<(), OocError> {
+    fn begin(&mut self, iteration: usize, from: usize) -> Result<(), OocError> {
+        self.backwards = walks_backwards(iteration);
         if self.lit.is_none() {
             let t = Instant::now();
             self.lit = Some(lit_file(
@@ -677,9 +734,11 @@ impl Sweep for OutOfCore<'_> {
             self.at = Position::default();
         }
         self.gathered_until = from;
-        debug_assert_eq!(self.axes.done(self.at), from as u64);
+        debug_assert_eq!(self.spans().done(self.at), from as u64);
         // Whether the canonical sum holds any axis's light yet (else the next fold starts it).
-        self.summed = self.by_axis[..self.at.axes].iter().any(|a| !a.is_empty());
+        self.summed = self.walk()[..self.at.axes]
+            .iter()
+            .any(|(_, a)| !a.is_empty());
         Ok(())
     }
 
@@ -688,7 +747,8 @@ impl Sweep for OutOfCore<'_> {
             // Gathered together with an earlier direction, in its pass.
             return Ok(true);
         }
-        let (m, k) = self.place(step);
+        let (p, k) = self.place(step);
+        let (m, axis) = self.walk()[p].clone();
         if self.lit_copy != Some(m) {
             // The copies share one radiosity file: it is sent this copy's order at the first
             // direction of its axis (or the first after a resume), before the histogram and a
@@ -723,7 +783,7 @@ impl Sweep for OutOfCore<'_> {
             first: k == 0,
             stops_on_signal: true,
         };
-        let together = gathered_together(&pass, self.directions, &self.by_axis[m], k, &self.links);
+        let together = gathered_together(&pass, self.directions, &axis, k, &self.links);
         self.links.begin_together(&together)?;
         let ds: Vec<&Direction> = together
             .iter()
@@ -751,10 +811,10 @@ impl Sweep for OutOfCore<'_> {
         self.light_file = write;
         self.gathered_until = step + together.len();
         self.at = Position {
-            axes: m,
+            axes: p,
             directions: done,
         };
-        if done == self.by_axis[m].len() {
+        if done == axis.len() {
             // What comes next (the fold, a checkpoint, the update) takes the memory a band
             // holds.
             self.histogram = None;
@@ -775,7 +835,7 @@ impl Sweep for OutOfCore<'_> {
             self.update_seconds += t.elapsed().as_secs_f64();
             self.summed = true;
             self.at = Position {
-                axes: m + 1,
+                axes: p + 1,
                 directions: 0,
             };
         }
@@ -794,17 +854,19 @@ impl Sweep for OutOfCore<'_> {
         state: State,
         done: usize,
     ) -> Result<(), CheckpointError> {
-        debug_assert_eq!(self.axes.done(self.at), done as u64);
+        debug_assert_eq!(self.spans().done(self.at), done as u64);
         // The save's permutation takes the memory a band holds: let the band's arrays go (the
         // next direction makes them again).
         self.buffers = BandBuffers::default();
         let older = self.older_for(&state).map(Path::to_path_buf);
         if self.at.directions > 0 {
+            // Fields, not `self.walk()`: the save also takes `self.io`.
+            let (walk, spans) = &self.walks[self.backwards as usize];
             save_in_axis(
                 saver,
                 state,
-                (&self.axes, self.at, self.light_file),
-                &self.work.copies[self.at.axes],
+                (spans, self.at, self.light_file),
+                &self.work.copies[walk[self.at.axes].0],
                 (self.summed, older.as_deref()),
                 (self.work, self.plan),
                 &mut self.io,
@@ -863,7 +925,7 @@ impl Sweep for OutOfCore<'_> {
 }
 
 /// A place inside an iteration where the light gathered so far is whole on disk: the first
-/// `axes` main axes (in `walk_by_axis` order) folded into the canonical sum, and the first
+/// `axes` main axes (in the order of the iteration's walk) folded into the canonical sum, and the first
 /// `directions` directions of the next axis in its gathered files (in file
 /// `(directions - 1) % 2`, see `WorkSet::gathered`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -880,9 +942,9 @@ struct AxisSpans {
 }
 
 impl AxisSpans {
-    fn new(by_axis: &[Vec<usize>]) -> Self {
+    fn new(walk: &[(usize, Vec<usize>)]) -> Self {
         let mut starts = vec![0u64];
-        for axis in by_axis {
+        for (_, axis) in walk {
             starts.push(starts.last().copied().unwrap_or(0) + axis.len() as u64);
         }
         AxisSpans { starts }
@@ -1038,7 +1100,7 @@ fn restore(
     previous: Option<&Path>,
     work: &WorkSet,
     plan: &MemoryPlan,
-    axes: &AxisSpans,
+    (walk, axes): (&Walk, &AxisSpans),
     io: &mut IoCounters,
 ) -> Result<Position, OocError> {
     let bad = |what: String| OocError::BadData {
@@ -1050,6 +1112,15 @@ fn restore(
     // directions: their iteration starts again here (from the same radiosity, so the same
     // answer).
     let within = state.within.filter(|&done| {
+        if state.walked_otherwise() {
+            tracing::info!(
+                "the checkpoint is {done} directions into iteration {}, written by a voxrad \
+                 that walked the directions of that iteration in another order; that \
+                 iteration starts from its beginning",
+                state.iteration + 1
+            );
+            return false;
+        }
         let own = state.data_groups == 0;
         if !own {
             tracing::info!(
@@ -1106,7 +1177,7 @@ fn restore(
     let mut axis = match at.directions {
         0 => None,
         _ => {
-            let copy = &work.copies[at.axes];
+            let copy = &work.copies[walk[at.axes].0];
             let chunk = plan.chunk_surfels.min(n).max(1);
             let buffer = plan.bucket_buffer(n.div_ceil(chunk));
             let scatter =
@@ -1648,9 +1719,48 @@ mod tests {
     use super::*;
 
     #[test]
+    fn even_iterations_walk_backwards_from_where_the_odd_ones_end() {
+        let directions = DirectionSet::with_count(49);
+        let by_axis = walk_by_axis(&directions);
+        let steps = |walk: &Walk| -> Vec<(usize, usize)> {
+            walk.iter()
+                .flat_map(|(m, axis)| axis.iter().map(move |&d| (*m, d)))
+                .collect()
+        };
+        let odd = steps(&walk_of_iteration(&by_axis, 1));
+        let even = steps(&walk_of_iteration(&by_axis, 2));
+        // Every direction once, each on its own main axis.
+        let mut seen: Vec<usize> = odd.iter().map(|&(_, d)| d).collect();
+        seen.sort_unstable();
+        assert_eq!(seen, (0..directions.len()).collect::<Vec<_>>());
+        for &(m, d) in &odd {
+            assert!(by_axis[m].contains(&d));
+        }
+        // The even walk is the odd one backwards: it begins on the axis and with the direction
+        // the odd one ends with, and the odd one after it with the even one's last.
+        assert_eq!(even, odd.iter().rev().copied().collect::<Vec<_>>());
+        assert_eq!(even[0], *odd.last().unwrap());
+        assert_eq!(steps(&walk_of_iteration(&by_axis, 3)), odd);
+        assert!(!walks_backwards(1) && walks_backwards(2) && !walks_backwards(3));
+        // Where an even iteration's axes end, as a checkpoint counts its directions.
+        let spans = AxisSpans::new(&walk_of_iteration(&by_axis, 2));
+        let last = by_axis[2].len() as u64;
+        assert_eq!(
+            spans.position(last, false),
+            Some(Position {
+                axes: 1,
+                directions: 0
+            })
+        );
+    }
+
+    #[test]
     fn positions_inside_and_at_the_end_of_main_axes() {
         // Axes of 3, 0 and 4 directions.
-        let axes = AxisSpans::new(&[vec![7, 8, 9], vec![], vec![1, 2, 3, 4]]);
+        let axes = AxisSpans::new(&walk_of_iteration(
+            &[vec![7, 8, 9], vec![], vec![1, 2, 3, 4]],
+            1,
+        ));
         let at = |axes, directions| Position { axes, directions };
         assert_eq!(axes.position(2, true), Some(at(0, 2)));
         assert_eq!(axes.position(5, true), Some(at(2, 2)));

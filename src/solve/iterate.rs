@@ -47,9 +47,10 @@ pub(crate) trait Sweep {
     /// Surfel-direction updates of one iteration (the report's rate).
     fn updates(&self) -> u64;
 
-    /// Starts an iteration at step `from`: 0 clears the light gathered; more continues from
-    /// the light a checkpoint put back.
-    fn begin(&mut self, from: usize) -> Result<(), Self::Error>;
+    /// Starts iteration `iteration` (counted from 1) at step `from`: 0 clears the light
+    /// gathered; more continues from the light a checkpoint put back. (The out-of-core sweeps
+    /// walk their steps in an order that depends on the iteration, `outcore::solver::Walk`.)
+    fn begin(&mut self, iteration: usize, from: usize) -> Result<(), Self::Error>;
 
     /// Gathers step `step`. `false`: it stopped part way on a stop signal (its light is not
     /// whole; the loop stops as if the signal had come before it). Only a one-process sweep
@@ -166,7 +167,7 @@ pub(crate) fn iterate<S: Sweep>(
             break;
         }
         let begin = std::mem::take(&mut from).min(steps);
-        sweep.begin(begin)?;
+        sweep.begin(iteration, begin)?;
         progress.reset();
         progress.set_position(begin as u64);
         progress.set_message(format!("iteration {iteration}"));

@@ -516,7 +516,7 @@ impl Sweep for InMemory<'_> {
         (self.set.surfels.len() * self.directions.len()) as u64
     }
 
-    fn begin(&mut self, from: usize) -> Result<(), SolveError> {
+    fn begin(&mut self, _iteration: usize, from: usize) -> Result<(), SolveError> {
         if from == 0 {
             self.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         }

@@ -908,7 +908,7 @@ impl Sweep for DataSweep<'_, '_> {
         (self.solver.set.surfels.len() * self.solver.directions.len()) as u64
     }
 
-    fn begin(&mut self, from: usize) -> Result<(), SolveError> {
+    fn begin(&mut self, _iteration: usize, from: usize) -> Result<(), SolveError> {
         if from == 0 {
             self.held.acc.iter_mut().for_each(|a| *a = [[0.0; 3]; 2]);
         }

@@ -362,29 +362,29 @@ impl Solver<'_> {
             }
         }
 
-        // The single-process out-of-core solver's order (the same answer bit for bit), of
-        // which a group takes its contiguous block (all of it in the data mode).
-        let walk: Vec<(usize, usize)> = crate::outcore::solver::walk_by_axis(self.directions)
+        // The single-process out-of-core solver's order of odd iterations (the same answer bit
+        // for bit), of which a group takes its contiguous block (all of it in the data mode),
+        // and walks it backwards in even iterations, as that solver does
+        // (`outcore::solver::walk_of_iteration`): a group keeps its directions (and their
+        // links). Every group's, for where the light of any can be saved
+        // (`DataOocSweep::inside`).
+        let by_axis = crate::outcore::solver::walk_by_axis(self.directions);
+        let walk: Vec<(usize, usize)> = crate::outcore::solver::walk_of_iteration(&by_axis, 1)
             .into_iter()
-            .enumerate()
             .flat_map(|(m, axis)| axis.into_iter().map(move |d| (m, d)))
             .collect();
-        // Every group's, for where the light of any can be saved (`DataOocSweep::inside`).
-        let walks: Vec<Vec<WalkStep>> = (0..self.groups)
-            .map(|g| {
-                let block = &walk[d_count * g / self.groups..d_count * (g + 1) / self.groups];
-                block
-                    .iter()
-                    .enumerate()
-                    .map(|(k, &(main, direction))| WalkStep {
-                        main,
-                        first: k == 0 || block[k - 1].0 != main,
-                        last: block.get(k + 1).is_none_or(|next| next.0 != main),
-                        direction,
-                    })
-                    .collect()
-            })
-            .collect();
+        let walks = [false, true].map(|backwards| {
+            (0..self.groups)
+                .map(|g| {
+                    let mut block =
+                        walk[d_count * g / self.groups..d_count * (g + 1) / self.groups].to_vec();
+                    if backwards {
+                        block.reverse();
+                    }
+                    walk_steps(&block)
+                })
+                .collect::<Vec<Vec<WalkStep>>>()
+        });
         let starts = self.slice_starts(slice.first);
         // The links files' allowance: the ranks of one node share its disk, and a merge adds
         // about two shares to the held files on it now (see the check above). Rank 0 writes the
@@ -436,16 +436,17 @@ impl Solver<'_> {
             largest_share: held.count,
             held: Some(held),
             generation,
-            walk: walks[self.group_index].clone(),
+            walk: Vec::new(),
             runs: Vec::new(),
             inside: Vec::new(),
             walks,
+            backwards: false,
             steps,
             starts,
             remembered: vec![None; d_count],
             imbalance: vec![0.0; d_count],
             moved: vec![0.0; d_count],
-            quiet: vec![None; d_count],
+            quiet: [vec![None; d_count], vec![None; d_count]],
             quiet_steps_skipped: 0,
             histogram: Vec::new(),
             links,
@@ -456,7 +457,7 @@ impl Solver<'_> {
             scales: crate::solve::closed::Scales::ONE,
             earlier_any: false,
             pending: false,
-            in_copy_order: false,
+            held_axis: None,
             surfels,
         };
         let saver = checkpoints.map(|c| c.saver);
@@ -703,7 +704,9 @@ impl Solver<'_> {
 
     /// `B = E + rho H / S(n)` on the held surfels, after adding the last axis's light to the
     /// earlier ones (`fold`: `Some(first)` when an axis is pending, `first` when it is the only
-    /// one). Writes new held files (generation `generation`) with the light cleared.
+    /// one; in the hybrid mode, every group's, see [`Solver::add_groups`], in the order of
+    /// the walk, `backwards` or not). Writes new held files (generation `generation`) with the
+    /// light cleared.
     #[allow(clippy::too_many_arguments)]
     fn update(
         &self,
@@ -712,7 +715,7 @@ impl Solver<'_> {
         dir: &Path,
         plan: &MemoryPlan,
         cosine_sum: &[f64],
-        fold: Option<bool>,
+        (fold, backwards): (Option<bool>, bool),
         (scales, omega): (&crate::solve::closed::Scales, f64),
         io: &mut IoCounters,
     ) -> Result<(Held, Update), OocError> {
@@ -721,8 +724,14 @@ impl Solver<'_> {
         let mut reader = HeldReader::consuming(&held, plan.io_bytes)?;
         let mut writer = HeldWriter::create(dir, generation, plan.io_bytes, None, held.direct)?;
         let mut result = Update::default();
-        // Records in memory at once: a quarter of the working memory, with their light.
-        let chunk = (plan.working / 4 / (held::WIRE_LEN + GATHER_LEN) as u64).max(1) as usize;
+        let groups = self.peers.size();
+        // Records in memory at once: a quarter of the working memory, with their light (in the
+        // hybrid mode, every group's two parts).
+        let light_len = match groups {
+            1 => GATHER_LEN,
+            g => 2 * g * GATHER_LEN,
+        };
+        let chunk = (plan.working / 4 / (held::WIRE_LEN + light_len) as u64).max(1) as usize;
         let mut records: Vec<Wire> = Vec::with_capacity(chunk.min(held.count as usize));
         let mut light: Vec<f64> = Vec::new();
         loop {
@@ -731,7 +740,7 @@ impl Solver<'_> {
                 let Some(mut w) = reader.next(io)? else {
                     break;
                 };
-                if let Some(first) = fold {
+                if let (Some(first), 1) = (fold, groups) {
                     fold_axis(&mut w, first);
                 }
                 records.push(w);
@@ -739,23 +748,14 @@ impl Solver<'_> {
             if records.is_empty() {
                 break;
             }
-            if self.peers.size() > 1 {
-                // The hybrid mode: every group's rank at this place holds the same surfels in
-                // the same order now (`DataOocSweep::end`), each with the light of its group's
-                // directions; they are added in group order.
-                light.clear();
-                light.extend(
-                    records
-                        .iter()
-                        .flat_map(|w| decode_light32(&w[EARLIER_AT..]).into_iter().flatten()),
-                );
-                self.peers.sum_in_place(&mut light);
-                for (w, h) in records.iter_mut().zip(light.chunks_exact(6)) {
-                    encode_light32(
-                        &[[h[0], h[1], h[2]], [h[3], h[4], h[5]]],
-                        &mut w[EARLIER_AT..],
-                    );
-                }
+            if groups > 1 {
+                // The parts this group holds: without an axis pending, the earlier field holds
+                // every axis it did (zeros if none).
+                let parts = match fold {
+                    Some(first) => (!first, true),
+                    None => (true, false),
+                };
+                self.add_groups(&mut records, &mut light, backwards, parts);
             }
             for w in records.iter_mut() {
                 let previous = decode_radiosity(&w[held::RADIOSITY_AT..]);
@@ -807,6 +807,55 @@ impl Solver<'_> {
         held.remove()?;
         let (held, _) = writer.finish(io)?;
         Ok((held, result))
+    }
+
+    /// The hybrid mode's light of `records`: every group's rank at this place holds the same
+    /// surfels in the same order now (`DataOocSweep::end`), each with the light of its group's
+    /// directions in two parts, its earlier axes' (folded) and its last axis's (not yet). Every
+    /// group's parts go to every group, each in slots of its own (zeros elsewhere, so that the
+    /// sum over groups moves them exactly); every rank then folds them in the order of the walk
+    /// (the groups in turn, backwards where the walk is, each group's earlier axes before its
+    /// last), with `fold_axis`'s rounding, into the earlier axes' field. Where every group's
+    /// directions begin on a main axis and span at most two, this adds the axes as one
+    /// process adds them: the same bits. `(earlier, last)`: which parts this group has.
+    fn add_groups(
+        &self,
+        records: &mut [Wire],
+        light: &mut Vec<f64>,
+        backwards: bool,
+        (earlier, last): (bool, bool),
+    ) {
+        const PARTS: usize = 12;
+        let groups = self.peers.size();
+        let me = self.group_index;
+        light.clear();
+        light.resize(records.len() * groups * PARTS, 0.0);
+        for (w, slots) in records.iter().zip(light.chunks_exact_mut(groups * PARTS)) {
+            let ours = &mut slots[me * PARTS..(me + 1) * PARTS];
+            for (has, at, slots) in [(earlier, EARLIER_AT, 0..6), (last, GATHERED_AT, 6..12)] {
+                if has {
+                    let part = decode_light32(&w[at..]);
+                    for (slot, &value) in ours[slots].iter_mut().zip(part.iter().flatten()) {
+                        *slot = value;
+                    }
+                }
+            }
+        }
+        self.peers.sum_in_place(light);
+        for (w, slots) in records.iter_mut().zip(light.chunks_exact(groups * PARTS)) {
+            let mut sum = [[0.0f64; 3]; 2];
+            for g in 0..groups {
+                let g = if backwards { groups - 1 - g } else { g };
+                for part in slots[g * PARTS..(g + 1) * PARTS].chunks_exact(6) {
+                    // Rounded to f32 at each fold, as `fold_axis` rounds (adding a zero part
+                    // changes nothing).
+                    for (t, &v) in sum.iter_mut().flatten().zip(part) {
+                        *t = (*t + v) as f32 as f64;
+                    }
+                }
+            }
+            encode_light32(&sum, &mut w[EARLIER_AT..]);
+        }
     }
 
     /// A closed scene's scales for the update of `held` (`solve::closed`): its light folded as
@@ -899,6 +948,20 @@ impl Solver<'_> {
     }
 }
 
+/// The steps of a walk of `(main axis, direction)`, each knowing whether it starts or ends its
+/// axis.
+fn walk_steps(walk: &[(usize, usize)]) -> Vec<WalkStep> {
+    walk.iter()
+        .enumerate()
+        .map(|(k, &(main, direction))| WalkStep {
+            main,
+            first: k == 0 || walk[k - 1].0 != main,
+            last: walk.get(k + 1).is_none_or(|next| next.0 != main),
+            direction,
+        })
+        .collect()
+}
+
 /// One step of the walk: a direction, its main axis, and whether it starts or ends the axis.
 #[derive(Clone, Copy)]
 struct WalkStep {
@@ -920,10 +983,13 @@ struct DataOocSweep<'s, 'a> {
     held: Option<Held>,
     /// Numbers the held files' generations.
     generation: u64,
-    /// This group's directions.
+    /// This group's directions in this iteration.
     walk: Vec<WalkStep>,
-    /// Every group's directions.
-    walks: Vec<Vec<WalkStep>>,
+    /// Every group's directions, in odd and in even iterations
+    /// (`outcore::solver::walk_of_iteration`).
+    walks: [Vec<Vec<WalkStep>>; 2],
+    /// This iteration walks backwards (the second of `walks`).
+    backwards: bool,
     /// By step of this iteration, the steps of this group's run of directions that start
     /// there (0: inside a run, gathered at its start; see [`runs_of`]).
     runs: Vec<usize>,
@@ -939,12 +1005,14 @@ struct DataOocSweep<'s, 'a> {
     remembered: Vec<Option<Vec<u64>>>,
     imbalance: Vec<f64>,
     moved: Vec<f64>,
-    /// By direction: whether its step inside an axis moved no record on any rank, as found
-    /// the first time it ran on held files in the order of the step before (none: not known
+    /// By direction, in odd and in even iterations: whether its step moved no record on any
+    /// rank, where it ran on held files in the order of the step before (inside an axis, or
+    /// on the axis the iteration before ended on), as found the first time (none: not known
     /// yet). Which records a rank holds after a step depends on that step's column cuts
     /// alone, and the cuts are remembered, so such a step moves nothing in every later
-    /// iteration either, and is skipped without reading the held files to find out.
-    quiet: Vec<Option<bool>>,
+    /// iteration of the same walk either, and is skipped without reading the held files to
+    /// find out.
+    quiet: [Vec<Option<bool>>; 2],
     quiet_steps_skipped: u64,
     /// The row histogram of the held files' order.
     histogram: Vec<u32>,
@@ -965,9 +1033,11 @@ struct DataOocSweep<'s, 'a> {
     /// `gathered` holds the light of an axis done, not yet added to `earlier` (that happens
     /// when the next axis starts, or at the update).
     pending: bool,
-    /// The held files are in the copy order of the last step's axis (a step inside an axis
-    /// then merges what moves; after a resume they are in canonical order and sorted again).
-    in_copy_order: bool,
+    /// The main axis in whose copy order the held files are: the last step's (a step on that
+    /// axis then merges what moves, inside an axis or at the start of an iteration that begins
+    /// on the axis the one before ended on). `None` after a resume or the hybrid mode's
+    /// update (canonical order): they are sorted again.
+    held_axis: Option<usize>,
     surfels: u64,
 }
 
@@ -992,20 +1062,22 @@ impl Sweep for DataOocSweep<'_, '_> {
         self.surfels * self.solver.directions.len() as u64
     }
 
-    fn begin(&mut self, from: usize) -> Result<(), OocError> {
+    fn begin(&mut self, iteration: usize, from: usize) -> Result<(), OocError> {
+        self.backwards = crate::outcore::solver::walks_backwards(iteration);
+        let walks = &self.walks[self.backwards as usize];
+        self.walk = walks[self.solver.group_index].clone();
         // From a mid-iteration checkpoint (`from` > 0) the sum of the axes done is whole in
         // `earlier` (`within`), and the held files are in canonical order.
         self.earlier_any = within::axes_done(&self.walk, from);
         self.pending = false;
         if from > 0 {
-            self.in_copy_order = false;
+            self.held_axis = None;
         }
         // Runs from where this iteration starts, on every rank for every group alike. A run
         // is cut where another group's starts, so that the groups' light can be saved
         // together there (a checkpoint, or a stop, inside the iteration).
         let directions = self.solver.directions;
-        let runs: Vec<Vec<usize>> = self
-            .walks
+        let runs: Vec<Vec<usize>> = walks
             .iter()
             .map(|walk| runs_of(walk, from, directions))
             .collect();
@@ -1059,7 +1131,7 @@ impl Sweep for DataOocSweep<'_, '_> {
             let held = self.held.as_ref().expect("held files between steps");
             // Inside an axis the held files are in its copy order: their row histogram holds
             // the load (the same counts as their records, without reading them).
-            let rows = (!first && self.in_copy_order).then_some(self.histogram.as_slice());
+            let rows = (self.held_axis == Some(main)).then_some(self.histogram.as_slice());
             let load = solver.column_load(held, &frame, rows, self.plan, &mut self.io)?;
             let cuts = cut_columns(&load, ranks);
             self.imbalance[d] = imbalance_of(&load, &cuts);
@@ -1106,11 +1178,18 @@ impl Sweep for DataOocSweep<'_, '_> {
                 fold_axis(w, first_fold);
             }
         };
-        // Inside an axis, on held files left by the step before in this run: a step that
-        // moved nothing before moves nothing again (see `quiet`). The same on every rank.
-        let steady = !first && self.in_copy_order;
+        // On held files in this axis's order, left by the step before (inside the axis, or
+        // the iteration before's last): a merge, and a step that moved nothing before moves
+        // nothing again (see `quiet`). The same on every rank. (No axis's light is folded
+        // there: that happens at a change of axis.)
+        let steady = self.held_axis == Some(main);
+        debug_assert!(
+            !(steady && fold),
+            "a fold on held files in its axis's order"
+        );
+        let quiet = &mut self.quiet[self.backwards as usize];
         let held = self.held.take().expect("held files between steps");
-        let (next, rows, sent) = if steady && self.quiet[d] == Some(true) {
+        let (next, rows, sent) = if steady && quiet[d] == Some(true) {
             self.quiet_steps_skipped += 1;
             (held, std::mem::take(&mut self.histogram), 0)
         } else {
@@ -1127,9 +1206,9 @@ impl Sweep for DataOocSweep<'_, '_> {
                 &mut self.io,
                 &mut self.seconds,
             )?;
-            if steady && self.quiet[d].is_none() {
+            if steady && quiet[d].is_none() {
                 // Collective: every rank is here at this step.
-                self.quiet[d] = Some(self.router.comm.max_u64(moved.2) == 0);
+                quiet[d] = Some(self.router.comm.max_u64(moved.2) == 0);
             }
             moved
         };
@@ -1137,7 +1216,7 @@ impl Sweep for DataOocSweep<'_, '_> {
             self.earlier_any = true;
             self.pending = false;
         }
-        self.in_copy_order = true;
+        self.held_axis = Some(main);
         self.largest_share = self.largest_share.max(next.count);
         self.held = Some(next);
         self.histogram = rows;
@@ -1246,7 +1325,7 @@ impl Sweep for DataOocSweep<'_, '_> {
                 &mut self.seconds,
             )?;
             self.held = Some(next);
-            self.in_copy_order = false;
+            self.held_axis = None;
         }
         self.generation += 1;
         let fold = self.pending.then_some(!self.earlier_any);
@@ -1266,7 +1345,7 @@ impl Sweep for DataOocSweep<'_, '_> {
             self.dir,
             self.plan,
             self.cosine_sum,
-            fold,
+            (fold, self.backwards),
             (&self.scales, omega),
             &mut self.io,
         )?;
@@ -1346,7 +1425,10 @@ fn cut_at(runs: &mut [usize], starts: &[bool]) {
 }
 
 /// Adds the light gathered by the axis just done to that of the earlier axes (`first`: there
-/// were none; the sum starts with this axis), as `outcore::solver` folds its axes.
+/// were none; the sum starts with this axis), as `outcore::solver` folds its axes. The axis's
+/// field is cleared: the next axis's first pass writes it without reading it, and a record
+/// rewritten in between (at the re-sort of a change of axis) so takes no disk there (its
+/// file's blocks of zeros are holes, `outcore::files::SeqWriter`).
 fn fold_axis(w: &mut Wire, first: bool) {
     let mut sum = decode_light32(&w[GATHERED_AT..]);
     if !first {
@@ -1356,6 +1438,7 @@ fn fold_axis(w: &mut Wire, first: bool) {
         }
     }
     encode_light32(&sum, &mut w[EARLIER_AT..]);
+    w[GATHERED_AT..EARLIER_AT].fill(0);
 }
 
 /// Cuts columns into `ranks` contiguous ranges of about equal `load`: `ranks + 1` bounds, rank
@@ -1477,5 +1560,6 @@ mod tests {
             decode_light32(&w[EARLIER_AT..]),
             [[1.5, 2.5, 3.5], [4.25, 5.25, 6.25]]
         );
+        assert!(w[GATHERED_AT..EARLIER_AT].iter().all(|&b| b == 0));
     }
 }
