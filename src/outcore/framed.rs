@@ -59,10 +59,14 @@ pub fn readers_bytes(copies: u64, records: u64, io_bytes: usize) -> u64 {
     copies * index + (io_bytes + 3 * FRAME_BYTES) as u64
 }
 
-/// Writes static records, in order, into frames and their index.
+/// Writes static records (or other records of a whole number of 8-byte words), in order, into
+/// frames and their index.
 pub struct FramedWriter {
     out: SeqWriter,
     index: SeqWriter,
+    /// Bytes of a whole frame.
+    frame_bytes: usize,
+    record_len: usize,
     pending: Vec<u8>,
     planes: Vec<u8>,
     packed: Vec<u8>,
@@ -74,27 +78,56 @@ impl FramedWriter {
     /// A writer of the frames to `path` and their index to `index`, each through a buffer of
     /// `buffer_bytes`.
     pub fn create(path: &Path, index: &Path, buffer_bytes: usize) -> Result<Self, OocError> {
+        Self::with_records(path, index, buffer_bytes, STATIC_LEN)
+    }
+
+    /// As [`FramedWriter::create`], for records of `record_len` bytes (a multiple of 8).
+    pub fn with_records(
+        path: &Path,
+        index: &Path,
+        buffer_bytes: usize,
+        record_len: usize,
+    ) -> Result<Self, OocError> {
+        assert!(
+            record_len > 0 && record_len % 8 == 0,
+            "records of whole words"
+        );
+        let frame_bytes = FRAME_RECORDS as usize * record_len;
         Ok(FramedWriter {
             out: SeqWriter::create(path, buffer_bytes)?,
             index: SeqWriter::create(index, buffer_bytes)?,
-            pending: Vec::with_capacity(FRAME_BYTES),
-            planes: vec![0; FRAME_BYTES],
-            packed: vec![0; packed_bound(FRAME_BYTES)],
+            frame_bytes,
+            record_len,
+            pending: Vec::with_capacity(frame_bytes),
+            planes: vec![0; frame_bytes],
+            packed: vec![0; packed_bound(frame_bytes)],
             offset: 0,
         })
     }
 
-    pub fn write(&mut self, record: &[u8; STATIC_LEN]) -> Result<(), OocError> {
-        self.pending.extend_from_slice(record);
-        if self.pending.len() == FRAME_BYTES {
-            self.flush_frame()?;
+    /// Appends `bytes`: records, or pieces of records in order (a frame is cut only after a
+    /// whole frame's bytes).
+    pub fn write(&mut self, mut bytes: &[u8]) -> Result<(), OocError> {
+        while !bytes.is_empty() {
+            let take = (self.frame_bytes - self.pending.len()).min(bytes.len());
+            self.pending.extend_from_slice(&bytes[..take]);
+            bytes = &bytes[take..];
+            if self.pending.len() == self.frame_bytes {
+                self.flush_frame()?;
+            }
         }
         Ok(())
     }
 
     fn flush_frame(&mut self) -> Result<(), OocError> {
-        let len = compress_frame(&self.pending, &mut self.planes, &mut self.packed)
-            .map_err(|e| OocError::io(self.out.path(), "compress", e))?;
+        debug_assert_eq!(self.pending.len() % self.record_len, 0, "whole records");
+        let len = compress_frame(
+            &self.pending,
+            self.record_len,
+            &mut self.planes,
+            &mut self.packed,
+        )
+        .map_err(|e| OocError::io(self.out.path(), "compress", e))?;
         self.index.write(&self.offset.to_le_bytes())?;
         self.out.write(&self.packed[..len])?;
         self.offset += len as u64;
@@ -119,9 +152,14 @@ fn packed_bound(bytes: usize) -> usize {
 
 /// Compresses one frame's records, as byte planes (`planes`, of a frame's length, is scratch),
 /// into `packed` (of LZ4's bound for a frame); returns its length.
-fn compress_frame(records: &[u8], planes: &mut [u8], packed: &mut [u8]) -> std::io::Result<usize> {
+fn compress_frame(
+    records: &[u8],
+    record_len: usize,
+    planes: &mut [u8],
+    packed: &mut [u8],
+) -> std::io::Result<usize> {
     let planes = &mut planes[..records.len()];
-    planes_of_records(records, STATIC_LEN, planes);
+    planes_of_records(records, record_len, planes);
     lz4::block::compress_to_buffer(planes, None, false, packed)
 }
 
@@ -148,34 +186,38 @@ pub fn records_of_byte_planes(planes: &[u8], record_len: usize, records: &mut [u
     }
 }
 
-/// Records `lo..hi` of a frame of `n` records held as byte planes, into `out` as records.
+/// Records `lo..hi` of a frame of `n` records of `len` bytes (a multiple of 8) held as byte
+/// planes, into `out` as records.
 ///
 /// Eight records at a time, as 8 x 8 blocks of bytes (eight bytes of eight planes) turned
 /// in registers: a byte at a time, this took longer than the decompression itself.
-fn records_of_planes(planes: &[u8], n: usize, lo: usize, hi: usize, out: &mut [u8]) {
-    const WORDS: usize = STATIC_LEN / 8;
+fn records_of_planes(
+    planes: &[u8],
+    n: usize,
+    (lo, hi): (usize, usize),
+    len: usize,
+    out: &mut [u8],
+) {
+    let words = len / 8;
     let whole = (hi - lo) / 8 * 8;
     for k in (0..whole).step_by(8) {
         let r = lo + k;
-        let block = &mut out[k * STATIC_LEN..(k + 8) * STATIC_LEN];
-        for w in 0..WORDS {
+        let block = &mut out[k * len..(k + 8) * len];
+        for w in 0..words {
             let mut rows = [0u64; 8];
             for (i, row) in rows.iter_mut().enumerate() {
                 let at = (8 * w + i) * n + r;
                 *row = u64::from_le_bytes(planes[at..at + 8].try_into().expect("8 bytes"));
             }
             for (j, word) in transpose_bytes(rows).iter().enumerate() {
-                let at = j * STATIC_LEN + 8 * w;
+                let at = j * len + 8 * w;
                 block[at..at + 8].copy_from_slice(&word.to_le_bytes());
             }
         }
     }
-    let rest = &mut out[whole * STATIC_LEN..(hi - lo) * STATIC_LEN];
+    let rest = &mut out[whole * len..(hi - lo) * len];
     for (b, plane) in planes.chunks_exact(n).enumerate() {
-        for (record, &byte) in rest
-            .chunks_exact_mut(STATIC_LEN)
-            .zip(&plane[lo + whole..hi])
-        {
+        for (record, &byte) in rest.chunks_exact_mut(len).zip(&plane[lo + whole..hi]) {
             record[b] = byte;
         }
     }
@@ -224,7 +266,12 @@ impl FrameSizer {
     pub fn add(&mut self, record: &[u8; STATIC_LEN]) -> std::io::Result<()> {
         self.pending.extend_from_slice(record);
         if self.pending.len() == FRAME_BYTES {
-            self.bytes += compress_frame(&self.pending, &mut self.planes, &mut self.packed)? as u64;
+            self.bytes += compress_frame(
+                &self.pending,
+                STATIC_LEN,
+                &mut self.planes,
+                &mut self.packed,
+            )? as u64;
             self.pending.clear();
         }
         Ok(())
@@ -233,16 +280,23 @@ impl FrameSizer {
     /// The bytes of the frames of the records added.
     pub fn finish(mut self) -> std::io::Result<u64> {
         if !self.pending.is_empty() {
-            self.bytes += compress_frame(&self.pending, &mut self.planes, &mut self.packed)? as u64;
+            self.bytes += compress_frame(
+                &self.pending,
+                STATIC_LEN,
+                &mut self.planes,
+                &mut self.packed,
+            )? as u64;
         }
         Ok(self.bytes)
     }
 }
 
-/// The frames of one copy opened for reading ranges of records.
+/// The frames of one copy opened for reading ranges of records (static records, or the
+/// records [`FramedStatics::open_records`] is given the length of).
 pub struct FramedStatics {
     file: RecordFile,
     path: PathBuf,
+    record_len: usize,
     /// Where each frame starts, then the file's length.
     index: Vec<u64>,
     records: u64,
@@ -263,6 +317,7 @@ impl FrameBuffers {
     pub fn shared() -> Arc<Mutex<FrameBuffers>> {
         Arc::new(Mutex::new(FrameBuffers {
             packed: Vec::new(),
+            // Grown for longer records by their first read.
             frame: vec![0; FRAME_BYTES],
             held: None,
         }))
@@ -281,6 +336,21 @@ impl FramedStatics {
         records: u64,
         buffers: &Arc<Mutex<FrameBuffers>>,
     ) -> Result<Self, OocError> {
+        Self::open_records(path, index, (records, STATIC_LEN), buffers)
+    }
+
+    /// As [`FramedStatics::open`], for `records` records of `record_len` bytes (a multiple of
+    /// 8), as [`FramedWriter::with_records`] writes them.
+    pub fn open_records(
+        path: &Path,
+        index: &Path,
+        (records, record_len): (u64, usize),
+        buffers: &Arc<Mutex<FrameBuffers>>,
+    ) -> Result<Self, OocError> {
+        assert!(
+            record_len > 0 && record_len % 8 == 0,
+            "records of whole words"
+        );
         let bytes = std::fs::read(index).map_err(|e| OocError::io(index, "read", e))?;
         let index: Vec<u64> = bytes
             .chunks_exact(8)
@@ -294,6 +364,7 @@ impl FramedStatics {
         Ok(FramedStatics {
             file: RecordFile::open(path)?,
             path: path.to_path_buf(),
+            record_len,
             index,
             records,
             id: READERS.fetch_add(1, Ordering::Relaxed),
@@ -314,7 +385,8 @@ impl FramedStatics {
 
     /// Fills `out` (a whole number of records) with the records from `start` on.
     pub fn read(&self, start: u64, out: &mut [u8], io: &mut IoCounters) -> Result<(), OocError> {
-        let count = (out.len() / STATIC_LEN) as u64;
+        let len = self.record_len;
+        let count = (out.len() / len) as u64;
         if count == 0 {
             return Ok(());
         }
@@ -327,6 +399,10 @@ impl FramedStatics {
             frame,
             held,
         } = &mut *buffers;
+        let frame_bytes = FRAME_RECORDS as usize * len;
+        if frame.len() < frame_bytes {
+            frame.resize(frame_bytes, 0);
+        }
         // The frame held, if it is one of this reader's.
         let mut mine = held.filter(|&(id, _)| id == self.id).map(|(_, f)| f);
         // Set again at the end: a read that fails leaves no frame held.
@@ -350,21 +426,22 @@ impl FramedStatics {
             // This frame's part of the range, in records from the frame's start.
             let lo = (start.max(f * FRAME_RECORDS) - f * FRAME_RECORDS) as usize;
             let hi = ((start + count).min((f + 1) * FRAME_RECORDS) - f * FRAME_RECORDS) as usize;
-            let wanted = (hi - lo) * STATIC_LEN;
-            let planes = &mut frame[..records * STATIC_LEN];
+            let wanted = (hi - lo) * len;
+            let planes = &mut frame[..records * len];
             if mine != Some(f) {
                 let at = (self.index[f as usize] - begin) as usize;
-                let len = (self.index[f as usize + 1] - self.index[f as usize]) as usize;
+                let bytes = (self.index[f as usize + 1] - self.index[f as usize]) as usize;
                 // The frame decompressed is kept: the next read may want the rest of it.
                 let size = Some(planes.len() as i32);
-                let got = lz4::block::decompress_to_buffer(&packed[at..at + len], size, planes)
+                let got = lz4::block::decompress_to_buffer(&packed[at..at + bytes], size, planes)
                     .map_err(|_| Self::damaged(&self.path))?;
-                if got != records * STATIC_LEN {
+                if got != records * len {
                     return Err(Self::damaged(&self.path));
                 }
                 mine = Some(f);
             }
-            records_of_planes(planes, records, lo, hi, &mut out[written..written + wanted]);
+            let into = &mut out[written..written + wanted];
+            records_of_planes(planes, records, (lo, hi), len, into);
             written += wanted;
         }
         *held = mine.map(|f| (self.id, f));
@@ -403,7 +480,8 @@ impl FramedRuns {
 
     /// Fills `out` (a whole number of records) with the records from `start` on.
     pub fn read(&self, start: u64, out: &mut [u8], io: &mut IoCounters) -> Result<(), OocError> {
-        let count = (out.len() / STATIC_LEN) as u64;
+        let len = self.files.first().map_or(STATIC_LEN, |f| f.record_len);
+        let count = (out.len() / len) as u64;
         if start + count > self.records {
             let path = self
                 .files
@@ -421,8 +499,8 @@ impl FramedRuns {
             let (set, first, begins) = self.runs[k];
             let run_end = self.runs.get(k + 1).map_or(self.records, |r| r.2);
             let take = run_end.min(end) - at;
-            let from = (at - start) as usize * STATIC_LEN;
-            let part = &mut out[from..from + take as usize * STATIC_LEN];
+            let from = (at - start) as usize * len;
+            let part = &mut out[from..from + take as usize * len];
             self.files[set].read(first + (at - begins), part, io)?;
             at += take;
             k += 1;
@@ -555,26 +633,25 @@ mod tests {
 
     #[test]
     fn records_come_back_from_planes_at_any_range() {
-        for n in [1usize, 7, 8, 9, 100, FRAME_RECORDS as usize] {
-            let records: Vec<u8> = (0..n * STATIC_LEN)
-                .map(|k| (k * 31 + k / 7) as u8)
-                .collect();
+        // The static records, and the data mode's held rest records with and without the
+        // direct light.
+        for (n, rec) in [1usize, 7, 8, 9, 100, FRAME_RECORDS as usize]
+            .into_iter()
+            .flat_map(|n| [(n, STATIC_LEN), (n, 88), (n, 112)])
+        {
+            let records: Vec<u8> = (0..n * rec).map(|k| (k * 31 + k / 7) as u8).collect();
             let mut planes = vec![0u8; records.len()];
             let mut packed = vec![0u8; packed_bound(records.len())];
-            let len = compress_frame(&records, &mut planes, &mut packed).unwrap();
+            let len = compress_frame(&records, rec, &mut planes, &mut packed).unwrap();
             let mut unpacked = vec![0u8; records.len()];
             let size = Some(unpacked.len() as i32);
             lz4::block::decompress_to_buffer(&packed[..len], size, &mut unpacked).unwrap();
             assert_eq!(unpacked, planes);
             for lo in 0..n.min(10) {
                 for hi in [lo, lo + 1, (lo + 8).min(n), (lo + 17).min(n), n] {
-                    let mut out = vec![0u8; (hi - lo) * STATIC_LEN];
-                    records_of_planes(&planes, n, lo, hi, &mut out);
-                    assert_eq!(
-                        out,
-                        records[lo * STATIC_LEN..hi * STATIC_LEN],
-                        "{n} {lo}..{hi}"
-                    );
+                    let mut out = vec![0u8; (hi - lo) * rec];
+                    records_of_planes(&planes, n, (lo, hi), rec, &mut out);
+                    assert_eq!(out, records[lo * rec..hi * rec], "{n} x {rec}: {lo}..{hi}");
                 }
             }
         }

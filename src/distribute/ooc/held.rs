@@ -34,18 +34,24 @@
 //! canonical radiosity beside the axis copies' `B - E`: the update reads `B` and writes both,
 //! and the answer stays that solver's bit for bit.
 //!
-//! **The static records in frames.** A set's static records are written once, from start to
-//! end, and then only read (by ranges: a band's rows, the records that leave, a copy), so each
-//! set keeps them as the one-process solver keeps an axis copy's (`outcore::framed`: frames of
-//! byte planes under LZ4, with an index file beside, `held-G-static.index`). The held order
-//! is a copy order, whose neighbours are alike: 72 bytes a record become a few (see
-//! `docs/cluster.md`). Run files ([`RunWriter`]), which also go between ranks as they are,
-//! keep whole wire records in frames of their own.
+//! **The static and rest records in frames.** A set's static and rest records are written
+//! once, from start to end, and then only read (by ranges: a band's rows, the records that
+//! leave, a copy; the bands write only the other two files, in place), so each set keeps them
+//! as the one-process solver keeps an axis copy's static records (`outcore::framed`: frames of
+//! byte planes under LZ4, with an index file beside, `held-G-static.index` and
+//! `held-G-rest.index`). The held order is a copy order, whose neighbours are alike: 72 bytes
+//! of static record become a few; in the rest, the scene data repeats, the light of the
+//! earlier axes is zero in an iteration's first axis, the radiosity before last without the
+//! extrapolation, and the back sides of walls are dark (see `docs/cluster.md`). The rest file
+//! is rewritten at every change of main axis and every update, so what it saves is saved
+//! there each time. Run files ([`RunWriter`]), which also go between ranks as they are, keep
+//! whole wire records in frames of their own.
 //!
 //! **Disk given back as it goes.** Records that nothing reads again (those that left the rank,
 //! those copied into new files, a set read for the last time by a consuming [`HeldReader`]) are
-//! released: holes punched in the files of whole records, which keep their length
+//! released: holes punched in the two files of whole records, which keep their length
 //! ([`Held::release`]), so that a rank's old and new files do not both lie whole on the disk.
+//! (The frames stay until their set is removed: a few bytes a record.)
 
 use crate::outcore::files::{
     IoCounters, RecordFile, SeqWriter, LIGHT32_LEN, RADIOSITY_LEN, STATIC_LEN,
@@ -267,25 +273,29 @@ impl Held {
                 .collect();
             RecordFile::pieced(&paths, &pieces)
         };
+        // One set of frame buffers for both framed parts: a reader reads them in turn.
         let buffers = FrameBuffers::shared();
-        let files = self
-            .sets
-            .iter()
-            .map(|set| {
-                let records = set_records(set)?;
-                FramedStatics::open(&set[0], &static_index(&set[0]), records, &buffers)
-            })
-            .collect::<Result<Vec<_>, _>>()?;
         let runs: Vec<(usize, u64, u64)> = self
             .runs
             .iter()
             .map(|r| (r.set, r.first, r.count))
             .collect();
+        let framed = |k: usize| -> Result<FramedRuns, OocError> {
+            let files = self
+                .sets
+                .iter()
+                .map(|set| {
+                    let records = (set_records(set)?, lengths(self.direct)[k]);
+                    FramedStatics::open_records(&set[k], &frame_index(&set[k]), records, &buffers)
+                })
+                .collect::<Result<Vec<_>, _>>()?;
+            Ok(FramedRuns::new(files, &runs))
+        };
         Ok(HeldFiles {
-            statics: Arc::new(FramedRuns::new(files, &runs)),
+            statics: Arc::new(framed(0)?),
             radiosity: open(1)?,
             gathered: open(2)?,
-            rest: open(3)?,
+            rest: framed(3)?,
             direct: self.direct,
         })
     }
@@ -327,11 +337,11 @@ impl Held {
     /// Gives back the disk under the records `ranges` (first, count) of the held order, which
     /// nothing reads again (they left the rank, or were copied into new files): holes punched in
     /// the files of whole records ([`crate::outcore::files::punch_hole`]), which keep their
-    /// length, so every other record stays where it is. The static records, a few bytes each in
-    /// frames, stay. A rank's sets otherwise keep the records that left until they are copied
+    /// length, so every other record stays where it is. The static and rest records, a few
+    /// bytes each in frames, stay. A rank's sets otherwise keep the records that left until they are copied
     /// into one set again (see [`MOST_SETS`]), and that copy wrote a whole share beside them.
     pub fn release(&self, ranges: &[(u64, u64)]) -> Result<(), OocError> {
-        let mut files: Vec<Option<[std::fs::File; 3]>> = Vec::new();
+        let mut files: Vec<Option<[std::fs::File; 2]>> = Vec::new();
         files.resize_with(self.sets.len(), || None);
         // Ranges that touch are joined: a hole gives back only the whole blocks inside it, and
         // the records that leave a rank above the kept rows of one layer and below those of the
@@ -353,7 +363,7 @@ impl Held {
                             .open(&set[k])
                             .map_err(|e| OocError::io(&set[k], "open", e))
                     };
-                    files[run.set] = Some([open(1)?, open(2)?, open(3)?]);
+                    files[run.set] = Some([open(1)?, open(2)?]);
                 }
                 let set_files = files[run.set].as_ref().expect("just opened");
                 for (file, len) in set_files.iter().zip(&lengths(self.direct)[1..]) {
@@ -398,14 +408,14 @@ impl Held {
     }
 }
 
-/// The held files opened for reading ([`Held::open_files`]): the static records through their
-/// frames, the other three as files of records (the bands write the radiosity and gathered
-/// light in place).
+/// The held files opened for reading ([`Held::open_files`]): the static and rest records
+/// through their frames, the other two as files of records (the bands write the radiosity and
+/// gathered light in place).
 pub struct HeldFiles {
     pub statics: Arc<FramedRuns>,
     pub radiosity: RecordFile,
     pub gathered: RecordFile,
-    pub rest: RecordFile,
+    pub rest: FramedRuns,
     /// As [`Held::direct`].
     pub direct: bool,
 }
@@ -424,15 +434,15 @@ impl HeldFiles {
             0 => return self.statics.read(first, out, io),
             1 => &self.radiosity,
             2 => &self.gathered,
-            _ => &self.rest,
+            _ => return self.rest.read(first, out, io),
         };
         file.read_at(first * lengths(self.direct)[part] as u64, out, io)
     }
 }
 
-/// The index of the frames of a set's static records (`outcore::framed`).
-fn static_index(statics: &Path) -> PathBuf {
-    statics.with_extension("index")
+/// The index of the frames of a set's static or rest records (`outcore::framed`).
+fn frame_index(framed: &Path) -> PathBuf {
+    framed.with_extension("index")
 }
 
 /// Records one set of held files holds: its radiosity file's records (the static records,
@@ -442,10 +452,10 @@ fn set_records(set: &[PathBuf; 4]) -> Result<u64, OocError> {
     Ok(meta.len() / RADIOSITY_LEN as u64)
 }
 
-/// Removes one set of held files and the index of its frames.
+/// Removes one set of held files and the indexes of its frames.
 fn remove_set(set: &[PathBuf; 4]) -> Result<(), OocError> {
-    let index = static_index(&set[0]);
-    for p in set.iter().chain([&index]) {
+    let indexes = [frame_index(&set[0]), frame_index(&set[3])];
+    for p in set.iter().chain(&indexes) {
         std::fs::remove_file(p).map_err(|e| OocError::io(p, "remove", e))?;
     }
     Ok(())
@@ -582,8 +592,10 @@ impl HeldRangeReader {
 pub struct HeldWriter {
     /// The static records, in frames.
     statics: FramedWriter,
-    /// The other three parts of the record.
-    writers: [SeqWriter; 3],
+    /// What the lines carry, and the light of the current axis.
+    writers: [SeqWriter; 2],
+    /// The rest of the record, in frames.
+    rest: FramedWriter,
     paths: [PathBuf; 4],
     count: u64,
     histogram: Option<(AxisKey, Vec<u32>)>,
@@ -610,12 +622,14 @@ impl HeldWriter {
     ) -> Result<Self, OocError> {
         let paths = ["static", "radiosity", "gathered", "rest"]
             .map(|name| dir.join(format!("held-{generation}-{name}.bin")));
-        let statics = FramedWriter::create(&paths[0], &static_index(&paths[0]), buffer_bytes)?;
+        let statics = FramedWriter::create(&paths[0], &frame_index(&paths[0]), buffer_bytes)?;
         let writers = [
             SeqWriter::create(&paths[1], buffer_bytes)?,
             SeqWriter::create(&paths[2], buffer_bytes)?,
-            SeqWriter::create(&paths[3], buffer_bytes)?,
         ];
+        let rest_len = lengths(direct)[3];
+        let rest =
+            FramedWriter::with_records(&paths[3], &frame_index(&paths[3]), buffer_bytes, rest_len)?;
         let histogram = histogram.map(|(key, mut h)| {
             h.clear();
             h.resize(key.layers() * key.rows(), 0);
@@ -624,6 +638,7 @@ impl HeldWriter {
         Ok(HeldWriter {
             statics,
             writers,
+            rest,
             paths,
             count: 0,
             histogram,
@@ -635,9 +650,8 @@ impl HeldWriter {
     }
 
     pub fn write(&mut self, w: &Wire) -> Result<(), OocError> {
-        self.statics
-            .write(w[..STATIC_LEN].try_into().expect("a static record"))?;
-        let [radiosity, gathered, rest] = &mut self.writers;
+        self.statics.write(&w[..STATIC_LEN])?;
+        let [radiosity, gathered] = &mut self.writers;
         radiosity.write(&w[CARRIED_AT..CARRIED_AT + RADIOSITY_LEN])?;
         gathered.write(&w[GATHERED_AT..GATHERED_AT + LIGHT32_LEN])?;
         debug_assert!(
@@ -648,7 +662,7 @@ impl HeldWriter {
             "direct light in held files made without it"
         );
         for piece in rest_pieces(w, self.direct) {
-            rest.write(piece)?;
+            self.rest.write(piece)?;
         }
         if let Some((key, h)) = self.histogram.as_mut() {
             h[key.row(voxel(w))] += 1;
@@ -712,13 +726,10 @@ impl HeldWriter {
             for (k, &len) in lengths(self.direct).iter().enumerate() {
                 buffer.resize(records as usize * len, 0);
                 from.read(k, at, buffer, io)?;
-                if k == 0 {
-                    for record in buffer.chunks_exact(STATIC_LEN) {
-                        self.statics
-                            .write(record.try_into().expect("a static record"))?;
-                    }
-                } else {
-                    self.writers[k - 1].write(buffer)?;
+                match k {
+                    0 => self.statics.write(buffer)?,
+                    3 => self.rest.write(buffer)?,
+                    _ => self.writers[k - 1].write(buffer)?,
                 }
             }
             at += records;
@@ -736,7 +747,7 @@ impl HeldWriter {
 
     /// Closes the files; returns them and the row histogram.
     pub fn finish(self, io: &mut IoCounters) -> Result<(Held, Option<Vec<u32>>), OocError> {
-        io.written += self.statics.finish()?;
+        io.written += self.statics.finish()? + self.rest.finish()?;
         for w in self.writers {
             io.written += w.finish()?;
         }
@@ -1166,9 +1177,11 @@ mod tests {
 
     /// Held files that keep records of earlier ones where they are: read back in order,
     /// written in place through the pieced files, and the files no run reads removed.
-    /// Released records read back as zeros past their static part and give their blocks back,
-    /// across the sets a held order runs through; every other record reads back unchanged. The
-    /// files are those of a solve without the direct light, whose rest file leaves it out.
+    /// Released records read back as zeros in the two files of whole records (what the lines
+    /// carry, the axis's light) and give their blocks back, across the sets a held order runs
+    /// through; their static and rest parts, in frames, stay; every other record reads back
+    /// unchanged. The files are those of a solve without the direct light, whose rest file
+    /// leaves it out.
     #[test]
     fn released_records_give_their_disk_back_and_spare_the_others() {
         use std::os::unix::fs::MetadataExt;
@@ -1186,10 +1199,10 @@ mod tests {
             })
             .collect();
         let a = written(dir.path(), 0, 4096, &records[..4000], false);
-        let rest_len = (REST_LEN - LIGHT32_LEN) as u64;
+        let carried_len = RADIOSITY_LEN as u64;
         assert_eq!(
-            std::fs::metadata(&a.sets[0][3]).unwrap().len(),
-            4000 * rest_len
+            std::fs::metadata(&a.sets[0][1]).unwrap().len(),
+            4000 * carried_len
         );
         // Ten records of its own, records 100..3100 of `a` in place, ten more.
         let mut b = HeldWriter::create(dir.path(), 1, 4096, None, false).unwrap();
@@ -1203,9 +1216,9 @@ mod tests {
         }
         let (b, _) = b.finish(&mut io).unwrap();
         let order: Vec<usize> = (4000..4010).chain(100..3100).chain(4010..4020).collect();
-        let rest_of_a = &b.sets[1][3];
-        let blocks = || std::fs::metadata(rest_of_a).unwrap().blocks() * 512;
-        let (before, length) = (blocks(), std::fs::metadata(rest_of_a).unwrap().len());
+        let carried_of_a = &b.sets[1][1];
+        let blocks = || std::fs::metadata(carried_of_a).unwrap().blocks() * 512;
+        let (before, length) = (blocks(), std::fs::metadata(carried_of_a).unwrap().len());
         // From `b`'s sixth record to its 3,016th: five of its own, then 3,000 of `a`'s, then one.
         let released = 5..3016;
         b.release(&[(
@@ -1219,19 +1232,23 @@ mod tests {
             assert_eq!(w[..STATIC_LEN], records[id][..STATIC_LEN], "record {k}");
             if released.contains(&k) {
                 assert!(
-                    w[STATIC_LEN..].iter().all(|&b| b == 0),
+                    w[STATIC_LEN..EARLIER_AT].iter().all(|&b| b == 0),
                     "record {k}: a hole"
+                );
+                assert!(
+                    w[EARLIER_AT..] == records[id][EARLIER_AT..],
+                    "record {k}: framed"
                 );
             } else {
                 assert!(w == records[id], "record {k} unchanged");
             }
         }
         assert!(reader.next(&mut io).unwrap().is_none());
-        assert_eq!(std::fs::metadata(rest_of_a).unwrap().len(), length);
-        // 3,000 records of 88 bytes in the fourth file, less a block at each end.
+        assert_eq!(std::fs::metadata(carried_of_a).unwrap().len(), length);
+        // 3,000 records of 24 bytes in the second file, less a block at each end.
         let freed = before - blocks();
         assert!(
-            freed + 2 * 4096 >= 3000 * rest_len,
+            freed + 2 * 4096 >= 3000 * carried_len,
             "{freed} bytes given back of {before}"
         );
     }
@@ -1261,10 +1278,11 @@ mod tests {
         }
         drop(from);
         let (b, _) = b.finish(&mut io).unwrap();
-        let rest = std::fs::metadata(&a.sets[0][3]).unwrap();
+        // (The files of whole records; the static and rest frames stay with their set.)
+        let carried = std::fs::metadata(&a.sets[0][1]).unwrap();
         assert!(
-            rest.blocks() * 512 <= 2 * 4096,
-            "the old rest file is given back"
+            carried.blocks() * 512 <= 2 * 4096,
+            "the old file of what the lines carry is given back"
         );
         let mut reader = HeldReader::open(&b, 4096).unwrap();
         for (k, want) in records.iter().enumerate() {
@@ -1290,14 +1308,15 @@ mod tests {
             })
             .collect();
         let held = written(dir.path(), 0, 4096, &records, true);
+        // The files of whole records (the static and rest ones are in frames).
         let allocated = || {
-            held.sets[0][1..]
+            held.sets[0][1..3]
                 .iter()
                 .map(|p| std::fs::metadata(p).unwrap().blocks() * 512)
                 .sum::<u64>()
         };
         let whole = allocated();
-        assert!(whole >= (total * (WIRE_LEN - STATIC_LEN)) as u64);
+        assert!(whole >= (total * (RADIOSITY_LEN + LIGHT32_LEN)) as u64);
         // About 17 records a buffer: many refills.
         let mut reader = HeldReader::consuming(&held, 4096).unwrap();
         let mut got = Vec::new();
@@ -1314,7 +1333,7 @@ mod tests {
         }
         assert!(got == records);
         // A block at each end of each file at most.
-        assert!(allocated() <= 3 * 2 * 4096, "{} bytes left", allocated());
+        assert!(allocated() <= 2 * 2 * 4096, "{} bytes left", allocated());
     }
 
     #[test]
@@ -1334,8 +1353,8 @@ mod tests {
         let (b, _) = b.finish(&mut io).unwrap();
         let expected: Vec<Wire> = [10, 11, 3, 4, 5, 6, 12].map(|k| records[k]).to_vec();
         assert_eq!((b.count, b.sets.len(), b.runs.len()), (7, 2, 3));
-        // Four files a set and the index of its static frames.
-        assert_eq!(files(), 10);
+        // Four files a set and the indexes of its static and rest frames.
+        assert_eq!(files(), 12);
         let read_all = |held: &Held| {
             let mut reader = HeldReader::open(held, 64).unwrap();
             let mut got = Vec::new();
@@ -1382,8 +1401,8 @@ mod tests {
         assert!(read_all(&c) == after[..2]);
         assert!(a.sets[0].iter().all(|p| !p.exists()));
         assert!(c.sets[1] == b.sets[0] && b.sets[0].iter().all(|p| p.exists()));
-        assert!(!static_index(&a.sets[0][0]).exists());
-        assert_eq!(files(), 10);
+        assert!(!frame_index(&a.sets[0][0]).exists() && !frame_index(&a.sets[0][3]).exists());
+        assert_eq!(files(), 12);
         c.remove().unwrap();
         assert_eq!(files(), 0);
     }

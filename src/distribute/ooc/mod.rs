@@ -246,10 +246,11 @@ impl Solver<'_> {
         let info = self.source.info();
         let dims = info.grid.dims;
         let (ranks, me) = (self.group.size(), self.comm.rank());
-        // The readers of the held static records' frames: the index of each set (at most twice
-        // a rank's records, `held::MOST_SETS`), counted as the one-process solver's three
-        // copies of a rank's share, and their buffers.
-        let framed = info.count.div_ceil(ranks as u64);
+        // The readers of the held static and rest records' frames: the indexes of each set (of
+        // each part, at most twice a rank's records, `held::MOST_SETS`: four shares), counted
+        // as the one-process solver's three copies of four thirds of a share, and their
+        // buffers.
+        let framed = info.count.div_ceil(ranks as u64).div_ceil(3) * 4;
         let plan = MemoryPlan::new(budget, dims, self.threads, framed)?;
         // At a merge a rank holds its old and new held files and the received runs, about three
         // times its share; rank 0 also the canonical radiosity.
