@@ -201,19 +201,26 @@ impl Pass<'_> {
         keys as u64 * 8 + (surfels * PART_BYTES_PER_SURFEL as f64) as u64
     }
 
+    /// Listed voxels a part can hold, at most: their keys and their surfels fill its room.
+    fn most_keys(&self) -> usize {
+        let per_voxel = 8.0 + self.density.get() * PART_BYTES_PER_SURFEL as f64;
+        (self.room as f64 / per_voxel) as usize
+    }
+
     /// The occupied voxels on the emitters' lines of the dense directions `which`, and the bytes
-    /// a part holding their surfels is estimated to take.
-    fn listed(&self, which: &[usize]) -> (Vec<u64>, u64) {
+    /// a part holding their surfels is estimated to take; `None` where they are more than a
+    /// part holds ([`Pass::most_keys`]: listing them all would take more than the budget).
+    fn listed(&self, which: &[usize]) -> Option<(Vec<u64>, u64)> {
         let keys = line_voxels(
             which,
-            self.dense,
-            self.source.info().grid.dims,
+            (self.dense, self.source.info().grid.dims),
             &self.emitter_voxels,
             &self.occupancy,
             self.pool,
-        );
+            self.most_keys(),
+        )?;
         let needed = self.part_bytes(keys.len(), keys.len() as f64 * self.density.get());
-        (keys, needed)
+        Some((keys, needed))
     }
 
     /// The refusal of a part of `directions` directions that needs `needed` bytes for the
@@ -778,7 +785,9 @@ pub fn gather_direct_out_of_core(
         let mut taken = 0;
         while next + taken < groups.len() && taken < most {
             let group = &groups[next + taken];
-            let (mut merged, _) = pass.listed(group);
+            let Some((mut merged, _)) = pass.listed(group) else {
+                break;
+            };
             merged.extend_from_slice(&keys);
             merged.sort_unstable();
             merged.dedup();
@@ -895,7 +904,21 @@ fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
     let mut per_group = 0.0;
     let mut largest = 0;
     for group in &sample {
-        let (_, needed) = pass.listed(group);
+        // A group a part cannot hold is not listed whole (that would take more than the
+        // budget): its lines are counted, direction by direction, for what it holds at most.
+        let needed = match pass.listed(group) {
+            Some((_, needed)) => needed,
+            None => {
+                let voxels = line_voxel_count(
+                    group,
+                    (pass.dense, pass.source.info().grid.dims),
+                    &pass.emitter_voxels,
+                    &pass.occupancy,
+                    pass.pool,
+                );
+                pass.part_bytes(voxels as usize, voxels as f64 * pass.density.get())
+            }
+        };
         largest = largest.max(needed);
         per_group += if needed as f64 <= room {
             needed as f64 / room
@@ -926,19 +949,101 @@ fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
 }
 
 /// The occupied voxels on the lines through the emitters (at `emitter_voxels`) along the dense
-/// directions `which`, sorted, each once.
+/// direction `k`, sorted, each once (distinct lines cross distinct voxels); `None` once they
+/// are more than `most`.
+fn direction_voxels(
+    k: usize,
+    (dense, dims): (&DirectionSet, [u32; 3]),
+    emitter_voxels: &[[i32; 3]],
+    occupancy: &Occupancy,
+    most: usize,
+) -> Option<Vec<u64>> {
+    let vector = dense.directions[k].vector;
+    let frame = LineFrame::new(vector, dims);
+    let mut lines: Vec<u64> = emitter_voxels
+        .iter()
+        .map(|&v| frame.line_index(v))
+        .collect();
+    lines.sort_unstable();
+    lines.dedup();
+    let mut found = Vec::new();
+    for line in lines {
+        for_each_voxel_on_line(&frame, dims, vector, line, |voxel| {
+            if occupancy.contains(voxel) {
+                found.push(voxel_key(voxel));
+            }
+        });
+        if found.len() > most {
+            return None;
+        }
+    }
+    found.sort_unstable();
+    Some(found)
+}
+
+/// The sorted distinct values of `a` and `b` (each sorted, distinct), into `out`.
+fn merge_distinct(a: &[u64], b: &[u64], out: &mut Vec<u64>) {
+    out.clear();
+    out.reserve(a.len() + b.len());
+    let (mut i, mut j) = (0, 0);
+    while i < a.len() && j < b.len() {
+        let (x, y) = (a[i], b[j]);
+        out.push(x.min(y));
+        i += (x <= y) as usize;
+        j += (y <= x) as usize;
+    }
+    out.extend_from_slice(&a[i..]);
+    out.extend_from_slice(&b[j..]);
+}
+
+/// The occupied voxels on the lines through the emitters (at `emitter_voxels`) along the dense
+/// directions `which`, sorted, each once; `None` as soon as they are more than `most`.
+///
+/// The directions are listed a few at a time (one a thread) and merged into the voxels so far,
+/// so that what is held stays within about `most` keys a thread and two more: listed whole
+/// and only then counted, a group of 32 directions through a building's lamps held 155 MB at
+/// once under `--memory 64MiB` (`docs/out-of-core.md`).
 fn line_voxels(
     which: &[usize],
-    dense: &DirectionSet,
-    dims: [u32; 3],
+    scene: (&DirectionSet, [u32; 3]),
     emitter_voxels: &[[i32; 3]],
     occupancy: &Occupancy,
     pool: &rayon::ThreadPool,
-) -> Vec<u64> {
-    let mut keys: Vec<u64> = pool.install(|| {
+    most: usize,
+) -> Option<Vec<u64>> {
+    let (mut keys, mut merged) = (Vec::new(), Vec::new());
+    for directions in which.chunks(pool.current_num_threads().max(1)) {
+        let lists: Option<Vec<Vec<u64>>> = pool.install(|| {
+            directions
+                .par_iter()
+                .map(|&k| direction_voxels(k, scene, emitter_voxels, occupancy, most))
+                .collect()
+        });
+        for list in lists? {
+            merge_distinct(&keys, &list, &mut merged);
+            std::mem::swap(&mut keys, &mut merged);
+            if keys.len() > most {
+                return None;
+            }
+        }
+    }
+    Some(keys)
+}
+
+/// The occupied voxels on the lines through the emitters along the dense directions `which`,
+/// counted direction by direction (a voxel on the lines of several is counted in each): at
+/// least as many as [`line_voxels`] lists, without holding them.
+fn line_voxel_count(
+    which: &[usize],
+    (dense, dims): (&DirectionSet, [u32; 3]),
+    emitter_voxels: &[[i32; 3]],
+    occupancy: &Occupancy,
+    pool: &rayon::ThreadPool,
+) -> u64 {
+    pool.install(|| {
         which
             .par_iter()
-            .flat_map_iter(|&k| {
+            .map(|&k| {
                 let vector = dense.directions[k].vector;
                 let frame = LineFrame::new(vector, dims);
                 let mut lines: Vec<u64> = emitter_voxels
@@ -947,21 +1052,16 @@ fn line_voxels(
                     .collect();
                 lines.sort_unstable();
                 lines.dedup();
-                let mut found = Vec::new();
+                let mut count = 0u64;
                 for line in lines {
                     for_each_voxel_on_line(&frame, dims, vector, line, |voxel| {
-                        if occupancy.contains(voxel) {
-                            found.push(voxel_key(voxel));
-                        }
+                        count += occupancy.contains(voxel) as u64;
                     });
                 }
-                found
+                count
             })
-            .collect()
-    });
-    keys.sort_unstable();
-    keys.dedup();
-    keys
+            .sum()
+    })
 }
 
 /// Surfels whose running sums are read or written at once, at most (64 KiB).
@@ -1046,6 +1146,17 @@ fn decode_term(bytes: &[u8; TERM_LEN]) -> (u64, u8, u64, [f64; 3], f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn merged_voxel_lists_are_sorted_and_distinct() {
+        let mut out = vec![99];
+        merge_distinct(&[1, 4, 6, 9], &[2, 4, 9, 10, 11], &mut out);
+        assert_eq!(out, [1, 2, 4, 6, 9, 10, 11]);
+        merge_distinct(&[], &[3, 5], &mut out);
+        assert_eq!(out, [3, 5]);
+        merge_distinct(&[3, 5], &[], &mut out);
+        assert_eq!(out, [3, 5]);
+    }
 
     #[test]
     fn runs_of_consecutive_surfels_are_cut_where_they_break_or_grow_too_long() {
