@@ -960,14 +960,8 @@ fn direction_voxels(
 ) -> Option<Vec<u64>> {
     let vector = dense.directions[k].vector;
     let frame = LineFrame::new(vector, dims);
-    let mut lines: Vec<u64> = emitter_voxels
-        .iter()
-        .map(|&v| frame.line_index(v))
-        .collect();
-    lines.sort_unstable();
-    lines.dedup();
     let mut found = Vec::new();
-    for line in lines {
+    for line in emitter_lines(&frame, emitter_voxels) {
         for_each_voxel_on_line(&frame, dims, vector, line, |voxel| {
             if occupancy.contains(voxel) {
                 found.push(voxel_key(voxel));
@@ -979,6 +973,17 @@ fn direction_voxels(
     }
     found.sort_unstable();
     Some(found)
+}
+
+/// The lines of `frame` through the emitters (at `emitter_voxels`), sorted, each once.
+fn emitter_lines(frame: &LineFrame, emitter_voxels: &[[i32; 3]]) -> Vec<u64> {
+    let mut lines: Vec<u64> = emitter_voxels
+        .iter()
+        .map(|&v| frame.line_index(v))
+        .collect();
+    lines.sort_unstable();
+    lines.dedup();
+    lines
 }
 
 /// The sorted distinct values of `a` and `b` (each sorted, distinct), into `out`.
@@ -1046,14 +1051,8 @@ fn line_voxel_count(
             .map(|&k| {
                 let vector = dense.directions[k].vector;
                 let frame = LineFrame::new(vector, dims);
-                let mut lines: Vec<u64> = emitter_voxels
-                    .iter()
-                    .map(|&v| frame.line_index(v))
-                    .collect();
-                lines.sort_unstable();
-                lines.dedup();
                 let mut count = 0u64;
-                for line in lines {
+                for line in emitter_lines(&frame, emitter_voxels) {
                     for_each_voxel_on_line(&frame, dims, vector, line, |voxel| {
                         count += occupancy.contains(voxel) as u64;
                     });

@@ -266,26 +266,23 @@ impl FrameSizer {
     pub fn add(&mut self, record: &[u8; STATIC_LEN]) -> std::io::Result<()> {
         self.pending.extend_from_slice(record);
         if self.pending.len() == FRAME_BYTES {
-            self.bytes += compress_frame(
-                &self.pending,
-                STATIC_LEN,
-                &mut self.planes,
-                &mut self.packed,
-            )? as u64;
-            self.pending.clear();
+            self.size_frame()?;
         }
+        Ok(())
+    }
+
+    /// Counts the pending records' frame.
+    fn size_frame(&mut self) -> std::io::Result<()> {
+        let (planes, packed) = (&mut self.planes, &mut self.packed);
+        self.bytes += compress_frame(&self.pending, STATIC_LEN, planes, packed)? as u64;
+        self.pending.clear();
         Ok(())
     }
 
     /// The bytes of the frames of the records added.
     pub fn finish(mut self) -> std::io::Result<u64> {
         if !self.pending.is_empty() {
-            self.bytes += compress_frame(
-                &self.pending,
-                STATIC_LEN,
-                &mut self.planes,
-                &mut self.packed,
-            )? as u64;
+            self.size_frame()?;
         }
         Ok(self.bytes)
     }
