@@ -223,6 +223,20 @@ impl Pass<'_> {
         Some((keys, needed))
     }
 
+    /// The bytes a part holding the surfels on the emitters' lines of the dense directions
+    /// `which` would take, at most: their voxels counted direction by direction
+    /// ([`line_voxel_count`]), none held.
+    fn counted(&self, which: &[usize]) -> u64 {
+        let voxels = line_voxel_count(
+            which,
+            (self.dense, self.source.info().grid.dims),
+            &self.emitter_voxels,
+            &self.occupancy,
+            self.pool,
+        );
+        self.part_bytes(voxels as usize, voxels as f64 * self.density.get())
+    }
+
     /// The refusal of a part of `directions` directions that needs `needed` bytes for the
     /// surfels of `voxels` voxels. The budget it names is enough whether or not the larger
     /// budget's part gets an occupancy bitmap (which takes from the part's room).
@@ -908,16 +922,7 @@ fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
         // budget): its lines are counted, direction by direction, for what it holds at most.
         let needed = match pass.listed(group) {
             Some((_, needed)) => needed,
-            None => {
-                let voxels = line_voxel_count(
-                    group,
-                    (pass.dense, pass.source.info().grid.dims),
-                    &pass.emitter_voxels,
-                    &pass.occupancy,
-                    pass.pool,
-                );
-                pass.part_bytes(voxels as usize, voxels as f64 * pass.density.get())
-            }
+            None => pass.counted(group),
         };
         largest = largest.max(needed);
         per_group += if needed as f64 <= room {
