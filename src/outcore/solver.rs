@@ -1,5 +1,6 @@
 //! The out-of-core solver, a sweep of the one iteration loop (`solve::iterate`): directions
-//! grouped by main axis, each solved band by band ([`super::band`]); then the light gathered in
+//! grouped by main axis (walked backwards in even iterations, [`walk_of_iteration`]), each
+//! solved band by band ([`super::band`]); then the light gathered in
 //! the three copies is brought to canonical order, `B = E + rho H / S(n)` is computed there,
 //! and the new radiosity is sent to each copy, in its order, just before that copy's directions
 //! ([`super::scatter`]): the copies share one radiosity file. As in memory, a grey

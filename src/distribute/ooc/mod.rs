@@ -12,7 +12,10 @@
 //!
 //! **Directions** are walked as the single-process out-of-core solver walks them
 //! (`outcore::solver::walk_by_axis`): grouped by main axis, then by the slope of the lines along
-//! `v`, on which the columns depend, so that few records move. For each direction, rank `r`
+//! `v`, on which the columns depend, so that few records move; every even iteration backwards
+//! (`outcore::solver::walk_of_iteration`), so that it begins on the axis and with the
+//! direction the iteration before ended on, where the held files are in order already
+//! (`DataOocSweep::held_axis`): a re-sort fewer an iteration. For each direction, rank `r`
 //! owns a contiguous range of line columns `j` (cut for equal surfels from the column histogram
 //! added over ranks, in the first iteration, and remembered). The held records whose column is
 //! now another rank's move there ([`route`]): in copy order, so the received runs are merged
@@ -56,9 +59,10 @@
 //! step, to the bytes of the uninterrupted run.
 //!
 //! **Hybrid** (`groups` > 1): every group holds the whole scene over its ranks and walks its
-//! contiguous block of the directions; at the end of an iteration the groups route their
-//! surfels to the canonical slices (by id), and the update adds the groups' light peer by peer
-//! before it updates `B` in every group (group 0 speaks for the sums and the results).
+//! contiguous block of the directions (backwards in even iterations); at the end of an
+//! iteration the groups route their surfels to the canonical slices (by id), and the update
+//! adds the groups' light in walk order ([`Solver::add_groups`]) before it updates `B` in every
+//! group (group 0 speaks for the sums and the results).
 //!
 //! **Memory**: as in `outcore` (one band, one sort piece, or one exchange round at a time, and
 //! fixed I/O buffers), plus per direction its remembered cuts (`P + 1` numbers).
