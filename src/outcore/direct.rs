@@ -211,30 +211,27 @@ impl Pass<'_> {
     /// a part holding their surfels is estimated to take; `None` where they are more than a
     /// part holds ([`Pass::most_keys`]: listing them all would take more than the budget).
     fn listed(&self, which: &[usize]) -> Option<(Vec<u64>, u64)> {
-        let keys = line_voxels(
-            which,
-            (self.dense, self.source.info().grid.dims),
-            &self.emitter_voxels,
-            &self.occupancy,
-            self.pool,
-            self.most_keys(),
-        )?;
+        let keys = self.lines().voxels(which, self.pool, self.most_keys())?;
         let needed = self.part_bytes(keys.len(), keys.len() as f64 * self.density.get());
         Some((keys, needed))
     }
 
     /// The bytes a part holding the surfels on the emitters' lines of the dense directions
     /// `which` would take, at most: their voxels counted direction by direction
-    /// ([`line_voxel_count`]), none held.
+    /// ([`EmitterLines::count`]), none held.
     fn counted(&self, which: &[usize]) -> u64 {
-        let voxels = line_voxel_count(
-            which,
-            (self.dense, self.source.info().grid.dims),
-            &self.emitter_voxels,
-            &self.occupancy,
-            self.pool,
-        );
+        let voxels = self.lines().count(which, self.pool);
         self.part_bytes(voxels as usize, voxels as f64 * self.density.get())
+    }
+
+    /// The emitters' lines as this pass walks them.
+    fn lines(&self) -> EmitterLines<'_> {
+        EmitterLines {
+            dense: self.dense,
+            dims: self.source.info().grid.dims,
+            emitter_voxels: &self.emitter_voxels,
+            occupancy: &self.occupancy,
+        }
     }
 
     /// The refusal of a part of `directions` directions that needs `needed` bytes for the
@@ -953,31 +950,95 @@ fn warn_of_many_passes(pass: &Pass, groups: &[Vec<usize>]) {
     }
 }
 
-/// The occupied voxels on the lines through the emitters (at `emitter_voxels`) along the dense
-/// direction `k`, sorted, each once (distinct lines cross distinct voxels); `None` once they
-/// are more than `most`.
-fn direction_voxels(
-    k: usize,
-    (dense, dims): (&DirectionSet, [u32; 3]),
-    emitter_voxels: &[[i32; 3]],
-    occupancy: &Occupancy,
-    most: usize,
-) -> Option<Vec<u64>> {
-    let vector = dense.directions[k].vector;
-    let frame = LineFrame::new(vector, dims);
-    let mut found = Vec::new();
-    for line in emitter_lines(&frame, emitter_voxels) {
-        for_each_voxel_on_line(&frame, dims, vector, line, |voxel| {
-            if occupancy.contains(voxel) {
-                found.push(voxel_key(voxel));
+/// What the lines through the emitters are walked in: the dense directions, the grid, the
+/// emitters' voxels and the occupancy map.
+struct EmitterLines<'a> {
+    dense: &'a DirectionSet,
+    dims: [u32; 3],
+    emitter_voxels: &'a [[i32; 3]],
+    occupancy: &'a Occupancy,
+}
+
+impl EmitterLines<'_> {
+    /// Calls `f` with every occupied voxel on the lines through the emitters along the dense
+    /// direction `k`, each once (distinct lines cross distinct voxels), line after line; stops
+    /// after a line where `f` asked to (returned `false`).
+    fn for_each_voxel(&self, k: usize, mut f: impl FnMut([i32; 3]) -> bool) {
+        let vector = self.dense.directions[k].vector;
+        let frame = LineFrame::new(vector, self.dims);
+        let mut more = true;
+        for line in emitter_lines(&frame, self.emitter_voxels) {
+            for_each_voxel_on_line(&frame, self.dims, vector, line, |voxel| {
+                if self.occupancy.contains(voxel) {
+                    more &= f(voxel);
+                }
+            });
+            if !more {
+                return;
             }
+        }
+    }
+
+    /// The occupied voxels on the lines along the dense direction `k`, sorted; `None` once
+    /// they are more than `most`.
+    fn of_direction(&self, k: usize, most: usize) -> Option<Vec<u64>> {
+        let mut found = Vec::new();
+        self.for_each_voxel(k, |voxel| {
+            found.push(voxel_key(voxel));
+            found.len() <= most
         });
         if found.len() > most {
             return None;
         }
+        found.sort_unstable();
+        Some(found)
     }
-    found.sort_unstable();
-    Some(found)
+
+    /// The occupied voxels on the lines along the dense directions `which`, sorted, each once;
+    /// `None` as soon as they are more than `most`.
+    ///
+    /// The directions are listed a few at a time (one a thread) and merged into the voxels so
+    /// far, so that what is held stays within about `most` keys a thread and two more: listed
+    /// whole and only then counted, a group of 32 directions through a building's lamps held
+    /// 155 MB at once under `--memory 64MiB` (`docs/out-of-core.md`).
+    fn voxels(&self, which: &[usize], pool: &rayon::ThreadPool, most: usize) -> Option<Vec<u64>> {
+        let (mut keys, mut merged) = (Vec::new(), Vec::new());
+        for directions in which.chunks(pool.current_num_threads().max(1)) {
+            let lists: Option<Vec<Vec<u64>>> = pool.install(|| {
+                directions
+                    .par_iter()
+                    .map(|&k| self.of_direction(k, most))
+                    .collect()
+            });
+            for list in lists? {
+                merge_distinct(&keys, &list, &mut merged);
+                std::mem::swap(&mut keys, &mut merged);
+                if keys.len() > most {
+                    return None;
+                }
+            }
+        }
+        Some(keys)
+    }
+
+    /// The occupied voxels on the lines along the dense directions `which`, counted direction
+    /// by direction (a voxel on the lines of several is counted in each): at least as many as
+    /// [`EmitterLines::voxels`] lists, without holding them.
+    fn count(&self, which: &[usize], pool: &rayon::ThreadPool) -> u64 {
+        pool.install(|| {
+            which
+                .par_iter()
+                .map(|&k| {
+                    let mut count = 0u64;
+                    self.for_each_voxel(k, |_| {
+                        count += 1;
+                        true
+                    });
+                    count
+                })
+                .sum()
+        })
+    }
 }
 
 /// The lines of `frame` through the emitters (at `emitter_voxels`), sorted, each once.
@@ -1004,68 +1065,6 @@ fn merge_distinct(a: &[u64], b: &[u64], out: &mut Vec<u64>) {
     }
     out.extend_from_slice(&a[i..]);
     out.extend_from_slice(&b[j..]);
-}
-
-/// The occupied voxels on the lines through the emitters (at `emitter_voxels`) along the dense
-/// directions `which`, sorted, each once; `None` as soon as they are more than `most`.
-///
-/// The directions are listed a few at a time (one a thread) and merged into the voxels so far,
-/// so that what is held stays within about `most` keys a thread and two more: listed whole
-/// and only then counted, a group of 32 directions through a building's lamps held 155 MB at
-/// once under `--memory 64MiB` (`docs/out-of-core.md`).
-fn line_voxels(
-    which: &[usize],
-    scene: (&DirectionSet, [u32; 3]),
-    emitter_voxels: &[[i32; 3]],
-    occupancy: &Occupancy,
-    pool: &rayon::ThreadPool,
-    most: usize,
-) -> Option<Vec<u64>> {
-    let (mut keys, mut merged) = (Vec::new(), Vec::new());
-    for directions in which.chunks(pool.current_num_threads().max(1)) {
-        let lists: Option<Vec<Vec<u64>>> = pool.install(|| {
-            directions
-                .par_iter()
-                .map(|&k| direction_voxels(k, scene, emitter_voxels, occupancy, most))
-                .collect()
-        });
-        for list in lists? {
-            merge_distinct(&keys, &list, &mut merged);
-            std::mem::swap(&mut keys, &mut merged);
-            if keys.len() > most {
-                return None;
-            }
-        }
-    }
-    Some(keys)
-}
-
-/// The occupied voxels on the lines through the emitters along the dense directions `which`,
-/// counted direction by direction (a voxel on the lines of several is counted in each): at
-/// least as many as [`line_voxels`] lists, without holding them.
-fn line_voxel_count(
-    which: &[usize],
-    (dense, dims): (&DirectionSet, [u32; 3]),
-    emitter_voxels: &[[i32; 3]],
-    occupancy: &Occupancy,
-    pool: &rayon::ThreadPool,
-) -> u64 {
-    pool.install(|| {
-        which
-            .par_iter()
-            .map(|&k| {
-                let vector = dense.directions[k].vector;
-                let frame = LineFrame::new(vector, dims);
-                let mut count = 0u64;
-                for line in emitter_lines(&frame, emitter_voxels) {
-                    for_each_voxel_on_line(&frame, dims, vector, line, |voxel| {
-                        count += occupancy.contains(voxel) as u64;
-                    });
-                }
-                count
-            })
-            .sum()
-    })
 }
 
 /// Surfels whose running sums are read or written at once, at most (64 KiB).
