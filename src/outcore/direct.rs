@@ -404,14 +404,7 @@ impl Pass<'_> {
 
     /// The emitters' lines of `frame`, sorted, each once.
     fn lines_of(&self, frame: &LineFrame) -> Vec<u64> {
-        let mut lines: Vec<u64> = self
-            .emitter_voxels
-            .iter()
-            .map(|&v| frame.line_index(v))
-            .collect();
-        lines.sort_unstable();
-        lines.dedup();
-        lines
+        emitter_lines(frame, &self.emitter_voxels)
     }
 
     /// The frame of dense direction `k`'s lines.
